@@ -1,0 +1,254 @@
+"""The fibre model: where the cores sit, where the gratings are, and how the gratings respond.
+
+Conventions (docs/math.md §1): the fibre's material frame is (d1, d2, d3) with d3 the tangent from base to tip;
+core ``i`` sits at ``core_radii[i] * (cos θ_i, sin θ_i)`` in (d1, d2), with θ_i counted counter-clockwise about
++d3 when ``handedness`` is +1. A vendor drawing that counts angles clockwise is entered as written with
+``handedness = -1``; everything downstream then uses the effective CCW angles ``handedness * core_angles``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from twin._validate import frozen, real_array
+
+__all__ = ["FiberModel"]
+
+_OWNER = "FiberModel"
+
+
+@dataclass(frozen=True, eq=False)
+class FiberModel:
+    """A multi-core (or multi-fibre) FBG sensor.
+
+    Parameters
+    ----------
+    core_angles : array_like, shape (n_cores,)
+        Angular position of each core in the cross-section, rad (see module docstring for the sense).
+    core_radii : array_like, shape (n_cores,)
+        Distance of each core from the fibre's neutral axis, m; 0 for a central core.
+    grating_s : array_like, shape (n_gratings,)
+        Arc length of each grating from the base (the reconstruction's origin), m, strictly increasing.
+    lambda0 : array_like, shape (n_gratings, n_cores)
+        Nominal Bragg wavelength of each grating in each core, unstrained at the reference temperature, nm.
+    central_core : int or None
+        Index of the core on the neutral axis (radius 0), or None when there is none.
+    strain_sensitivity : float
+        S_ε = 1 − p_e, the relative Bragg shift per unit strain (dimensionless, ≈ 0.78 for silica).
+    temperature_sensitivity : float or array_like, shape (n_cores,)
+        S_T, the relative Bragg shift per kelvin, 1/K (≈ 6.6e-6). Per core when the cores differ.
+    handedness : {+1, -1}
+        +1 when ``core_angles`` are counted counter-clockwise about the tangent, −1 when clockwise.
+    length : float or None
+        Arc length to reconstruct up to, m; None means the last grating.
+    name : str
+        Free text identifying the sensor.
+    """
+
+    core_angles: np.ndarray
+    core_radii: np.ndarray
+    grating_s: np.ndarray
+    lambda0: np.ndarray
+    central_core: int | None = None
+    strain_sensitivity: float = 0.777
+    temperature_sensitivity: float | np.ndarray = 6.6e-6
+    handedness: int = 1
+    length: float | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        angles = real_array(self.core_angles, "core_angles", shape=(None,), unit="rad", owner=_OWNER)
+        n_c = angles.size
+        if n_c < 2:
+            raise ValueError(f"{_OWNER}.core_angles: expected at least 2 cores, got {n_c}")
+        radii = real_array(self.core_radii, "core_radii", shape=(n_c,), unit="m", owner=_OWNER)
+        if np.any(radii < 0):
+            i = int(np.argmax(radii < 0))
+            raise ValueError(f"{_OWNER}.core_radii: expected radii >= 0 m, got {radii[i]} for core {i}")
+        if np.any(radii > 0.01):
+            i = int(np.argmax(radii > 0.01))
+            raise ValueError(
+                f"{_OWNER}.core_radii: core {i} at {radii[i]} m from the axis; radii are in metres "
+                "(37.5 µm is 3.75e-05)"
+            )
+        s = real_array(self.grating_s, "grating_s", shape=(None,), unit="m", owner=_OWNER)
+        n_g = s.size
+        if n_g < 1:
+            raise ValueError(f"{_OWNER}.grating_s: expected at least one grating")
+        if np.any(s < 0):
+            raise ValueError(f"{_OWNER}.grating_s: expected arc lengths >= 0 m, got {s.min()}")
+        if np.any(np.diff(s) <= 0):
+            i = int(np.argmax(np.diff(s) <= 0))
+            raise ValueError(
+                f"{_OWNER}.grating_s: expected strictly increasing arc lengths, got {s[i]} then {s[i + 1]} "
+                f"at gratings {i}, {i + 1}"
+            )
+        lam = real_array(self.lambda0, "lambda0", shape=(n_g, n_c), unit="nm", owner=_OWNER)
+        if np.any((lam < 200) | (lam > 3000)):
+            bad = np.argwhere((lam < 200) | (lam > 3000))[0]
+            raise ValueError(
+                f"{_OWNER}.lambda0: grating {bad[0]} core {bad[1]} has {lam[tuple(bad)]} nm; expected a Bragg "
+                "wavelength in nm (200–3000)"
+            )
+        central = self.central_core
+        if central is not None:
+            if isinstance(central, bool) or not isinstance(central, int | np.integer):
+                raise ValueError(f"{_OWNER}.central_core: expected a core index or None, got {central!r}")
+            central = int(central)
+            if not 0 <= central < n_c:
+                raise ValueError(f"{_OWNER}.central_core: expected an index in 0..{n_c - 1}, got {central}")
+            if radii[central] != 0:
+                raise ValueError(
+                    f"{_OWNER}.central_core: core {central} has radius {radii[central]} m; a central core "
+                    "sits on the neutral axis (radius 0)"
+                )
+        n_bending = int(np.count_nonzero(radii > 0))
+        if n_bending < 2:
+            raise ValueError(f"{_OWNER}.core_radii: expected at least 2 off-axis cores, got {n_bending}")
+        s_eps = float(self.strain_sensitivity)
+        if not (np.isfinite(s_eps) and 0 < s_eps <= 2):
+            raise ValueError(f"{_OWNER}.strain_sensitivity: expected S_ε in (0, 2], got {self.strain_sensitivity}")
+        s_t = np.asarray(self.temperature_sensitivity, dtype=np.float64)
+        if s_t.ndim == 0:
+            s_t_value: float | np.ndarray = float(s_t)
+        else:
+            s_t_value = frozen(
+                real_array(s_t, "temperature_sensitivity", shape=(n_c,), unit="1/K", owner=_OWNER)
+            )
+        if not np.all(np.isfinite(s_t)) or np.any(np.abs(s_t) > 1e-3):
+            raise ValueError(
+                f"{_OWNER}.temperature_sensitivity: expected S_T in 1/K (≈ 6.6e-06), got {self.temperature_sensitivity}"
+            )
+        if self.handedness not in (1, -1):
+            raise ValueError(f"{_OWNER}.handedness: expected +1 (CCW) or -1 (CW), got {self.handedness!r}")
+        length = self.length
+        if length is not None:
+            length = float(length)
+            if not (np.isfinite(length) and length >= s[-1] and length > 0):
+                raise ValueError(
+                    f"{_OWNER}.length: expected a length in m at or beyond the last grating ({s[-1]} m), got {length}"
+                )
+        # Freeze: the model is shared by reconstructors, calibrations and the simulator.
+        for name, value in (("core_angles", angles), ("core_radii", radii), ("grating_s", s), ("lambda0", lam)):
+            object.__setattr__(self, name, frozen(value))
+        object.__setattr__(self, "central_core", central)
+        object.__setattr__(self, "strain_sensitivity", s_eps)
+        object.__setattr__(self, "temperature_sensitivity", s_t_value)
+        object.__setattr__(self, "handedness", int(self.handedness))
+        object.__setattr__(self, "length", length)
+        object.__setattr__(self, "name", str(self.name))
+
+    # ---------------------------------------------------------------- derived quantities
+    @property
+    def n_cores(self) -> int:
+        return self.core_angles.size
+
+    @property
+    def n_gratings(self) -> int:
+        return self.grating_s.size
+
+    @property
+    def sensed_length(self) -> float:
+        """Arc length reconstructed, m: ``length`` or the last grating's position."""
+        return float(self.grating_s[-1]) if self.length is None else self.length
+
+    @property
+    def ccw_angles(self) -> np.ndarray:
+        """Core angles counter-clockwise about +d3, rad (``handedness * core_angles``)."""
+        return self.handedness * self.core_angles
+
+    @property
+    def bending_cores(self) -> np.ndarray:
+        """Indices of the off-axis cores."""
+        return np.flatnonzero(self.core_radii > 0)
+
+    @property
+    def gains(self) -> np.ndarray:
+        """g_i = r_i · S_ε per core, m: the only combination of radius and S_ε that shapes depend on."""
+        return self.core_radii * self.strain_sensitivity
+
+    def replace(self, **changes) -> FiberModel:
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    # ---------------------------------------------------------------- the reference fibre
+    @classmethod
+    def paper(cls) -> FiberModel:
+        """The fibre of Al-Ahmad et al.: a 7-core MCF read on its central core and 3 adjacent outer cores.
+
+        Outer cores at 0, π/3, 2π/3 (Δθ = π/3), r = 37.5 µm, S_ε = 0.777, 18 gratings every 10 mm from the base
+        (0 … 170 mm). The paper does not list grating wavelengths; here grating n sits at 1510 + 5 n nm in every
+        core, spanning the 1510–1595 nm range of a WDM interrogator.
+        """
+        n_g = 18
+        lam = np.repeat((1510.0 + 5.0 * np.arange(n_g))[:, None], 4, axis=1)
+        return cls(
+            core_angles=[0.0, 0.0, np.pi / 3, 2 * np.pi / 3],
+            core_radii=[0.0, 37.5e-6, 37.5e-6, 37.5e-6],
+            grating_s=0.01 * np.arange(n_g),
+            lambda0=lam,
+            central_core=0,
+            strain_sensitivity=0.777,
+            temperature_sensitivity=6.6e-6,
+            handedness=1,
+            name="Al-Ahmad et al. 7-core MCF (centre + 3 adjacent outer cores)",
+        )
+
+    # ---------------------------------------------------------------- files
+    def to_dict(self) -> dict:
+        """Plain TOML-ready mapping (SI units, wavelengths in nm)."""
+        d: dict = {"name": self.name}
+        if self.central_core is not None:
+            d["central_core"] = self.central_core
+        d["handedness"] = self.handedness
+        d["strain_sensitivity"] = self.strain_sensitivity
+        s_t = self.temperature_sensitivity
+        d["temperature_sensitivity"] = s_t.tolist() if isinstance(s_t, np.ndarray) else s_t
+        if self.length is not None:
+            d["length"] = self.length
+        d["core_angles"] = self.core_angles.tolist()
+        d["core_radii"] = self.core_radii.tolist()
+        d["grating_s"] = self.grating_s.tolist()
+        d["lambda0"] = self.lambda0.tolist()
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict, *, source: str = "") -> FiberModel:
+        """Build from a mapping as written by :meth:`to_dict`; unknown or missing fields are errors."""
+        where = f"{source}: " if source else ""
+        fields = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - fields)
+        if unknown:
+            raise ValueError(f"{where}unknown field(s) {', '.join(unknown)}; known fields: {', '.join(sorted(fields))}")
+        required = ("core_angles", "core_radii", "grating_s", "lambda0")
+        missing = [k for k in required if k not in data]
+        if missing:
+            raise ValueError(f"{where}missing required field(s) {', '.join(missing)}")
+        try:
+            return cls(**data)
+        except ValueError as exc:
+            raise ValueError(f"{where}{exc}") from None
+
+    def save(self, path: str | Path) -> None:
+        """Write the model as TOML."""
+        import tomli_w
+
+        header = "# twin fibre model: SI units (m, rad, 1/K); wavelengths in nm\n"
+        Path(path).write_text(header + tomli_w.dumps(self.to_dict()))
+
+    @classmethod
+    def load(cls, path: str | Path) -> FiberModel:
+        """Read a TOML fibre model, validating every field."""
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise FileNotFoundError(f"{path}: no such fibre model file") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"{path}: not valid TOML ({exc})") from None
+        return cls.from_dict(data, source=str(path))

@@ -1,0 +1,259 @@
+"""The Reconstructor: peak wavelengths → curvature at the gratings → 3D centreline, batch-first.
+
+Everything that depends only on the sensor and the options (pseudo-inverses, interpolation matrices, sample
+points) is computed once in the constructor; a call does a handful of array operations and one compiled chain.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from twin import curve
+from twin.calibration import Calibration
+from twin.fiber import FiberModel
+from twin.frames import Frame, Shape, stack_frames
+from twin.strain import CurvatureSolver
+
+__all__ = ["METHODS", "Reconstructor"]
+
+METHODS = ("material", "paper")
+
+
+class Reconstructor:
+    """Reconstructs fibre shapes from peak wavelengths.
+
+    Parameters
+    ----------
+    fiber : FiberModel
+    calibration : Calibration, optional
+        Reference wavelengths, intrinsic twist, identified parameters or jig design matrices.
+    method : {"material", "paper"}
+        ``material`` (default): least-squares curvature vectors, interpolated and integrated as a material
+        (Bishop) frame — no κ = |k|, no angle unwrapping (math.md §3.5). ``paper``: Al-Ahmad et al.'s Frenet
+        pipeline: κ = |k|, θ_b = atan2, torsion from θ_b (math.md §3.2).
+    interpolation : {"spline", "pchip", "knn", "linear"}
+        How node values are interpolated along the fibre (not-a-knot cubic spline, PCHIP, nearest node, linear).
+    integrator : {"magnus4", "hem-mid", "hem-left", "rk4"}, optional
+        Default ``magnus4`` for the material method and ``hem-left`` (the paper's literal HEM, κ and τ taken at
+        the start of each step) for the paper method.
+    torsion : {"forward", "centred", "theta-spline"}
+        Paper method only: the paper's forward difference placed at node n (default), the same difference
+        placed at the interval midpoints, or the derivative of a spline through the unwrapped θ_b.
+    step : float
+        Largest integration step and output point spacing, m (the actual step divides the length evenly).
+    inversion : {"lstsq", "paper"}, optional
+        Curvature-vector inversion; default ``lstsq`` for the material method and the paper's eqs. 5–7 for
+        the paper method.
+
+    Calling the reconstructor on wavelengths of shape (..., n_gratings, n_cores) (nm; NaN for a missing peak),
+    a :class:`~twin.frames.Frame` or a sequence of Frames returns a :class:`~twin.frames.Shape`. A grating
+    whose curvature cannot be solved is dropped from the interpolation and marked in ``Shape.valid``; a frame
+    with no usable grating has NaN positions.
+
+    Examples
+    --------
+    >>> rec = Reconstructor(FiberModel.paper())
+    >>> shape = rec(wavelengths)            # (n_gratings, n_cores) or (n_frames, n_gratings, n_cores)
+    >>> shape.positions.shape               # (n_frames, 171, 3) for 170 mm at 1 mm
+    """
+
+    def __init__(
+        self,
+        fiber: FiberModel,
+        calibration: Calibration | None = None,
+        method: str = "material",
+        interpolation: str = "spline",
+        integrator: str | None = None,
+        torsion: str = "forward",
+        step: float = 1e-3,
+        inversion: str | None = None,
+    ):
+        if not isinstance(fiber, FiberModel):
+            raise TypeError(f"fiber must be a FiberModel, got {type(fiber).__name__}")
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
+        if interpolation not in curve.INTERPOLATIONS:
+            raise ValueError(f"interpolation must be one of {', '.join(curve.INTERPOLATIONS)}; got {interpolation!r}")
+        integrator = integrator or ("magnus4" if method == "material" else "hem-left")
+        if integrator not in curve.INTEGRATORS:
+            raise ValueError(f"integrator must be one of {', '.join(curve.INTEGRATORS)}; got {integrator!r}")
+        if torsion not in curve.TORSIONS:
+            raise ValueError(f"torsion must be one of {', '.join(curve.TORSIONS)}; got {torsion!r}")
+        inversion = inversion or ("lstsq" if method == "material" else "paper")
+        self.fiber = fiber
+        self.calibration = calibration or Calibration()
+        self.method = method
+        self.interpolation = interpolation
+        self.integrator = integrator
+        self.torsion = torsion
+        self.inversion = inversion
+
+        lam0 = self.calibration.reference_for(fiber)
+        self._lam0 = lam0
+        self._solver = CurvatureSolver(
+            self.calibration.design_for(fiber), method=inversion, central_core=fiber.central_core
+        )
+        self.s, self.h = curve.step_grid(0.0, fiber.sensed_length, step)
+        self._samples = curve.sample_points(self.s, self.h, integrator)  # (n_steps, m)
+        self._m = self._samples.shape[1]
+        self._s_nodes = fiber.grating_s
+        self._cache: dict[bytes, dict] = {}
+        self._full = self._prepare(np.ones(fiber.n_gratings, bool))
+
+    def __repr__(self) -> str:
+        return (
+            f"Reconstructor(method={self.method!r}, interpolation={self.interpolation!r}, "
+            f"integrator={self.integrator!r}, torsion={self.torsion!r}, step={self.h:.3g} m, "
+            f"inversion={self.inversion!r}, {self.fiber.n_gratings} gratings × {self.fiber.n_cores} cores)"
+        )
+
+    @classmethod
+    def paper(cls, fiber: FiberModel, calibration: Calibration | None = None, **options) -> Reconstructor:
+        """The paper's pipeline literally: eqs. 5–7, forward torsion, not-a-knot spline, HEM (left samples)."""
+        opts = dict(method="paper", interpolation="spline", integrator="hem-left", torsion="forward")
+        opts.update(options)
+        return cls(fiber, calibration, **opts)
+
+    # ------------------------------------------------------------------ per node-set precomputation
+    def _prepare(self, nodes: np.ndarray) -> dict:
+        """Interpolation operators for the subset ``nodes`` of gratings (cached per subset)."""
+        key = nodes.tobytes()
+        if key in self._cache:
+            return self._cache[key]
+        s_nodes = self._s_nodes[nodes]
+        flat = self._samples.ravel()
+        prep: dict = {"s_nodes": s_nodes, "n": int(nodes.sum())}
+        linear = self.interpolation != "pchip"
+        if self.method == "material":
+            if linear:
+                prep["b_k"] = np.ascontiguousarray(curve.basis(s_nodes, flat, self.interpolation).T)
+        else:
+            if linear:
+                prep["b_kappa"] = curve.basis(s_nodes, flat, self.interpolation)
+            if self.torsion == "theta-spline":
+                prep["b_theta_d"] = curve.basis(s_nodes, flat, "spline", derivative=True)
+                prep["b_theta0"] = curve.basis(s_nodes, self.s[:1], "spline")
+            else:
+                s_tau = s_nodes if self.torsion == "forward" or s_nodes.size < 2 else (
+                    0.5 * (s_nodes[:-1] + s_nodes[1:]))
+                prep["s_tau"] = s_tau
+                if linear:
+                    prep["b_tau"] = curve.basis(s_tau, flat, self.interpolation)
+                prep["b_theta0"] = curve.basis(s_nodes, self.s[:1], "knn")
+        self._cache[key] = prep
+        return prep
+
+    # ------------------------------------------------------------------ the call
+    def _wavelengths(self, data) -> np.ndarray:
+        if isinstance(data, Frame):
+            w = data.wavelengths
+        elif isinstance(data, Sequence) and len(data) and isinstance(data[0], Frame):
+            w = stack_frames(data)[2]
+        else:
+            w = np.asarray(data, dtype=np.float64)
+        n_g, n_c = self.fiber.n_gratings, self.fiber.n_cores
+        if w.ndim < 2 or w.shape[-2:] != (n_g, n_c):
+            raise ValueError(
+                f"wavelengths must have shape (..., {n_g}, {n_c}) (gratings × cores) for this fibre; got {w.shape}"
+            )
+        if np.isinf(w).any():
+            raise ValueError("wavelengths contain ±inf; use NaN for a missing peak")
+        return w
+
+    def curvature(self, wavelengths):
+        """Calibrated curvature vectors at the gratings (a :class:`~twin.strain.StrainSolution`)."""
+        w = self._wavelengths(wavelengths)
+        return self._solver.solve((w - self._lam0) / self._lam0)
+
+    def __call__(self, wavelengths) -> Shape:
+        sol = self.curvature(wavelengths)
+        k, valid = sol.curvature, sol.valid
+        batch = k.shape[:-2]
+        kf = k.reshape((-1,) + k.shape[-2:])
+        vf = valid.reshape((-1, valid.shape[-1]))
+        n_f = kf.shape[0]
+        n_steps = self.s.size - 1
+        if vf.all():
+            rates, r0, theta = self._profiles(kf, self._full)
+            pos, frames = self._integrate(rates, r0, theta)
+        else:
+            pos = np.full((n_f, n_steps + 1, 3), np.nan)
+            frames = np.full((n_f, n_steps + 1, 3, 3), np.nan)
+            patterns, which = np.unique(vf, axis=0, return_inverse=True)
+            for p, nodes in enumerate(patterns):
+                if not nodes.any():
+                    continue
+                sel = np.flatnonzero(which.ravel() == p)
+                rates, r0, theta = self._profiles(kf[sel][:, nodes], self._prepare(nodes))
+                pos[sel], frames[sel] = self._integrate(rates, r0, theta)
+        return Shape(
+            s=self.s,
+            positions=pos.reshape(batch + pos.shape[1:]),
+            frames=frames.reshape(batch + frames.shape[1:]),
+            curvature=k,
+            grating_s=self.fiber.grating_s,
+            valid=valid,
+        )
+
+    def _profiles(self, k: np.ndarray, prep: dict):
+        """Rates at the integrator's samples (F, 2, n_steps, m), initial frames and, for the Frenet pipeline,
+        the bend-plane angle along the output points."""
+        n_f = k.shape[0]
+        shape_r = (n_f, 2, self.s.size - 1, self._m)
+        if self.method == "material":
+            if "b_k" in prep:
+                # (k_x, k_y) per node as rows: one matrix product interpolates both components of every frame
+                kt = np.swapaxes(k, -1, -2).reshape(n_f * 2, -1)
+                rates = kt @ prep["b_k"]
+            else:
+                kk = curve.interpolate(prep["s_nodes"], k, self._samples, self.interpolation)
+                rates = np.swapaxes(kk, -1, -2)
+            return rates.reshape(shape_r), None, None
+        # Frenet (paper) pipeline
+        kappa = np.hypot(k[..., 0], k[..., 1])
+        theta = np.arctan2(k[..., 1], k[..., 0])
+        if self.torsion == "theta-spline":
+            th = curve.unwrap_nodes(theta)
+            tau = th @ prep["b_theta_d"].T
+            theta0 = th @ prep["b_theta0"].T
+        else:
+            s_tau, tau_n = curve.torsion_nodes(theta, prep["s_nodes"], self.torsion)
+            if "b_tau" in prep:
+                tau = tau_n @ prep["b_tau"].T
+            else:
+                tau = curve.interpolate(s_tau, tau_n[..., None], self._samples, self.interpolation)[..., 0]
+            theta0 = theta @ prep["b_theta0"].T
+        if "b_kappa" in prep:
+            kap = kappa @ prep["b_kappa"].T
+        else:
+            kap = curve.interpolate(prep["s_nodes"], kappa[..., None], self._samples, self.interpolation)[..., 0]
+        rates = np.stack([tau, kap], axis=1).reshape(shape_r)
+        # bend-plane angle along the output points: θ(0) plus the integrator's own quadrature of τ
+        tau_steps = tau.reshape(n_f, -1, self._m)
+        weights = {1: [1.0], 2: [0.5, 0.5], 3: [1 / 6, 4 / 6, 1 / 6]}[self._m]
+        dtheta = self.h * (tau_steps @ np.asarray(weights))
+        theta_out = theta0[:, :1] + np.concatenate([np.zeros((n_f, 1)), np.cumsum(dtheta, axis=1)], axis=1)
+        c0, s0 = np.cos(theta_out[:, 0]), np.sin(theta_out[:, 0])
+        r0 = _frenet_from_material(c0, s0)
+        return rates, r0, theta_out
+
+    def _integrate(self, rates, r0, theta):
+        if self.method == "material":
+            return curve.integrate(rates, self.h, self.integrator)
+        pos, f = curve.integrate(rates, self.h, self.integrator, frenet=True, r0=r0)
+        # material frame of a twist-free fibre: R = F Q(θ)ᵀ (math.md §1)
+        q = _frenet_from_material(np.cos(theta), np.sin(theta))
+        return pos, f @ np.swapaxes(q, -1, -2)
+
+
+def _frenet_from_material(c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Q(θ) = [e3 | (cos θ, sin θ, 0) | (−sin θ, cos θ, 0)], the Frenet frame in material coordinates."""
+    q = np.zeros(c.shape + (3, 3))
+    q[..., 2, 0] = 1.0
+    q[..., 0, 1] = c
+    q[..., 1, 1] = s
+    q[..., 0, 2] = -s
+    q[..., 1, 2] = c
+    return q
