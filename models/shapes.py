@@ -81,7 +81,7 @@ class ShapeCurve:
         s = np.asarray(s, dtype=np.float64)
         if np.any((s < -1e-12) | (s > self.length + 1e-12)):
             raise ValueError(f"shape {self.name}: arc length outside [0, {self.length}] m")
-        return self._solution(np.clip(s, 0.0, self.length).ravel()).T.reshape(s.shape + (12,))
+        return self._solution(np.clip(s, 0.0, self.length).ravel()).T.reshape((*s.shape, 12))
 
     def positions(self, s) -> np.ndarray:
         """Centreline positions, m, shape (..., 3)."""
@@ -89,7 +89,7 @@ class ShapeCurve:
 
     def frames(self, s) -> np.ndarray:
         """Material frames [d1 d2 d3] as columns, shape (..., 3, 3)."""
-        return self._state(s)[..., 3:].reshape(np.shape(s) + (3, 3))
+        return self._state(s)[..., 3:].reshape((*np.shape(s), 3, 3))
 
     def sample(self, step: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
         """A dense polyline: (s (n,), positions (n, 3)) with spacing ≤ ``step``."""

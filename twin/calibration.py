@@ -301,13 +301,10 @@ def two_step(
     nominal = base.replace(lambda0=None, twist=None, design=None)
     solver = CurvatureSolver(nominal.design_for(fiber), central_core=fiber.central_core)
 
-    def per_frame(w):
-        e = optical_strain(np.where(np.isnan(w), lam0, w), lam0)
-        return solver.solve(e).curvature
-
-    k_straight = per_frame(ws)
-    k_bend_frames = per_frame(wb)
-    motion = (float(np.max(np.std(k_straight, axis=0))), float(np.max(np.std(k_bend_frames, axis=0))))
+    k_straight = solver.solve(optical_strain(ws, lam0)).curvature  # missing peaks drop out per frame
+    k_bend_frames = solver.solve(optical_strain(wb, lam0)).curvature
+    with np.errstate(invalid="ignore"):
+        motion = tuple(float(np.nanmax(np.nanstd(k, axis=0), initial=0.0)) for k in (k_straight, k_bend_frames))
     for step, m in zip(("straight", "bend"), motion, strict=True):
         if m > max_motion:
             raise CalibrationError(
@@ -338,7 +335,7 @@ def two_step(
     # angle noise per grating: scatter of the per-frame curvature across the bend direction
     kf = k_bend_frames
     across = (-kf[..., 0] * np.sin(theta) + kf[..., 1] * np.cos(theta))
-    twist_std = np.std(across, axis=0) / kappa / np.sqrt(max(wb.shape[0], 1))
+    twist_std = np.nanstd(across, axis=0) / kappa / np.sqrt(wb.shape[0])
     report = CalibrationReport(
         n_straight=ws.shape[0],
         n_bend=wb.shape[0],

@@ -162,7 +162,7 @@ def integrate(rates: np.ndarray, h: float, integrator: str, frenet: bool = False
         raise ValueError(f"{integrator} needs rates of shape (..., {'|'.join(map(str, c_ok))}, n_steps, {m}), "
                          f"got {rates.shape}")
     batch, n = rates.shape[:-3], rates.shape[-2]
-    rf = np.ascontiguousarray(rates.reshape((-1,) + rates.shape[-3:]))
+    rf = np.ascontiguousarray(rates.reshape((-1, *rates.shape[-3:])))
     n_f = rf.shape[0]
     if r0 is None:
         r0f = np.broadcast_to(np.eye(3), (n_f, 3, 3))
@@ -215,5 +215,5 @@ def torsion_nodes(theta: np.ndarray, s_nodes: np.ndarray, scheme: str) -> tuple[
 def unwrap_nodes(theta: np.ndarray) -> np.ndarray:
     """Unwrap node angles along the last axis by wrapped increments (any jump is taken as the shortest turn)."""
     return theta[..., :1] + np.concatenate(
-        [np.zeros(theta.shape[:-1] + (1,)), np.cumsum(_wrap(np.diff(theta, axis=-1)), axis=-1)], axis=-1
+        [np.zeros((*theta.shape[:-1], 1)), np.cumsum(_wrap(np.diff(theta, axis=-1)), axis=-1)], axis=-1
     )

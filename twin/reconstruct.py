@@ -6,6 +6,7 @@ points) is computed once in the constructor; a call does a handful of array oper
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import numpy as np
@@ -90,11 +91,7 @@ class Reconstructor:
         self.torsion = torsion
         self.inversion = inversion
 
-        lam0 = self.calibration.reference_for(fiber)
-        self._lam0 = lam0
-        self._solver = CurvatureSolver(
-            self.calibration.design_for(fiber), method=inversion, central_core=fiber.central_core
-        )
+        self._set_calibration(self.calibration)
         self.s, self.h = curve.step_grid(0.0, fiber.sensed_length, step)
         self._samples = curve.sample_points(self.s, self.h, integrator)  # (n_steps, m)
         self._m = self._samples.shape[1]
@@ -115,6 +112,19 @@ class Reconstructor:
         opts = dict(method="paper", interpolation="spline", integrator="hem-left", torsion="forward")
         opts.update(options)
         return cls(fiber, calibration, **opts)
+
+    def _set_calibration(self, calibration: Calibration) -> None:
+        self.calibration = calibration
+        self._lam0 = calibration.reference_for(self.fiber)
+        self._solver = CurvatureSolver(
+            calibration.design_for(self.fiber), method=self.inversion, central_core=self.fiber.central_core
+        )
+
+    def with_calibration(self, calibration: Calibration | None) -> Reconstructor:
+        """The same reconstructor with another calibration (cheap: the interpolation operators are shared)."""
+        other = copy.copy(self)
+        other._set_calibration(calibration or Calibration())
+        return other
 
     # ------------------------------------------------------------------ per node-set precomputation
     def _prepare(self, nodes: np.ndarray) -> dict:
@@ -171,7 +181,7 @@ class Reconstructor:
         sol = self.curvature(wavelengths)
         k, valid = sol.curvature, sol.valid
         batch = k.shape[:-2]
-        kf = k.reshape((-1,) + k.shape[-2:])
+        kf = k.reshape((-1, *k.shape[-2:]))
         vf = valid.reshape((-1, valid.shape[-1]))
         n_f = kf.shape[0]
         n_steps = self.s.size - 1
@@ -250,7 +260,7 @@ class Reconstructor:
 
 def _frenet_from_material(c: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Q(θ) = [e3 | (cos θ, sin θ, 0) | (−sin θ, cos θ, 0)], the Frenet frame in material coordinates."""
-    q = np.zeros(c.shape + (3, 3))
+    q = np.zeros((*c.shape, 3, 3))
     q[..., 2, 0] = 1.0
     q[..., 0, 1] = c
     q[..., 1, 1] = s

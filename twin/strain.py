@@ -56,7 +56,7 @@ def design_matrix(fiber: FiberModel, *, core_angles=None, gains=None, twist=None
     theta = _core_angles(fiber, core_angles, twist)
     g = fiber.gains if gains is None else np.asarray(gains, dtype=np.float64)
     g = np.broadcast_to(g, theta.shape)
-    d = np.empty(theta.shape + (3,))
+    d = np.empty((*theta.shape, 3))
     d[..., 0] = 1.0
     d[..., 1] = -g * np.cos(theta)
     d[..., 2] = -g * np.sin(theta)
@@ -244,7 +244,7 @@ class CurvatureSolver:
         missing = np.isnan(e)
         if not missing.any():
             n_g = self.n_gratings
-            x = (e.reshape(e.shape[:-2] + (-1,)) @ self._big).reshape(e.shape[:-2] + (3, n_g))
+            x = (e.reshape((*e.shape[:-2], -1)) @ self._big).reshape((*e.shape[:-2], 3, n_g))
             k = np.swapaxes(x[..., :2, :], -1, -2)  # a view: (k_x, k_y) contiguous per component
             c = np.full(e.shape[:-1], np.nan) if self.method == "paper" else x[..., 2, :]
             return StrainSolution(k, c, np.ones(e.shape[:-1], bool))
@@ -252,8 +252,8 @@ class CurvatureSolver:
 
     def _solve_missing(self, e: np.ndarray, missing: np.ndarray) -> StrainSolution:
         batch = e.shape[:-2]
-        k = np.full(batch + (self.n_gratings, 2), np.nan)
-        c = np.full(batch + (self.n_gratings,), np.nan)
+        k = np.full((*batch, self.n_gratings, 2), np.nan)
+        c = np.full((*batch, self.n_gratings), np.nan)
         hit = missing.any(axis=-1)  # (..., n_g): nodes needing the slow path
         full = ~hit
         e0 = np.where(missing, 0.0, e)

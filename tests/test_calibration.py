@@ -1,0 +1,117 @@
+"""The two-step calibration (math.md §4.2): reference wavelengths, intrinsic twist, guard rails, files."""
+
+import numpy as np
+import pytest
+
+from models import shapes
+from twin import Calibration, CalibrationError, FiberModel, Reconstructor, strain
+from twin.calibration import nominal_gain, scaled_core_angles, two_step
+
+FIBRE = FiberModel.paper()
+S = FIBRE.grating_s
+PHI = np.deg2rad(25.0) * S / 0.17 + np.deg2rad(8.0) * np.sin(2 * np.pi * S / 0.17)  # math.md §4.2's twist
+SPREAD = np.random.default_rng(7).normal(scale=0.3, size=(18, 4))  # as-built λ0 offsets, nm
+
+
+def pose(k, twist=PHI, n=1, noise=0.0, seed=0, **kw):
+    w = strain.forward(FIBRE, k, twist=twist, lambda0=FIBRE.lambda0 + SPREAD, **kw)
+    w = np.repeat(w[None], n, axis=0)
+    return w + np.random.default_rng(seed).normal(scale=noise, size=w.shape) if noise else w
+
+
+def arc(kappa=16.0, alpha=0.7):
+    return np.tile(kappa * np.array([np.cos(alpha), np.sin(alpha)]), (18, 1))
+
+
+def test_recovers_reference_and_twist_exactly_without_noise():
+    cal, report = two_step(FIBRE, pose(np.zeros((18, 2))), pose(arc()))
+    np.testing.assert_allclose(cal.lambda0, FIBRE.lambda0 + SPREAD, atol=1e-12)
+    np.testing.assert_allclose(cal.twist, PHI - PHI[0], atol=1e-10)  # exact up to float rounding
+    np.testing.assert_allclose(report.twist, cal.twist)
+    assert report.sign_changes == 0 and report.n_straight == 1
+
+
+def test_compensation_restores_accuracy_on_a_3d_shape():
+    """Uncompensated, 25°+8° of twist costs millimetres (math.md §4.1); compensated, the error is that of an
+    untwisted fibre (≤ 0.05 mm noise-free)."""
+    cal = Calibration.from_frames(FIBRE, pose(np.zeros((18, 2))), pose(arc()))
+    c = shapes.get("mixed")
+    w = pose(c.curvature(S))[0]
+    exact = c.positions(np.linspace(0, 0.17, 171))
+    raw = Reconstructor(FIBRE, Calibration(lambda0=cal.lambda0))(w)
+    fixed = Reconstructor(FIBRE, cal)(w)
+    assert np.linalg.norm(raw.positions - exact, axis=1).max() > 2e-3
+    # the remaining global roll is the twist at grating 0 (math.md §4.2): undo it before comparing
+    c0, s0 = np.cos(PHI[0]), np.sin(PHI[0])
+    rot = np.array([[c0, -s0, 0], [s0, c0, 0], [0, 0, 1]])
+    assert np.linalg.norm(fixed.positions @ rot.T - exact, axis=1).max() < 0.05e-3
+
+
+def test_averaged_noisy_calibration_and_reported_noise():
+    """1 pm noise, 100 frames at κ_cal = 16 1/m: angle noise ≈ σ_k/κ/√100 ≈ 2e-4 rad (math.md §4.2, §6)."""
+    cal, rep = two_step(FIBRE, pose(np.zeros((18, 2)), n=100, noise=1e-3, seed=1),
+                        pose(arc(), n=100, noise=1e-3, seed=2))
+    err = np.abs(cal.twist - (PHI - PHI[0]))
+    assert err.max() < 1.5e-3
+    assert np.all(rep.twist_std > 0.5e-4) and np.all(rep.twist_std < 1e-3)
+    assert np.mean(err[1:] < 4 * np.hypot(rep.twist_std[1:], rep.twist_std[0])) > 0.9  # the report covers it
+    assert 0.5e-3 < np.median(rep.lambda0_std) < 1.5e-3  # the interrogator noise is what was measured
+
+
+def test_inflection_is_refused_then_unwrapped_modulo_pi_on_request():
+    k = np.outer(np.linspace(-20, 25, 18), [np.cos(0.3), np.sin(0.3)])  # an S-bend: sign change
+    k[np.abs(k[:, 0]) < 6] *= 6 / np.abs(k[np.abs(k[:, 0]) < 6, 0])[:, None]  # keep |k| above the floor
+    with pytest.raises(CalibrationError, match="flips at grating"):
+        two_step(FIBRE, pose(np.zeros((18, 2))), pose(k))
+    cal, rep = two_step(FIBRE, pose(np.zeros((18, 2))), pose(k), allow_sign_change=True)
+    assert rep.sign_changes == 1
+    np.testing.assert_allclose(cal.twist, PHI - PHI[0], atol=1e-10)
+
+
+@pytest.mark.parametrize(
+    ("straight", "bend", "message"),
+    [
+        (pose(np.zeros((18, 2))), pose(arc(kappa=2.0)), "bent only 2.00 1/m"),
+        (pose(np.zeros((18, 2))), np.concatenate([pose(arc(16.0)), pose(arc(22.0))]), "hold the catheter still"),
+        (pose(np.zeros((18, 2))), pose(arc())[..., :3], "expected frames of shape"),
+    ],
+)
+def test_guard_rails(straight, bend, message):
+    with pytest.raises(CalibrationError, match=message):
+        two_step(FIBRE, straight, bend)
+
+
+def test_missing_peaks_in_calibration_frames():
+    bend = pose(arc(), n=10)
+    bend[:2, 4, 2] = np.nan  # occasional loss: averaged over
+    two_step(FIBRE, pose(np.zeros((18, 2)), n=10), bend)
+    bend[:, 4, 2] = np.nan  # always lost: refused, naming the grating and core
+    with pytest.raises(CalibrationError, match=r"grating 4 \(s = 40.0 mm\) core 2 lost its peak in 100%"):
+        two_step(FIBRE, pose(np.zeros((18, 2)), n=10), bend)
+
+
+def test_identified_parameters_enter_the_design():
+    cal = Calibration(delta_theta=1.039, gain=28.01e-6)
+    angles = scaled_core_angles(FIBRE, 1.039)
+    np.testing.assert_allclose(angles, [0.0, 0.0, 1.039, 2.078])
+    true = FIBRE.replace(core_angles=angles, strain_sensitivity=0.777 * 28.01e-6 / nominal_gain(FIBRE))
+    k = shapes.get("rotating-bend").curvature(S)
+    w = strain.forward(true, k)
+    np.testing.assert_allclose(Reconstructor(FIBRE, cal).curvature(w).curvature, k, atol=1e-8)
+    assert np.abs(Reconstructor(FIBRE).curvature(w).curvature - k).max() > 0.5
+
+
+def test_toml_round_trip_and_mismatch(tmp_path):
+    cal = Calibration(lambda0=FIBRE.lambda0 + SPREAD, twist=PHI - PHI[0], delta_theta=1.039, gain=2.8e-5,
+                      delta_theta_std=1e-4, gain_std=1e-8, provenance={"method": "test", "frames": 3})
+    cal.save(tmp_path / "c.toml")
+    back = Calibration.load(tmp_path / "c.toml")
+    np.testing.assert_array_equal(back.lambda0, cal.lambda0)
+    np.testing.assert_array_equal(back.twist, cal.twist)
+    assert (back.delta_theta, back.gain, back.provenance) == (1.039, 2.8e-5, {"method": "test", "frames": 3})
+    other = FiberModel.paper().replace(grating_s=FIBRE.grating_s[:10], lambda0=FIBRE.lambda0[:10])
+    with pytest.raises(ValueError, match="made for another sensor"):
+        Reconstructor(other, back)
+    (tmp_path / "bad.toml").write_text("gain = 29.1\n")
+    with pytest.raises(ValueError, match=r"bad.toml: Calibration.gain: expected a value in .* m \(r·S_ε"):
+        Calibration.load(tmp_path / "bad.toml")

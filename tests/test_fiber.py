@@ -1,0 +1,103 @@
+"""FiberModel: the reference fibre, validation with clear messages, TOML round trips."""
+
+import numpy as np
+import pytest
+
+from twin import FiberModel
+
+
+def test_paper_fibre_matches_the_paper():
+    f = FiberModel.paper()
+    assert f.n_cores == 4 and f.n_gratings == 18
+    assert f.central_core == 0 and f.core_radii[0] == 0
+    np.testing.assert_allclose(np.diff(f.core_angles[1:]), np.pi / 3)
+    np.testing.assert_allclose(f.core_radii[1:], 37.5e-6)
+    assert f.strain_sensitivity == 0.777
+    np.testing.assert_allclose(f.grating_s[[0, -1]], [0.0, 0.17])
+    np.testing.assert_allclose(np.diff(f.grating_s), 0.01)
+    assert f.sensed_length == pytest.approx(0.17)
+    np.testing.assert_allclose(f.gains[1:], 37.5e-6 * 0.777)
+
+
+def test_model_is_immutable():
+    f = FiberModel.paper()
+    with pytest.raises(ValueError):
+        f.core_angles[0] = 1.0
+    with pytest.raises(AttributeError):
+        f.handedness = -1
+
+
+def test_toml_round_trip(tmp_path):
+    f = FiberModel.paper().replace(temperature_sensitivity=[6.6e-6, 6.61e-6, 6.59e-6, 6.6e-6], length=0.18)
+    path = tmp_path / "fibre.toml"
+    f.save(path)
+    g = FiberModel.load(path)
+    for name in ("core_angles", "core_radii", "grating_s", "lambda0", "temperature_sensitivity"):
+        np.testing.assert_array_equal(getattr(f, name), getattr(g, name))
+    assert (g.central_core, g.handedness, g.length, g.name) == (f.central_core, f.handedness, f.length, f.name)
+
+
+def test_toml_without_central_core(tmp_path):
+    f = FiberModel(
+        core_angles=[0, 2 * np.pi / 3, 4 * np.pi / 3],
+        core_radii=[0.5e-3] * 3,
+        grating_s=[0.02, 0.05, 0.09],
+        lambda0=np.full((3, 3), 1550.0),
+    )
+    f.save(tmp_path / "n.toml")
+    assert FiberModel.load(tmp_path / "n.toml").central_core is None
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"core_radii": [0.0, 37.5e-6, -1e-6, 37.5e-6]}, "core_radii: expected radii >= 0 m, got -1e-06 for core 2"),
+        ({"core_radii": [0.0, 37.5e-6, 37.5e-6]}, "core_radii: expected shape (4,), got (3,)"),
+        ({"core_radii": [0.0, 37.5, 37.5, 37.5]}, "radii are in metres"),
+        ({"grating_s": [0.0, 0.02, 0.01] + [0.03 + 0.01 * i for i in range(15)]}, "strictly increasing"),
+        ({"lambda0": np.full((18, 4), 1.55)}, "expected a Bragg wavelength in nm"),
+        ({"lambda0": np.full((18, 3), 1550.0)}, "lambda0: expected shape (18, 4), got (18, 3)"),
+        ({"central_core": 2}, "central core sits on the neutral axis"),
+        ({"central_core": 7}, "expected an index in 0..3"),
+        ({"handedness": 0}, "handedness: expected +1 (CCW) or -1 (CW)"),
+        ({"strain_sensitivity": -0.7}, "strain_sensitivity"),
+        ({"temperature_sensitivity": 6.6}, "expected S_T in 1/K"),
+        ({"core_angles": [0.0, np.nan, 1.0, 2.0]}, "core_angles: expected finite numbers, got nan at index 1"),
+        ({"length": 0.1}, "at or beyond the last grating"),
+    ],
+)
+def test_validation_names_field_and_expectation(change, message):
+    with pytest.raises(ValueError) as info:
+        FiberModel.paper().replace(**change)
+    assert message in str(info.value)
+    assert "FiberModel." in str(info.value)
+
+
+def test_layout_needs_two_bending_cores():
+    with pytest.raises(ValueError, match="at least 2 off-axis cores"):
+        FiberModel(core_angles=[0, 0], core_radii=[0, 1e-5], grating_s=[0.0], lambda0=[[1550, 1550]])
+
+
+def test_malformed_files_name_the_file(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("core_angles = [0, 1,\n")
+    with pytest.raises(ValueError, match="bad.toml: not valid TOML"):
+        FiberModel.load(bad)
+    d = FiberModel.paper().to_dict()
+    d["colour"] = "red"
+    import tomli_w
+
+    bad.write_text(tomli_w.dumps(d))
+    with pytest.raises(ValueError, match="unknown field.*colour"):
+        FiberModel.load(bad)
+    del d["colour"], d["lambda0"]
+    bad.write_text(tomli_w.dumps(d))
+    with pytest.raises(ValueError, match="missing required field.*lambda0"):
+        FiberModel.load(bad)
+    d = FiberModel.paper().to_dict()
+    d["core_radii"] = [0, 1e-5, "x", 1e-5]
+    bad.write_text(tomli_w.dumps(d))
+    with pytest.raises(ValueError, match=r"bad.toml: FiberModel.core_radii: expected numbers"):
+        FiberModel.load(bad)
+    with pytest.raises(FileNotFoundError, match="no such fibre model"):
+        FiberModel.load(tmp_path / "missing.toml")
