@@ -1,0 +1,905 @@
+"""Wire-protocol codecs (twin.io): byte fixtures written out by hand from docs/protocols.md, round trips of
+random frames at each protocol's quantisation, and fuzzing of every decoder.
+
+Tolerances: ILLumiSense sends wavelengths with 4 decimals, so a round trip holds them to the decimal rounding
+of the value (exactly ``float(f"{w:.4f}")``, hence within 5e-5 nm); FiSpec carries integers of 1e-4 nm
+(exactly ``round(w·1e4)/1e4``); Hyperion carries float64 (exact). Timestamps: ILLumiSense writes microseconds
+(≤ 0.5 µs plus float64 rounding at 4e9 s, ≈ 0.5 µs: 2 µs held); Hyperion writes nanoseconds (1 µs held, the
+float64 resolution of an epoch time being ≈ 0.24 µs).
+
+Fuzzing asserts that a decoder raises nothing but its documented FramingError, and — through a plain
+reference reading of the spec written here, independent of the codec — that whatever it does decode is what
+the bytes say: a corrupted record may decode only to the record the corrupted bytes spell.
+"""
+
+from __future__ import annotations
+
+import calendar
+import math
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from twin.frames import Frame, PeakStatus
+from twin.io import fispec, hyperion, illumisense
+from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
+
+FUZZ = settings(max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+ROUND = settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+MISSING, CHANNEL_ERROR, INVALID = (
+    int(PeakStatus.MISSING),
+    int(PeakStatus.CHANNEL_ERROR),
+    int(PeakStatus.INVALID_VALUE),
+)
+
+# --------------------------------------------------------------------------------------------------- fixtures
+
+# docs/protocols.md §1: 1 channel × 3 gratings, payload of 111 bytes, prefix 00 00 00 6f
+ILLUMISENSE_EXAMPLE = (
+    b"\x00\x00\x00\x6f"
+    b"2024-01-31\t13:45:12.345\t1042\t1\t1\t3\t0\t0\t0\t0\t"
+    b"1530.1234\t1535.5678\t1540.9012\t-20.50\t-21.00\t-19.75\t3\t12.3\t-4.5\t0.0\r\n"
+)
+EXAMPLE_EPOCH = calendar.timegm((2024, 1, 31, 13, 45, 12)) + 0.345
+
+# the simulator's own format: 2 cores × 2 gratings, one missing peak (literal 0), a channel error on core 1,
+# microsecond time, strain with 1 decimal and nan for the missing grating; 0x83 = 131 payload bytes
+ILLUMISENSE_SIM_RECORD = (
+    b"\x00\x00\x00\x83"
+    b"2024-01-31\t13:45:12.250000\t7\t2\t"
+    b"1\t2\t0\t0\t0\t0\t1530.1234\t0\t-20.50\t0\t"
+    b"2\t2\t1\t0\t0\t0\t1550.0000\t1560.0001\t-30.25\t-2.00\t"
+    b"4\t1.3\tnan\t-3.0\t100.0\r\n"
+)
+
+# docs/protocols.md §3: the #GetPeaks request
+HYPERION_GETPEAKS = bytes.fromhex("00 00 09 00 00 00 00 00 23 47 65 74 50 65 61 6b 73")
+
+# peak content: 2 channels with 2 and 1 peaks, serial number 5, t = 100.25 s, version 1
+HYPERION_PEAKS = bytes.fromhex(
+    "1c 00 01 00"  # header length 28 = 24 + 2·2, version 1
+    "00 00 00 00"  # reserved
+    "05 00 00 00 00 00 00 00"  # serial number 5
+    "64 00 00 00"  # 100 s
+    "80 b2 e6 0e"  # 250 000 000 ns
+    "02 00 01 00"  # peak counts 2, 1
+    "00 00 00 00 00 ea 97 40"  # 1530.5
+    "00 00 00 00 00 25 98 40"  # 1545.25
+    "00 00 00 00 80 38 98 40"  # 1550.125
+)
+
+
+def sim_frame() -> tuple[Frame, np.ndarray]:
+    w = np.array([[1530.12344, 1550.0], [np.nan, 1560.00006]])
+    status = np.array([[0, CHANNEL_ERROR], [MISSING, CHANNEL_ERROR]], dtype=np.uint8)
+    frame = Frame(
+        w,
+        timestamp=calendar.timegm((2024, 1, 31, 13, 45, 12)) + 0.25,
+        sequence=7,
+        powers=np.array([[-20.5, -30.25], [-1.0, -2.0]]),
+        status=status,
+    )
+    strain = np.array([[1.26, -3.0], [np.nan, 100.04]])
+    return frame, strain
+
+
+# ------------------------------------------------------------------------------- reference readings (tests)
+
+
+def reference_illumisense(payload: bytes) -> dict:
+    """A plain reading of docs/protocols.md §1, independent of the codec; ValueError if it does not parse."""
+    text = payload.decode("latin-1")
+    if text.endswith("\r\n"):
+        text = text[:-2]
+    elif text.endswith("\n"):
+        text = text[:-1]
+    else:
+        raise ValueError("no LF")
+    text = text.removesuffix("\t")
+    fields = text.split("\t")
+    it = iter(fields[2:])
+    try:
+        seq = int(next(it))
+        channels = []
+        for _ in range(int(next(it))):
+            number, g = int(next(it)), int(next(it))
+            status = [int(next(it)) for _ in range(4)]
+            lam = [float(next(it)) for _ in range(g)]
+            pw = [float(next(it)) for _ in range(g)]
+            channels.append((number, status, lam, pw))
+        eng = [float(next(it)) for _ in range(int(next(it)))]
+    except StopIteration:
+        raise ValueError("too few fields") from None
+    return {"seq": seq, "channels": channels, "eng": eng}
+
+
+def expected_frame_arrays(ref: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Wavelengths, powers, status (n_gratings, n_cores) the spec's mapping gives for a reference reading."""
+    chans = ref["channels"]
+    g = max((len(c[2]) for c in chans), default=0)
+    lam = np.full((g, len(chans)), np.nan)
+    pw = np.full((g, len(chans)), np.nan)
+    st_ = np.zeros((g, len(chans)), dtype=np.uint8)
+    for k, (_, status, wl, p) in enumerate(chans):
+        st_[len(wl) :, k] = MISSING
+        for j, (x, y) in enumerate(zip(wl, p, strict=True)):
+            if x == 0:
+                st_[j, k] |= MISSING
+            elif not (math.isfinite(x) and x > 0):
+                st_[j, k] |= INVALID
+                pw[j, k] = y
+            else:
+                lam[j, k], pw[j, k] = x, y
+        if any(status):
+            st_[:, k] |= CHANNEL_ERROR
+    return lam, pw, st_
+
+
+def reference_hyperion_peaks(content: bytes) -> tuple[int, int, int, list[list[float]]]:
+    """Plain reading of docs/protocols.md §3 peak content; ValueError (or struct.error) when inconsistent."""
+    hl, _, _, serial, sec, ns = struct.unpack_from("<HHIQII", content, 0)
+    n_ch = (hl - 24) // 2
+    if hl < 24 or (hl - 24) % 2 or hl > len(content):
+        raise ValueError("header length")
+    counts = struct.unpack_from(f"<{n_ch}h", content, 24)
+    if any(c < 0 for c in counts) or len(content) - hl != 8 * sum(counts):
+        raise ValueError("counts")
+    values = struct.unpack_from(f"<{sum(counts)}d", content, hl)
+    out, i = [], 0
+    for c in counts:
+        out.append(list(values[i : i + c]))
+        i += c
+    return serial, sec, ns, out
+
+
+def assert_frame_matches_reference(frame: Frame, ref: dict) -> None:
+    lam, pw, st_ = expected_frame_arrays(ref)
+    assert frame.sequence == ref["seq"]
+    np.testing.assert_array_equal(frame.wavelengths, lam)
+    np.testing.assert_array_equal(frame.powers, pw)
+    np.testing.assert_array_equal(frame.status, st_)
+
+
+# ---------------------------------------------------------------------------------------- frame strategies
+
+
+@st.composite
+def random_frames(draw, max_gratings: int = 20, max_cores: int = 8, timestamps: bool = True) -> Frame:
+    g = draw(st.integers(1, max_gratings))
+    c = draw(st.integers(1, max_cores))
+    w = draw(hnp.arrays(np.float64, (g, c), elements=st.floats(1000.0, 2000.0)))
+    missing = draw(hnp.arrays(np.bool_, (g, c)))
+    w[missing] = np.nan
+    powers = draw(hnp.arrays(np.float64, (g, c), elements=st.floats(-80.0, 20.0)))
+    seq = draw(st.integers(0, 2**40))
+    ts = draw(st.one_of(st.just(math.nan), st.floats(0.0, 4e9))) if timestamps else math.nan
+    return Frame(w, timestamp=ts, sequence=seq, powers=powers)
+
+
+# =============================================================================================== ILLumiSense
+
+
+def test_illumisense_example_from_protocols_md_decodes_to_its_numbers():
+    assert len(ILLUMISENSE_EXAMPLE) == 4 + 111
+    dec = illumisense.StreamDecoder()
+    (rec,) = dec.feed_records(ILLUMISENSE_EXAMPLE)
+    f = rec.frame
+    assert f.wavelengths.shape == (3, 1)
+    np.testing.assert_array_equal(f.wavelengths[:, 0], [1530.1234, 1535.5678, 1540.9012])
+    np.testing.assert_array_equal(f.powers[:, 0], [-20.50, -21.00, -19.75])
+    np.testing.assert_array_equal(f.status, 0)
+    assert f.sequence == 1042
+    assert f.timestamp == pytest.approx(EXAMPLE_EPOCH, abs=1e-6)
+    np.testing.assert_array_equal(rec.engineering, [12.3, -4.5, 0.0])
+    np.testing.assert_array_equal(rec.channel_numbers, [1])
+    np.testing.assert_array_equal(rec.channel_status, [[0, 0, 0, 0]])
+    assert (rec.date, rec.time) == ("2024-01-31", "13:45:12.345")
+    assert dec.framing_errors == 0 and dec.pending == 0
+
+
+def test_illumisense_encoder_reproduces_the_example_byte_for_byte():
+    f = Frame(
+        np.array([[1530.1234], [1535.5678], [1540.9012]]),
+        timestamp=EXAMPLE_EPOCH,
+        sequence=1042,
+        powers=np.array([[-20.5], [-21.0], [-19.75]]),
+    )
+    got = illumisense.encode_record(f, strain=np.array([[12.3], [-4.5], [0.0]]), time_digits=3)
+    assert got == ILLUMISENSE_EXAMPLE
+
+
+def test_illumisense_encoder_simulator_format_byte_for_byte():
+    frame, strain = sim_frame()
+    assert len(ILLUMISENSE_SIM_RECORD) == 4 + 0x83
+    assert illumisense.encode_record(frame, strain=strain) == ILLUMISENSE_SIM_RECORD
+    f = illumisense.decode_payload(ILLUMISENSE_SIM_RECORD[4:])
+    np.testing.assert_array_equal(f.wavelengths, [[1530.1234, 1550.0], [np.nan, 1560.0001]])
+    np.testing.assert_array_equal(f.status, [[0, CHANNEL_ERROR], [MISSING, CHANNEL_ERROR]])
+    np.testing.assert_array_equal(f.powers, [[-20.5, -30.25], [np.nan, -2.0]])
+    assert f.timestamp == pytest.approx(frame.timestamp, abs=1e-6)
+
+
+def test_illumisense_decoder_tolerates_trailing_tab_bare_lf_and_any_precision():
+    base = ILLUMISENSE_EXAMPLE[4:]
+    for variant in (base[:-2] + b"\t\r\n", base[:-2] + b"\n", base[:-2] + b"\t\n"):
+        f = illumisense.decode_payload(variant)
+        np.testing.assert_array_equal(f.wavelengths[:, 0], [1530.1234, 1535.5678, 1540.9012])
+    precise = base.replace(b"1530.1234", b"1530.123456789").replace(b"1535.5678", b"1535.6")
+    precise = precise.replace(b"1540.9012", b"1541")
+    f = illumisense.decode_payload(precise)
+    np.testing.assert_array_equal(f.wavelengths[:, 0], [1530.123456789, 1535.6, 1541.0])
+
+
+def test_illumisense_missing_invalid_ragged_and_channel_status():
+    payload = (
+        b"x\ty\t5\t2\t"
+        b"3\t3\t0\t0\t2\t0\t0.000\tnan\t1550.5\t-1\t-2\t-3\t"
+        b"4\t1\t0\t0\t0\t0\t1560.25\t-7\t"
+        b"0\tfurther\tvendor\tfields\r\n"
+    )
+    rec = illumisense.decode_record(payload)
+    f = rec.frame
+    np.testing.assert_array_equal(f.wavelengths, [[np.nan, 1560.25], [np.nan, np.nan], [1550.5, np.nan]])
+    np.testing.assert_array_equal(f.powers, [[np.nan, -7.0], [-2.0, np.nan], [-3.0, np.nan]])
+    np.testing.assert_array_equal(
+        f.status, [[MISSING | CHANNEL_ERROR, 0], [INVALID | CHANNEL_ERROR, MISSING], [CHANNEL_ERROR, MISSING]]
+    )
+    assert math.isnan(f.timestamp)  # opaque date/time that is not YYYY-MM-DD HH:MM:SS
+    np.testing.assert_array_equal(rec.channel_numbers, [3, 4])
+    np.testing.assert_array_equal(rec.grating_counts, [3, 1])
+    assert rec.extra_fields == 3 and rec.engineering.size == 0
+
+
+def test_illumisense_single_channel_layout_round_trip():
+    frame, strain = sim_frame()
+    payload = illumisense.encode_payload(frame, strain=strain, channels_as="single")
+    assert payload == (
+        b"2024-01-31\t13:45:12.250000\t7\t1\t1\t4\t1\t0\t0\t0\t"  # one channel, 4 gratings
+        b"1530.1234\t0\t1550.0000\t1560.0001\t-20.50\t0\t-30.25\t-2.00\t"  # core-major
+        b"4\t1.3\tnan\t-3.0\t100.0\r\n"
+    )
+    f = illumisense.decode_payload(payload, channels_as="single", n_cores=2)
+    np.testing.assert_array_equal(f.wavelengths, [[1530.1234, 1550.0], [np.nan, 1560.0001]])
+    with pytest.raises(FramingError):
+        illumisense.decode_payload(payload, channels_as="single", n_cores=3)
+
+
+@pytest.mark.parametrize(
+    ("bad", "token"),
+    [
+        (b"1530.1234", b"15x0.1234"),
+        (b"1530.1234", b"1_530.1234"),
+        (b"-21.00", b"-21,00"),
+        (b"\t3\t0", b"\t3.0\t0"),
+        (b"1042", b""),
+    ],
+)
+def test_illumisense_errors_name_the_byte_offset(bad, token):
+    payload = ILLUMISENSE_EXAMPLE[4:].replace(bad, token, 1)
+    with pytest.raises(FramingError, match="at byte") as info:
+        illumisense.decode_payload(payload)
+    err = info.value
+    assert isinstance(err, ValueError) and err.protocol == "illumisense"
+    assert payload[err.offset :].startswith(token.strip(b"\t").split(b"\t")[0])
+
+
+def test_illumisense_truncated_payload_and_ragged_bomb_are_framing_errors():
+    with pytest.raises(TruncatedFrameError):
+        illumisense.decode_payload(ILLUMISENSE_EXAMPLE[4:-1])
+    # 40 empty channels and one long one would pad to 41 × 100 values: refused by max_cells, not allocated
+    bomb = b"d\tt\t1\t41\t" + b"1\t0\t0\t0\t0\t0\t" * 40 + b"1\t100\t0\t0\t0\t0\t" + b"1\t" * 200 + b"0\r\n"
+    with pytest.raises(FramingError, match="exceeds"):
+        illumisense.decode_payload(bomb, max_cells=1000)
+    assert illumisense.decode_payload(bomb).wavelengths.shape == (100, 41)
+
+
+def test_illumisense_stream_survives_every_split_point():
+    frame, strain = sim_frame()
+    stream = ILLUMISENSE_EXAMPLE + illumisense.encode_record(frame, strain=strain) + ILLUMISENSE_EXAMPLE
+    for cut in range(len(stream) + 1):
+        dec = illumisense.StreamDecoder()
+        frames = dec.feed(stream[:cut]) + dec.feed(stream[cut:])
+        assert [f.sequence for f in frames] == [1042, 7, 1042]
+        assert dec.framing_errors == 0
+    dec = illumisense.StreamDecoder()
+    frames = [f for b in stream for f in dec.feed(bytes([b]))]
+    assert len(frames) == 3 and dec.sequence_resets == 1
+
+
+def test_illumisense_stream_refuses_a_huge_prefix_and_resynchronises():
+    dec = illumisense.StreamDecoder(max_payload=1000)
+    frames = dec.feed(b"\x7f\xff\xff\xff" + ILLUMISENSE_EXAMPLE)
+    assert [f.sequence for f in frames] == [1042]
+    assert dec.framing_errors == 1 and isinstance(dec.last_error, OversizeFrameError)
+    assert dec.bytes_discarded == 4 and dec.in_sync
+    # a prefix one over the bound is refused from its 4 bytes alone, before any payload arrives
+    dec = illumisense.StreamDecoder(max_payload=110)
+    assert dec.feed(ILLUMISENSE_EXAMPLE[:4]) == [] and dec.framing_errors == 1
+    with pytest.raises(ValueError):
+        illumisense.StreamDecoder(max_payload=1 << 24)
+
+
+def test_illumisense_stream_counts_garbage_gaps_and_truncation():
+    def rec(seq):
+        f = Frame(np.array([[1530.0 + seq]]), timestamp=1.0 + seq, sequence=seq)
+        return illumisense.encode_record(f)
+
+    dec = illumisense.StreamDecoder()
+    frames = dec.feed(rec(1) + b"garbage\r\n\x00\x01" + rec(2) + rec(5) + b"\x00\x00\x00\x20abc" + rec(6))
+    assert [f.sequence for f in frames] == [1, 2, 5, 6]
+    assert dec.framing_errors == 2
+    assert dec.sequence_gaps == 1 and dec.lost_samples == 2
+    dec.feed(rec(7)[:20])
+    dec.finish()
+    assert dec.framing_errors == 3 and isinstance(dec.last_error, TruncatedFrameError)
+    assert [f.sequence for f in dec.feed(rec(8))] == [8]
+
+
+def test_timestamp_fields_parse_or_give_nan():
+    assert illumisense.parse_timestamp(b"1970-01-02", b"00:00:01.5") == 86401.5
+    for date, time in [
+        (b"31.01.2024", b"13:45:12"),
+        (b"2024-02-30", b"00:00:00"),
+        (b"2024-01-31", b"25:00:00"),
+        (b"2024-01-31", b"12:00:0x"),
+        (b"\xff", b"\x00"),
+        (b"0000-00-00", b"00:00:00.000000"),
+    ]:
+        assert math.isnan(illumisense.parse_timestamp(date, time))
+    assert illumisense.format_timestamp(math.nan) == ("0000-00-00", "00:00:00.000000")
+    assert illumisense.format_timestamp(86399.9999996) == ("1970-01-02", "00:00:00.000000")
+
+
+@ROUND
+@given(random_frames(), st.booleans())
+def test_illumisense_round_trip_at_four_decimals(frame, single):
+    layout = "single" if single else "cores"
+    n_cores = frame.wavelengths.shape[1]
+    rec = illumisense.encode_record(frame, channels_as=layout)
+    (got,) = illumisense.StreamDecoder(channels_as=layout, n_cores=n_cores).feed(rec)
+    w = frame.wavelengths
+    missing = np.isnan(w)
+    np.testing.assert_array_equal(np.isnan(got.wavelengths), missing)
+    np.testing.assert_array_equal(got.status, np.where(missing, MISSING, 0))
+    expect = np.vectorize(lambda x: float(f"{x:.4f}"))(np.where(missing, 1.0, w))
+    np.testing.assert_array_equal(got.wavelengths[~missing], expect[~missing])
+    assert np.all(np.abs(got.wavelengths[~missing] - w[~missing]) <= 5e-5 + 1e-9)
+    p_expect = np.vectorize(lambda x: float(f"{x:.2f}"))(frame.powers)
+    np.testing.assert_array_equal(got.powers[~missing], p_expect[~missing])
+    assert got.sequence == frame.sequence
+    if math.isnan(frame.timestamp):
+        assert math.isnan(got.timestamp)
+    else:
+        assert abs(got.timestamp - frame.timestamp) <= 2e-6
+
+
+# tokens that make structurally interesting records: counts, numbers, junk, empties
+_TOKENS = st.sampled_from(
+    [
+        b"0",
+        b"1",
+        b"2",
+        b"3",
+        b"4",
+        b"-1",
+        b"1530.1234",
+        b"0.0",
+        b"nan",
+        b"inf",
+        b"1e999",
+        b"-2.5",
+        b"x",
+        b"",
+        b"1_0",
+        b" 1",
+        b"99999999999999999999",
+        b"\xff",
+        b"+3",
+        b"--1",
+    ]
+)
+
+
+@FUZZ
+@given(
+    st.one_of(
+        st.binary(max_size=400),
+        st.lists(_TOKENS, max_size=40).map(lambda t: b"2024-01-31\t13:45:12.345\t" + b"\t".join(t) + b"\r\n"),
+    )
+)
+@example(b"d\tt\t1\t1\t1\t1\t0\t0\t0\t0\t1530\t-1\t0\n")
+def test_fuzz_illumisense_decode_payload(data):
+    try:
+        rec = illumisense.decode_record(data)
+    except FramingError:
+        return
+    ref = reference_illumisense(data)  # whatever decodes must be what the bytes say
+    assert_frame_matches_reference(rec.frame, ref)
+    np.testing.assert_array_equal(rec.engineering, ref["eng"])
+
+
+@st.composite
+def corrupted_record(draw):
+    frame = draw(random_frames(max_gratings=6, max_cores=3))
+    payload = illumisense.encode_payload(frame, strain=np.where(np.isnan(frame.wavelengths), np.nan, 1.5))
+    i = draw(st.integers(0, len(payload) - 1))
+    b = draw(st.integers(0, 255))
+    return payload, i, b
+
+
+@FUZZ
+@given(corrupted_record())
+def test_fuzz_illumisense_corrupted_byte(case):
+    payload, i, b = case
+    bad = payload[:i] + bytes([b]) + payload[i + 1 :]
+    numeric_start = bad.index(b"\t", bad.index(b"\t") + 1) + 1 if bad.count(b"\t") >= 2 else 0
+    try:
+        rec = illumisense.decode_record(bad)
+    except FramingError:
+        return
+    # a byte a number cannot contain, placed in a numeric field, is always caught; so is a NUL or an early LF
+    assert not (numeric_start <= i < len(bad) - 2 and bytes([b]) not in b"0123456789.+-eEnNaAiIfFtTyY\t")
+    assert b not in (0, 10) or bad == payload
+    assert_frame_matches_reference(rec.frame, reference_illumisense(bad))
+
+
+@FUZZ
+@given(random_frames(max_gratings=6, max_cores=3, timestamps=False), st.data())
+def test_fuzz_illumisense_truncated_payload_is_always_an_error(frame, data):
+    payload = illumisense.encode_payload(frame)
+    cut = data.draw(st.integers(0, len(payload) - 1))
+    with pytest.raises(FramingError):
+        illumisense.decode_payload(payload[:cut])
+
+
+@settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    st.lists(random_frames(max_gratings=5, max_cores=3, timestamps=False), min_size=3, max_size=3),
+    st.binary(max_size=200),
+    st.lists(st.integers(1, 300), max_size=20),
+)
+def test_fuzz_illumisense_stream_garbage_and_chunking(frames, garbage, cuts):
+    recs = [illumisense.encode_record(f) for f in frames]
+    stream = recs[0] + garbage + recs[1] + recs[2]
+    whole = illumisense.StreamDecoder()
+    got = whole.feed(stream)
+    # the record before the garbage and the two after it are always recovered, in order
+    seqs = [f.sequence for f in got]
+    assert seqs[0] == frames[0].sequence and seqs[-2:] == [frames[1].sequence, frames[2].sequence]
+    if garbage and len(got) == 3:  # garbage that is not itself a record always counts as a framing error
+        assert whole.framing_errors >= 1
+    # any chunking gives the same frames and the same counts
+    chunked = illumisense.StreamDecoder()
+    out, pos = [], 0
+    for c in cuts:
+        out += chunked.feed(stream[pos : pos + c])
+        pos += c
+    out += chunked.feed(stream[pos:])
+    assert [f.sequence for f in out] == seqs
+    assert (chunked.framing_errors, chunked.bytes_discarded) == (whole.framing_errors, whole.bytes_discarded)
+
+
+@FUZZ
+@given(st.binary(max_size=600), st.lists(st.integers(1, 64), max_size=12))
+def test_fuzz_illumisense_stream_arbitrary_bytes_never_raise(data, cuts):
+    dec = illumisense.StreamDecoder(max_payload=4096)
+    pos = 0
+    for c in [*cuts, len(data)]:
+        for f in dec.feed(data[pos : pos + c]):
+            assert f.wavelengths.ndim == 2
+        pos += c
+    dec.finish()
+    assert dec.pending == 0
+
+
+# ==================================================================================================== FiSpec
+
+
+def test_fispec_reply_fixtures():
+    assert fispec.encode_identity() == b"FiSpec FBG X150"
+    assert fispec.decode_identity(b"FiSpec FBG X100\r\n") == "FiSpec FBG X100"
+    params = fispec.parameter_items(pixels=2048, channels=18, integration_time_us=50000)
+    assert (
+        fispec.encode_parameters(params)
+        == b"Pixel_2048#Kanalanzahl_18#tInt_50000#Mittelungen_1#OBBerechnen_0"
+    )
+    assert fispec.decode_parameters(b"#Pixel_512#Kanalanzahl_3#tInt_1000_us#Name#OBBerechnen_1") == {
+        "Pixel": 512,
+        "Kanalanzahl": 3,
+        "tInt": 1000,
+        "OBBerechnen": 1,
+    }
+    assert fispec.encode_spectrum([1, 258, 65535]) == b"\x01\x00\x02\x01\xff\xffEnde"
+    np.testing.assert_array_equal(fispec.decode_spectrum(b"\x01\x00\x02\x01\xff\xffEnde", 3), [1, 258, 65535])
+    wll = bytes.fromhex("c0 e1 e4 00 a9 e3 e4 00") + b"Ende"
+    assert fispec.encode_pixel_wavelengths([1500.0, 1500.0489]) == wll
+    np.testing.assert_array_equal(fispec.decode_pixel_wavelengths(wll, 2), [1500.0, 1500.0489])
+    peaks = (
+        bytes.fromhex(
+            "72 7a e9 00 e8 03 00 00"  # 1530.1234 nm, amplitude 1000
+            "00 00 00 00 00 00 00 00"  # a missing peak
+            "0e 99 ec 00 fb ff ff ff"  # 1550.5678 nm, amplitude -5
+            "29 09 00 00 00 00 00 00"
+        )  # 23.45 °C, int16 0, 4 reserved
+        + b"Ende"
+    )
+    assert len(peaks) == 8 * 3 + 12
+    assert (
+        fispec.encode_peaks([1530.1234, np.nan, 1550.5678], [1000, 7, -5], device_temperature=23.45) == peaks
+    )
+    r = fispec.decode_peaks(peaks, 3)
+    np.testing.assert_array_equal(r.wavelengths, [1530.1234, np.nan, 1550.5678])
+    np.testing.assert_array_equal(r.second, [1000, np.nan, -5])
+    assert r.device_temperature == 23.45
+    on = fispec.decode_peaks(peaks, 3, onboard=True)
+    np.testing.assert_allclose(on.first, [1530.1234, 0.0, 1550.5678])
+    np.testing.assert_allclose(on.second, [10.0, 0.0, -0.05])
+    f = fispec.peaks_to_frame(r, sequence=3)
+    assert f.wavelengths.shape == (3, 1) and f.status[1, 0] == MISSING and f.sequence == 3
+
+
+@pytest.mark.parametrize(
+    ("decoder", "reply"),
+    [
+        (lambda b: fispec.decode_spectrum(b, 3), b"\x01\x00\x02\x01\xff\xffEnde"),
+        (lambda b: fispec.decode_pixel_wavelengths(b, 2), bytes(8) + b"Ende"),
+        (lambda b: fispec.decode_peaks(b, 2), bytes(16 + 8) + b"Ende"),
+    ],
+)
+def test_fispec_binary_replies_must_have_the_exact_length(decoder, reply):
+    decoder(reply)
+    for bad in (reply[:-1], reply + b"\x00", b"\x00" + reply[:-1], reply[:-4] + b"ende", reply[1:]):
+        with pytest.raises(FramingError):
+            decoder(bad)
+
+
+def test_fispec_command_parser_reads_the_clients_start_up_sequence():
+    # what myfbgcommunication 2.0.2 sends from init() through its first read, with a stray CR LF and a NUL
+    stream = (
+        b"?>p?>a>LED,1>s>s>\r\niz,50000>a>WLL>Ke,0,15085000,15115000>Ke,1,15135000,15165000>KA,2>m,1>"
+        b"OBsTyp,0,0>OBsTyp,1,0>OBN>OBsaT0,2100>\x00PeM,0>OBB,1>p?>P>P>"
+    )
+    parser = fispec.CommandParser()
+    cmds = [c for i in range(0, len(stream), 7) for c in parser.feed(stream[i : i + 7])]
+    assert [c.name for c in cmds] == [
+        "?",
+        "p?",
+        "a",
+        "LED",
+        "s",
+        "s",
+        "iz",
+        "a",
+        "WLL",
+        "Ke",
+        "Ke",
+        "KA",
+        "m",
+        "OBsTyp",
+        "OBsTyp",
+        "OBN",
+        "OBsaT0",
+        "PeM",
+        "OBB",
+        "p?",
+        "P",
+        "P",
+    ]
+    assert cmds[9].args == (0, 15085000, 15115000) and cmds[16].args == (2100,)
+    replying = [c.name for c in cmds if not c.silent]
+    assert replying == ["?", "p?", "s", "s", "WLL", "p?", "P", "P"]
+    assert parser.errors == 0
+    assert stream[cmds[9].offset :].startswith(b"Ke,0")
+    assert fispec.encode_command("Ke", 0, 15085000, 15115000) == b"Ke,0,15085000,15115000>"
+    assert fispec.SILENT_COMMANDS >= {
+        "a",
+        "LED",
+        "iz",
+        "Ke",
+        "KA",
+        "m",
+        "OBsTyp",
+        "OBN",
+        "OBsaT0",
+        "PeM",
+        "OBB",
+    }
+
+
+def test_fispec_command_parser_drops_and_counts_garbage():
+    parser = fispec.CommandParser(max_length=32)
+    cmds = parser.feed(b"hello>KA,x>Ke,1,2>\xff\xfeP>" + b"z" * 40)
+    assert cmds == [] and parser.errors == 5
+    cmds = parser.feed(b"y>P>KA,18>")
+    assert [c.name for c in cmds] == ["P", "KA"] and parser.errors == 6
+
+
+def test_synthetic_spectrum_is_read_back_by_the_clients_peak_detection():
+    from scipy.signal import find_peaks
+
+    wll = fispec.default_pixel_wavelengths()
+    assert wll.size == 2048 and wll[0] == 1500.0 and wll[-1] == 1600.0
+    wll = fispec.decode_pixel_wavelengths(fispec.encode_pixel_wavelengths(wll), 2048)
+    peaks = 1510.0 + 5.0 * np.arange(18) + 0.01234
+    rng = np.random.default_rng(7)
+    # exactly the client's init(): average 10 spectra, pixels 0-2 := pixel 3, minus pixel 0, drop first peak
+    spectra = [
+        fispec.decode_spectrum(
+            fispec.encode_spectrum(fispec.synthetic_spectrum(peaks, wll, noise_counts=5.0, rng=rng)), 2048
+        ).astype(float)
+        for _ in range(10)
+    ]
+    spectra = [np.concatenate([[s[3]] * 3, s[3:]]) for s in spectra]
+    proc = np.average(np.array(spectra), axis=0)
+    proc -= proc[0]
+    found, _ = find_peaks(proc, height=10, distance=50, prominence=100)
+    found = found[1:]
+    assert found.size == 18
+    pixel_nm = wll[1] - wll[0]
+    np.testing.assert_allclose(wll[found], peaks, atol=pixel_nm)  # the client sees pixel wavelengths
+    with pytest.raises(ValueError, match="50 pixels"):
+        fispec.synthetic_spectrum([1510.0, 1511.0], wll)
+    with pytest.raises(ValueError, match="50 pixels"):
+        fispec.synthetic_spectrum([1501.0], wll)  # too close to the leading reference peak
+
+
+@ROUND
+@given(
+    hnp.arrays(
+        np.float64, st.integers(0, 40), elements=st.one_of(st.floats(1000.0, 2000.0), st.just(np.nan))
+    ),
+    st.floats(-300.0, 300.0),
+)
+def test_fispec_peaks_round_trip_at_1e_4_nm(w, temp):
+    r = fispec.decode_peaks(fispec.encode_peaks(w, np.full(w.shape, 123.0), device_temperature=temp), w.size)
+    np.testing.assert_array_equal(r.wavelengths, np.round(w * 1e4) / 1e4)
+    assert np.all(np.abs(r.wavelengths[~np.isnan(w)] - w[~np.isnan(w)]) <= 5e-5 + 1e-9)
+    assert r.device_temperature == round(temp * 100) / 100
+
+
+@FUZZ
+@given(st.binary(max_size=300), st.integers(0, 40))
+def test_fuzz_fispec_reply_decoders(data, n):
+    for decode in (
+        lambda: fispec.decode_spectrum(data, n),
+        lambda: fispec.decode_pixel_wavelengths(data, n),
+        lambda: fispec.decode_peaks(data, n),
+        lambda: fispec.decode_peaks(data, n, onboard=True),
+        lambda: fispec.decode_parameters(data),
+        lambda: fispec.decode_identity(data),
+    ):
+        try:
+            decode()
+        except FramingError:
+            pass
+
+
+@FUZZ
+@given(st.binary(max_size=300), st.lists(st.integers(1, 50), max_size=10))
+def test_fuzz_fispec_command_parser(garbage, cuts):
+    valid = b"?>Ke,0,15085000,15115000>KA,1>OBB,0>P>"
+    stream = garbage + b">" + valid
+    parser = fispec.CommandParser()
+    cmds, pos = [], 0
+    for c in [*cuts, len(stream)]:
+        cmds += parser.feed(stream[pos : pos + c])
+        pos += c
+    for c in cmds:
+        assert len(c.args) == fispec.COMMAND_ARITY[c.name]
+    assert [c.name for c in cmds[-5:]] == ["?", "Ke", "KA", "OBB", "P"]
+
+
+# ================================================================================================== Hyperion
+
+
+def test_hyperion_getpeaks_request_bytes():
+    assert hyperion.encode_request("#GetPeaks") == HYPERION_GETPEAKS
+    assert hyperion.decode_request(HYPERION_GETPEAKS) == hyperion.Request("#GetPeaks")
+    req = bytes.fromhex("00 00 12 00 04 00 00 00") + b"#SetLaserScanSpeed" + b"1000"
+    assert hyperion.encode_request("#SetLaserScanSpeed", "1000") == req
+    assert hyperion.decode_request(req) == hyperion.Request("#SetLaserScanSpeed", "1000")
+
+
+def test_hyperion_peak_content_fixture():
+    f = hyperion.decode_peaks(HYPERION_PEAKS)
+    np.testing.assert_array_equal(f.wavelengths, [[1530.5, 1550.125], [1545.25, np.nan]])
+    np.testing.assert_array_equal(f.status, [[0, 0], [0, MISSING]])
+    assert f.sequence == 5 and f.timestamp == 100.25
+    assert hyperion.encode_peaks(f) == HYPERION_PEAKS
+    assert hyperion.decode_peaks(HYPERION_PEAKS, n_gratings=3).wavelengths.shape == (3, 2)
+    with pytest.raises(FramingError, match="more than n_gratings"):
+        hyperion.decode_peaks(HYPERION_PEAKS, n_gratings=1)
+    resp = bytes.fromhex("00 00 00 00") + struct.pack("<I", len(HYPERION_PEAKS)) + HYPERION_PEAKS
+    assert hyperion.encode_stream_frame(f) == resp
+    assert hyperion.decode_response(resp) == hyperion.Response(0, 0, "", HYPERION_PEAKS)
+
+
+def test_hyperion_start_up_replies():
+    state = hyperion.InstrumentState(
+        channel_count=4,
+        max_peaks_per_channel=40,
+        laser_scan_speed=1000,
+        available_scan_speeds=(100, 1000),
+        serial_number="HYP123",
+    )
+    ok = bytes.fromhex("00 00 00 00")
+
+    def ask(cmd, arg=""):
+        return hyperion.respond(hyperion.Request(cmd, arg), state)
+
+    assert ask("#GetDutChannelCount") == ok + bytes.fromhex("04 00 00 00 04 00 00 00")
+    assert ask("#GetMaximumPeakCountPerDutChannel") == ok + bytes.fromhex("04 00 00 00 28 00 00 00")
+    assert ask("#isready") == ok + bytes.fromhex("01 00 00 00 01")
+    assert ask("#GetSerialNumber") == ok + bytes.fromhex("06 00 00 00") + b"HYP123"
+    assert ask("#GetLaserScanSpeed") == ok + bytes.fromhex("04 00 00 00 e8 03 00 00")
+    assert ask("#GetAvailableLaserScanSpeeds") == ok + bytes.fromhex("08 00 00 00 64 00 00 00 e8 03 00 00")
+    for cmd in ("#GetFirmwareVersion", "#GetFPGAVersion", "#GetInstrumentName"):
+        assert hyperion.decode_ascii(hyperion.decode_response(ask(cmd)).content)
+    r = hyperion.decode_response(ask("#SetLaserScanSpeed", "100"))
+    assert r.ok and state.laser_scan_speed == 100
+    assert not hyperion.decode_response(ask("#SetLaserScanSpeed", "7")).ok and state.laser_scan_speed == 100
+    bad = hyperion.decode_response(ask("#NoSuchCommand"))
+    assert bad.status == 1 and "NoSuchCommand" in bad.message
+    assert hyperion.decode_response(ask("#GetPeaks")).status == 3
+    peaks = hyperion.respond(
+        hyperion.Request("#GetPeaks"), state, frame=hyperion.decode_peaks(HYPERION_PEAKS)
+    )
+    assert hyperion.decode_response(peaks).content == HYPERION_PEAKS
+    assert hyperion.decode_u32(bytes.fromhex("04 00 00 00")) == 4
+    assert hyperion.decode_u8(b"\x01") == 1
+    np.testing.assert_array_equal(
+        hyperion.decode_i32_array(bytes.fromhex("64 00 00 00 e8 03 00 00")), [100, 1000]
+    )
+    for dec, content in (
+        (hyperion.decode_u32, b"\x04\x00\x00"),
+        (hyperion.decode_u8, b""),
+        (hyperion.decode_i32_array, b"\x00" * 5),
+        (hyperion.decode_ascii, b"\xff"),
+    ):
+        with pytest.raises(FramingError):
+            dec(content)
+
+
+def test_hyperion_stream_any_split_and_failure_needs_reset():
+    f = hyperion.decode_peaks(HYPERION_PEAKS)
+    stream = hyperion.encode_stream_frame(f) + hyperion.encode_stream_frame(f, serial_number=8)
+    for cut in range(len(stream) + 1):
+        dec = hyperion.ResponseDecoder()
+        frames = dec.feed_frames(stream[:cut]) + dec.feed_frames(stream[cut:])
+        assert [x.sequence for x in frames] == [5, 8]
+        assert dec.lost_samples == 2
+    dec = hyperion.ResponseDecoder(max_content=1000)
+    good = hyperion.encode_stream_frame(f)
+    assert len(dec.feed_frames(good + b"\x00\x00\x00\x00\xff\xff\xff\x7f")) == 1  # delivered, error deferred
+    assert dec.failed and dec.framing_errors == 1
+    with pytest.raises(OversizeFrameError):
+        dec.feed_frames(b"")
+    with pytest.raises(FramingError, match="out of sync"):
+        dec.feed_frames(good)
+    dec.reset()
+    assert len(dec.feed_frames(good)) == 1
+    reqs = hyperion.RequestDecoder()
+    assert (
+        reqs.feed(HYPERION_GETPEAKS[:5]) == []
+        and reqs.feed(HYPERION_GETPEAKS[5:] + HYPERION_GETPEAKS) == [hyperion.Request("#GetPeaks")] * 2
+    )
+    with pytest.raises(FramingError, match="reserved"):
+        reqs.feed(b"\x00\x01\x09\x00\x00\x00\x00\x00")
+
+
+@st.composite
+def trailing_nan_frames(draw) -> Frame:
+    g, c = draw(st.integers(0, 12)), draw(st.integers(0, 6))
+    w = draw(hnp.arrays(np.float64, (g, c), elements=st.floats(1000.0, 2000.0)))
+    for k in range(c):  # the instrument reports found peaks only: gaps can only be trailing after decoding
+        w[draw(st.integers(0, g)) :, k] = np.nan
+    return Frame(w, timestamp=draw(st.floats(0.0, 4e9)), sequence=draw(st.integers(0, 2**63)))
+
+
+@ROUND
+@given(trailing_nan_frames())
+def test_hyperion_round_trip_is_exact(frame):
+    g = frame.wavelengths.shape[0]
+    (got,) = hyperion.ResponseDecoder(n_gratings=g).feed_frames(hyperion.encode_stream_frame(frame))
+    np.testing.assert_array_equal(got.wavelengths, frame.wavelengths)
+    np.testing.assert_array_equal(got.status, np.where(np.isnan(frame.wavelengths), MISSING, 0))
+    assert got.sequence == frame.sequence
+    assert abs(got.timestamp - frame.timestamp) <= 1e-6
+
+
+def test_hyperion_gaps_inside_a_channel_come_back_compacted():
+    f = Frame(np.array([[1530.0], [np.nan], [1550.0]]))
+    np.testing.assert_array_equal(
+        hyperion.decode_peaks(hyperion.encode_peaks(f), n_gratings=3).wavelengths[:, 0],
+        [1530.0, 1550.0, np.nan],
+    )
+
+
+@FUZZ
+@given(
+    st.one_of(
+        st.binary(max_size=200),
+        st.builds(
+            lambda h, rest: h + rest,
+            st.sampled_from([HYPERION_PEAKS[:24], HYPERION_PEAKS[:28]]),
+            st.binary(max_size=80),
+        ),
+    )
+)
+def test_fuzz_hyperion_peak_content(data):
+    try:
+        f = hyperion.decode_peaks(data)
+    except FramingError:
+        return
+    serial, _, _, chans = reference_hyperion_peaks(data)
+    assert f.sequence == serial and f.wavelengths.shape[1] == len(chans)
+    for k, vals in enumerate(chans):
+        col = f.wavelengths[: len(vals), k]
+        good = np.array([math.isfinite(v) and v > 0 for v in vals], dtype=bool)
+        np.testing.assert_array_equal(col[good], np.array(vals)[good])
+        assert np.all(np.isnan(f.wavelengths[len(vals) :, k]))
+
+
+def test_hyperion_truncated_messages_are_framing_errors():
+    resp = hyperion.encode_response(HYPERION_PEAKS, "msg")
+    for cut in range(len(HYPERION_PEAKS)):
+        with pytest.raises(FramingError):
+            hyperion.decode_peaks(HYPERION_PEAKS[:cut])
+    for cut in range(len(resp)):
+        with pytest.raises(FramingError):
+            hyperion.decode_response(resp[:cut])
+    for cut in range(len(HYPERION_GETPEAKS)):
+        with pytest.raises(FramingError):
+            hyperion.decode_request(HYPERION_GETPEAKS[:cut])
+    with pytest.raises(OversizeFrameError):
+        hyperion.decode_response(resp + b"\x00")
+
+
+@FUZZ
+@given(st.integers(0, len(HYPERION_PEAKS) - 1), st.integers(0, 255), st.binary(max_size=40))
+def test_fuzz_hyperion_corrupted_peaks_and_requests(i, b, request_garbage):
+    bad = HYPERION_PEAKS[:i] + bytes([b]) + HYPERION_PEAKS[i + 1 :]
+    try:
+        f = hyperion.decode_peaks(bad)
+    except FramingError:
+        assert i < 28  # a wavelength byte cannot break the framing: only the header or the counts can
+    else:
+        serial, _, _, chans = reference_hyperion_peaks(bad)
+        reported = [
+            int(np.sum(~np.isnan(f.wavelengths[:, k])) + np.sum((f.status[:, k] & INVALID) != 0))
+            for k in range(f.wavelengths.shape[1])
+        ]
+        assert f.sequence == serial and reported == [len(c) for c in chans]
+    req = (
+        HYPERION_GETPEAKS[: i % len(HYPERION_GETPEAKS)]
+        + bytes([b])
+        + HYPERION_GETPEAKS[i % len(HYPERION_GETPEAKS) + 1 :]
+    )
+    for data in (req, request_garbage):
+        try:
+            r = hyperion.decode_request(data)
+        except FramingError:
+            continue
+        assert hyperion.encode_request(r.command, r.argument, options=r.options) == data
+
+
+@FUZZ
+@given(st.binary(max_size=400), st.lists(st.integers(1, 64), max_size=10))
+def test_fuzz_hyperion_stream_decoders(data, cuts):
+    for dec in (hyperion.ResponseDecoder(max_content=4096), hyperion.RequestDecoder(max_argument=4096)):
+        pos = 0
+        for c in [*cuts, len(data)]:
+            try:
+                out = (
+                    dec.feed_frames(data[pos : pos + c])
+                    if isinstance(dec, hyperion.ResponseDecoder)
+                    else dec.feed(data[pos : pos + c])
+                )
+                assert isinstance(out, list)
+            except FramingError:
+                assert dec.failed
+            pos += c
