@@ -20,10 +20,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("scenarios.demo", "the main job: reconstruct shapes from (simulated) interrogator data and compare"),
     "run": ("twin.scenario_cli", "run a scenario (an experiment of the paper, or our own)"),
     "bench": ("twin.bench", "measure reconstruction (and simulation, streaming) speed"),
+    "jig-calibrate": ("twin.jig_cli", "fit a calibration from jig poses (grooves of known curvature)"),
+    "jig-validate": ("twin.jig_cli", "curvature and bend-direction errors of a calibration on jig poses"),
 }
 
 #: scenario name → module (each exposes add_arguments(parser) and run(args) -> int)
-SCENARIOS: dict[str, str] = {}
+SCENARIOS: dict[str, str] = {
+    "jig": "scenarios.jig",
+}
 
 
 class UserError(Exception):
