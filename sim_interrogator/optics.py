@@ -27,8 +27,9 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from twin import FiberModel, PeakStatus, strain
+from twin import Calibration, FiberModel, PeakStatus, strain
 from twin.calibration import nominal_delta_theta, scaled_core_angles
 
 __all__ = ["Optics", "OpticsConfig"]
@@ -138,6 +139,10 @@ class Optics:
         )
         x = fiber.grating_s / fiber.sensed_length
         self.twist = cfg.twist_total * x + cfg.twist_wobble * np.sin(2 * np.pi * x)
+        self._design = strain.design_matrix(self.true_fiber, twist=self.twist)
+        self._s_t = np.ascontiguousarray(np.broadcast_to(self.true_fiber.temperature_sensitivity, (fiber.n_cores,)))
+        self._no_noise = np.zeros((1, 1, 1))
+        self._lost_flag = int(PeakStatus.OUT_OF_SLOT | PeakStatus.MISSING)
         if cfg.grating_length > 0:
             nodes, weights = np.polynomial.legendre.leggauss(self.N_SUB)
             self.sample_offsets, self._weights = 0.5 * cfg.grating_length * nodes, 0.5 * weights
@@ -151,6 +156,11 @@ class Optics:
     def sample_s(self) -> np.ndarray:
         """Arc lengths to sample the curvature at, shape (n_gratings, n_sub), m."""
         return self.nominal.grating_s[:, None] + self.sample_offsets[None, :]
+
+    @property
+    def sample_weights(self) -> np.ndarray:
+        """Quadrature weights (n_sub,) that average samples at :attr:`sample_s` over each grating."""
+        return self._weights
 
     def wavelengths(self, curvature, axial_strain=0.0, delta_T=None, t: float | None = None):
         """Peak wavelengths and status for one state (or a batch of states).
@@ -174,33 +184,54 @@ class Optics:
         status : ndarray of uint8, same shape
             :class:`twin.PeakStatus` bits.
         """
-        cfg = self.config
+        cfg, fiber = self.config, self.true_fiber
         k = np.asarray(curvature, dtype=np.float64)
-        if k.ndim >= 3 and k.shape[-3:-1] == (self.nominal.n_gratings, self.sample_offsets.size) \
-                and k.shape[-1] == 2:
+        n_g, n_c = fiber.n_gratings, fiber.n_cores
+        if k.ndim >= 3 and k.shape[-3:] == (n_g, self.sample_offsets.size, 2):
             k = np.einsum("...gsc,s->...gc", k, self._weights)
-        axial = np.asarray(axial_strain, dtype=np.float64) - cfg.fiber_offset * k[..., 0]
+        if k.ndim < 2 or k.shape[-2:] != (n_g, 2):
+            raise ValueError(f"curvature must have shape (..., {n_g}, 2) or (..., {n_g}, "
+                             f"{self.sample_offsets.size}, 2), got {k.shape}")
+        batch = k.shape[:-2]
+        n_f = int(np.prod(batch)) if batch else 1
         d_t = cfg.temperature if delta_T is None else delta_T
-        w = strain.forward(self.true_fiber, k, axial_strain=axial, delta_T=d_t, twist=self.twist)
+        axial = self._per_grating(axial_strain, batch, n_f)
+        temp = self._per_grating(d_t, batch, n_f)
+        step = 0.0
         if cfg.drift and t is not None:
             if self._t_last is not None and t > self._t_last:
-                self._drift += cfg.drift * np.sqrt(t - self._t_last) * self._rng.standard_normal(self._drift.shape)
+                step = cfg.drift * np.sqrt(t - self._t_last)
             self._t_last = t
-        w = w + self._drift
-        if cfg.noise:
-            w = w + cfg.noise * self._rng.standard_normal(w.shape)
-        if cfg.quantisation:
-            w = np.round(w / cfg.quantisation) * cfg.quantisation
-        status = np.zeros(w.shape, np.uint8)
-        if cfg.slot_half_width is not None:
-            lost = np.abs(w - self.nominal.lambda0) > cfg.slot_half_width
-            w = np.where(lost, np.nan, w)
-            status[lost] = PeakStatus.OUT_OF_SLOT | PeakStatus.MISSING
-        return w, status
+        # one draw per call: drift increments (first slice) and white noise
+        z = self._rng.standard_normal((n_f + 1, n_g, n_c)) if cfg.noise or step else self._no_noise
+        w = np.empty((n_f, n_g, n_c))
+        status = np.zeros((n_f, n_g, n_c), np.uint8)
+        _effects(k.reshape(n_f, n_g, 2), axial, temp, self._design, fiber.lambda0, self.nominal.lambda0,
+                 fiber.strain_sensitivity, self._s_t, cfg.fiber_offset, self._drift, step, z, cfg.noise,
+                 cfg.quantisation, cfg.slot_half_width or 0.0, self._lost_flag, w, status)
+        if not batch:
+            return w[0], status[0]
+        return w.reshape(*batch, n_g, n_c), status.reshape(*batch, n_g, n_c)
+
+    def _per_grating(self, value, batch: tuple, n_f: int) -> np.ndarray:
+        """A scalar or (..., n_gratings) value as a (n_f, n_gratings) array (a zero-stride view if scalar)."""
+        if np.ndim(value) == 0:
+            return np.broadcast_to(float(value), (n_f, self.nominal.n_gratings))
+        a = np.asarray(value, dtype=np.float64)
+        return np.broadcast_to(a, (*batch, self.nominal.n_gratings)).reshape(n_f, -1)
 
     def timestamp(self, t: float) -> float:
         """The interrogator's timestamp for simulation time ``t`` (with jitter), s."""
         return t + (self.config.jitter * self._rng.standard_normal() if self.config.jitter else 0.0)
+
+    def true_calibration(self) -> Calibration:
+        """The calibration a perfect procedure would find: as-built λ0, the intrinsic twist (relative to
+        grating 0) and the true Δθ and g. Reconstructing with it leaves only noise, drift, quantisation and the
+        grating-length average."""
+        d = self.describe()
+        return Calibration(lambda0=self.true_fiber.lambda0, twist=np.asarray(d["twist_rad"]),
+                           delta_theta=d["delta_theta"], gain=d["gain_m"],
+                           provenance={"method": "the simulated fibre's true parameters"})
 
     def describe(self) -> dict:
         """The true parameters a calibration and identification should recover (SI, JSON-ready)."""
@@ -210,3 +241,35 @@ class Optics:
             "gain_m": float(f.core_radii[f.bending_cores].mean() * f.strain_sensitivity),
             "twist_rad": (self.twist - self.twist[0]).tolist(),
         }
+
+
+@njit(cache=True, nogil=True)
+def _effects(k, axial, temp, design, lam0, lam0_nominal, s_eps, s_t, offset, drift, drift_step, z, noise, quant,
+             slot, lost_flag, w, status):
+    """Wavelengths with every effect for F states, compiled because it runs at up to 1 kHz.
+
+    The deterministic part is :func:`twin.strain.forward` in design form, λ = λ0 (1 + c_i + D_i1 k_x + D_i2 k_y)
+    with c_i = S_ε ε_axial + S_T,i ΔT (tests/test_sim.py checks the two agree); then drift, noise,
+    quantisation and the slot check. ``z[0]`` drives the drift's random walk (step ``drift_step`` nm),
+    ``z[1 + f]`` the noise of state f.
+    """
+    n_f, n_g, n_c = w.shape
+    if drift_step > 0.0:
+        for g in range(n_g):
+            for c in range(n_c):
+                drift[g, c] += drift_step * z[0, g, c]
+    for f in range(n_f):
+        for g in range(n_g):
+            kx, ky = k[f, g, 0], k[f, g, 1]
+            eps = axial[f, g] - offset * kx
+            for c in range(n_c):
+                e = design[g, c, 1] * kx + design[g, c, 2] * ky + s_eps * eps + s_t[c] * temp[f, g]
+                lam = lam0[g, c] * (1.0 + e) + drift[g, c]
+                if noise > 0.0:
+                    lam += noise * z[1 + f, g, c]
+                if quant > 0.0:
+                    lam = np.round(lam / quant) * quant
+                if slot > 0.0 and abs(lam - lam0_nominal[g, c]) > slot:
+                    lam = np.nan
+                    status[f, g, c] = lost_flag
+                w[f, g, c] = lam

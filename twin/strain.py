@@ -79,6 +79,7 @@ def forward(
     core_angles=None,
     gains=None,
     lambda0=None,
+    design=None,
 ) -> np.ndarray:
     """Bragg wavelengths for given curvature vectors (math.md §2.1–2.2).
 
@@ -96,6 +97,9 @@ def forward(
     core_angles, gains : optional overrides of the fibre's core angles (rad) and gains g = r S_ε (m).
     lambda0 : array_like, shape (n_gratings, n_cores), optional
         Unstrained wavelengths, nm; default ``fiber.lambda0``.
+    design : array_like, shape (n_gratings, n_cores, 3), optional
+        Precomputed :func:`design_matrix` (replaces ``twist``, ``core_angles`` and ``gains``; saves the
+        trigonometry when called at a sensor rate).
 
     Returns
     -------
@@ -105,14 +109,15 @@ def forward(
     k = np.asarray(curvature, dtype=np.float64)
     if k.ndim < 2 or k.shape[-2:] != (fiber.n_gratings, 2):
         raise ValueError(f"forward: curvature must have shape (..., {fiber.n_gratings}, 2), got {k.shape}")
-    theta = _core_angles(fiber, core_angles, twist)
-    g = fiber.gains if gains is None else np.asarray(gains, dtype=np.float64)
-    bend = -g * (k[..., 0:1] * np.cos(theta) + k[..., 1:2] * np.sin(theta))
-    common = fiber.strain_sensitivity * np.asarray(axial_strain, dtype=np.float64)[..., None]
-    s_t = np.asarray(fiber.temperature_sensitivity)
-    thermal = np.asarray(delta_T, dtype=np.float64)[..., None] * s_t
+    d = design_matrix(fiber, core_angles=core_angles, gains=gains, twist=twist) if design is None else design
+    e = d[..., 1] * k[..., 0:1] + d[..., 2] * k[..., 1:2]
+    # zero common modes are skipped: this runs at the simulated interrogator's rate
+    if np.ndim(axial_strain) or axial_strain != 0:
+        e = e + fiber.strain_sensitivity * np.asarray(axial_strain, dtype=np.float64)[..., None]
+    if np.ndim(delta_T) or delta_T != 0:
+        e = e + np.asarray(delta_T, dtype=np.float64)[..., None] * np.asarray(fiber.temperature_sensitivity)
     lam0 = fiber.lambda0 if lambda0 is None else np.asarray(lambda0, dtype=np.float64)
-    return lam0 * (1.0 + bend + common + thermal)
+    return lam0 * (1.0 + e)
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,0 +1,111 @@
+"""Compiled per-edge loops of the rod-state reader (numba): they run at the sensor rate, up to 1 kHz.
+
+The numpy formulation in :mod:`models.rod_state` documents the method; these kernels do the same arithmetic in
+one pass without temporaries (≈ 2 µs instead of ≈ 50 µs for 100 segments).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux):
+    """Material frames per edge and discrete Darboux vectors per interior vertex.
+
+    Parameters
+    ----------
+    x : (nv, 3) vertex positions.
+    plastic : (6 ne,) per edge (t_old, u_old), MuJoCo's reference frames.
+    theta : (ne,) twist-joint angles (0 for a clamped edge).
+    site_x : (3,) x axis of the base site; its direction fixes the roll of the clamped edge's d1. A zero vector
+        leaves MuJoCo's roll.
+    inv_lbar : (ne − 1,) 1 / mean rest length of the two edges at each interior vertex.
+    frames : (ne, 3, 3) out: columns d1, d2, d3.
+    darboux : (ne − 1, 3) out: log(R_{i−1}ᵀ R_i) / l̄_i.
+    """
+    ne = theta.size
+    roll = 0.0
+    for e in range(ne):
+        tx = x[e + 1, 0] - x[e, 0]
+        ty = x[e + 1, 1] - x[e, 1]
+        tz = x[e + 1, 2] - x[e, 2]
+        n = np.sqrt(tx * tx + ty * ty + tz * tz)
+        tx /= n
+        ty /= n
+        tz /= n
+        ax, ay, az = plastic[6 * e], plastic[6 * e + 1], plastic[6 * e + 2]
+        ux, uy, uz = plastic[6 * e + 3], plastic[6 * e + 4], plastic[6 * e + 5]
+        # parallel transport from t_old to t: u + 2 (a·u) t − ((a + t)·u) (a + t) / (1 + a·t)
+        wx, wy, wz = ax + tx, ay + ty, az + tz
+        c_at = ax * tx + ay * ty + az * tz
+        au = ax * ux + ay * uy + az * uz
+        wu = (wx * ux + wy * uy + wz * uz) / (1.0 + c_at)
+        ux, uy, uz = ux + 2.0 * au * tx - wu * wx, uy + 2.0 * au * ty - wu * wy, uz + 2.0 * au * tz - wu * wz
+        vx, vy, vz = ty * uz - tz * uy, tz * ux - tx * uz, tx * uy - ty * ux
+        if e == 0 and (site_x[0] != 0.0 or site_x[1] != 0.0 or site_x[2] != 0.0):
+            roll = np.arctan2(site_x[0] * vx + site_x[1] * vy + site_x[2] * vz,
+                              site_x[0] * ux + site_x[1] * uy + site_x[2] * uz) - theta[0]
+        th = theta[e] + roll
+        c, s = np.cos(th), np.sin(th)
+        frames[e, 0, 0] = c * ux + s * vx
+        frames[e, 1, 0] = c * uy + s * vy
+        frames[e, 2, 0] = c * uz + s * vz
+        frames[e, 0, 1] = c * vx - s * ux
+        frames[e, 1, 1] = c * vy - s * uy
+        frames[e, 2, 1] = c * vz - s * uz
+        frames[e, 0, 2] = tx
+        frames[e, 1, 2] = ty
+        frames[e, 2, 2] = tz
+    for i in range(ne - 1):
+        # Q = R_{i}ᵀ R_{i+1}; only its antisymmetric part and trace are needed
+        q = np.zeros((3, 3))
+        for j in range(3):
+            for k in range(3):
+                q[j, k] = (frames[i, 0, j] * frames[i + 1, 0, k] + frames[i, 1, j] * frames[i + 1, 1, k]
+                           + frames[i, 2, j] * frames[i + 1, 2, k])
+        w0 = q[2, 1] - q[1, 2]
+        w1 = q[0, 2] - q[2, 0]
+        w2 = q[1, 0] - q[0, 1]
+        sin2 = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)  # 2 sin φ
+        phi = np.arctan2(0.5 * sin2, 0.5 * (q[0, 0] + q[1, 1] + q[2, 2] - 1.0))
+        f = phi / sin2 if sin2 > 1e-6 else 0.5 + phi * phi / 12.0
+        darboux[i, 0] = w0 * f * inv_lbar[i]
+        darboux[i, 1] = w1 * f * inv_lbar[i]
+        darboux[i, 2] = w2 * f * inv_lbar[i]
+
+
+@njit(cache=True, nogil=True)
+def frames_at(edge_s, edge_frames, darboux, s, out):
+    """Geodesic interpolation of edge frames at arc lengths ``s`` (clamped to the edge midpoints)."""
+    ne = edge_s.size
+    for q in range(s.size):
+        sq = min(max(s[q], edge_s[0]), edge_s[ne - 1])
+        e = np.searchsorted(edge_s, sq, side="right") - 1
+        e = min(max(e, 0), ne - 2)
+        h = sq - edge_s[e]
+        wx, wy, wz = h * darboux[e, 0], h * darboux[e, 1], h * darboux[e, 2]
+        t2 = wx * wx + wy * wy + wz * wz
+        if t2 < 1e-8:
+            a = 1.0 - t2 / 6.0
+            b = 0.5 - t2 / 24.0
+        else:
+            t = np.sqrt(t2)
+            a = np.sin(t) / t
+            b = (1.0 - np.cos(t)) / t2
+        # E = I + a ŵ + b ŵ²
+        e00 = 1.0 - b * (wy * wy + wz * wz)
+        e11 = 1.0 - b * (wx * wx + wz * wz)
+        e22 = 1.0 - b * (wx * wx + wy * wy)
+        e01 = -a * wz + b * wx * wy
+        e10 = a * wz + b * wx * wy
+        e02 = a * wy + b * wx * wz
+        e20 = -a * wy + b * wx * wz
+        e12 = -a * wx + b * wy * wz
+        e21 = a * wx + b * wy * wz
+        for r in range(3):
+            f0, f1, f2 = edge_frames[e, r, 0], edge_frames[e, r, 1], edge_frames[e, r, 2]
+            out[q, r, 0] = f0 * e00 + f1 * e10 + f2 * e20
+            out[q, r, 1] = f0 * e01 + f1 * e11 + f2 * e21
+            out[q, r, 2] = f0 * e02 + f1 * e12 + f2 * e22

@@ -1,0 +1,155 @@
+"""Simulated setups: a MuJoCo scene with the catheter and what drives it over time.
+
+A :class:`Setup` is what :class:`~sim_interrogator.sim.SimInterrogator` runs: it builds the scene, brings it
+to its starting state, and is asked to act on the model as simulated time passes (move a hub, change
+constraint targets, apply tendon forces, change the temperature). Setups are registered by name in
+:data:`SETUPS`, which is what ``sim://NAME?key=value…`` opens. The experiments in ``scenarios/`` run setups and
+evaluate what comes out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+from models import shapes
+from models.catheter import CatheterSpec
+from models.fixtures import build_connect, build_groove, build_tube, settle
+
+__all__ = ["SETUPS", "Setup", "StaticShape", "parse_params", "register"]
+
+#: name → Setup subclass; ``sim://NAME?…`` instantiates it with the query parameters.
+SETUPS: dict[str, type[Setup]] = {}
+
+
+def register(cls: type[Setup]) -> type[Setup]:
+    SETUPS[cls.name] = cls
+    return cls
+
+
+class Setup:
+    """Base class of simulated setups.
+
+    Subclasses set :attr:`name`, declare their parameters as keyword arguments of ``__init__`` (with
+    defaults, in SI units) and override :meth:`build`; :meth:`actuate` and :meth:`conditions` default to a
+    static, isothermal setup.
+
+    Attributes
+    ----------
+    name : str
+        Registry name (``sim://NAME``).
+    duration : float or None
+        Simulated seconds the setup runs after :meth:`prepare`; None for a static setup that runs until
+        closed.
+    rod_name : str
+        The catheter flexcomp's name.
+    actuated : bool
+        Whether :meth:`actuate` must be called before every physics step (False: steps run in blocks).
+    """
+
+    name = "setup"
+    duration: float | None = None
+    rod_name = "cath"
+    actuated = False
+
+    def build(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        raise NotImplementedError
+
+    def prepare(self, model: mujoco.MjModel, data: mujoco.MjData,
+                progress: Callable[[float, float], None] | None = None) -> None:
+        """Bring the scene to its starting state (typically: let it settle)."""
+
+    def actuate(self, model: mujoco.MjModel, data: mujoco.MjData, t: float) -> None:
+        """Act on the scene at time ``t`` s since the start (called before each physics step if actuated)."""
+
+    def conditions(self, t: float, grating_s: np.ndarray) -> tuple[float | np.ndarray, float | np.ndarray]:
+        """(temperature change K, axial strain) at the gratings at time ``t``."""
+        return 0.0, 0.0
+
+    def fixture_centreline(self) -> np.ndarray | None:
+        """The fixture's centreline in world coordinates, (k, 3) m, when there is one (for Truth.fixture)."""
+        return None
+
+    def describe(self) -> dict:
+        """Parameters, JSON-ready."""
+        return {"setup": self.name}
+
+
+def _number(key: str, value: str) -> float:
+    try:
+        return float(value)
+    except ValueError:
+        raise ValueError(f"sim parameter {key}={value!r}: expected a number") from None
+
+
+def parse_params(cls: type[Setup], params: dict[str, str]) -> dict:
+    """Convert URL query strings to the types of ``cls``'s keyword defaults; unknown keys are errors."""
+    import inspect
+
+    sig = inspect.signature(cls.__init__)
+    known = {k: p.default for k, p in sig.parameters.items() if k != "self"}
+    out = {}
+    for key, value in params.items():
+        if key not in known:
+            raise ValueError(f"sim://{cls.name}: unknown parameter {key!r}; known: {', '.join(sorted(known))}")
+        default = known[key]
+        if isinstance(default, bool):
+            out[key] = value.lower() in ("1", "true", "yes", "on")
+        elif isinstance(default, int):
+            out[key] = int(_number(key, value))
+        elif isinstance(default, float):
+            out[key] = _number(key, value)
+        else:
+            out[key] = value
+    return out
+
+
+@register
+class StaticShape(Setup):
+    """The catheter held in one library shape (the paper's static experiment).
+
+    Parameters
+    ----------
+    shape : str
+        A :mod:`models.shapes` name.
+    fixture : {"connect", "tube", "groove"}
+        Exact shaping by connect constraints, a 3 mm rigid tube, or a grooved plate (planar shapes).
+    segments : int
+        Rod segments over the whole catheter (base + sensed + tip).
+    timestep : float
+        Physics step, s.
+    settle_time : float
+        Longest time to let the shape settle, s (a clear error if it does not).
+    """
+
+    name = "static"
+
+    def __init__(self, shape: str = "helix", fixture: str = "connect", segments: int = 100,
+                 timestep: float = 2e-3, settle_time: float = 10.0):
+        if fixture not in ("connect", "tube", "groove"):
+            raise ValueError(f"fixture must be connect, tube or groove; got {fixture!r}")
+        self.curve = shapes.get(shape)
+        if fixture == "groove" and not self.curve.planar:
+            raise ValueError(f"shape {shape!r} is not planar: a groove cannot hold it; use fixture=tube")
+        self.fixture_kind = fixture
+        self.spec = CatheterSpec(n_segments=int(segments), timestep=float(timestep))
+        self.settle_time = float(settle_time)
+        self.fixture = None
+
+    def build(self):
+        builder = {"connect": build_connect, "tube": build_tube, "groove": build_groove}[self.fixture_kind]
+        model, data, self.fixture = builder(self.curve, self.spec)
+        return model, data
+
+    def prepare(self, model, data, progress=None):
+        settle(model, data, max_time=self.settle_time, progress=progress)
+
+    def fixture_centreline(self):
+        s = np.linspace(0.0, self.curve.length, 341)
+        return self.fixture.pose.apply(self.fixture.curve.positions(s))
+
+    def describe(self):
+        return {"setup": self.name, "shape": self.curve.name, "fixture": self.fixture_kind,
+                "segments": self.spec.n_segments, "timestep": self.spec.timestep}

@@ -1,0 +1,148 @@
+"""SimInterrogator: the physics twin as a source of interrogator frames with their ground truth.
+
+It runs a :class:`~sim_interrogator.setups.Setup` in MuJoCo and, at the interrogator's rate, reads the rod's
+state (:class:`models.rod_state.RodReader`), samples its curvature along each grating and turns it into peak
+wavelengths through :class:`~sim_interrogator.optics.Optics`. Each :class:`twin.Frame` carries a
+:class:`twin.Truth`: the rod's centreline and material frames, its curvature and twist at the gratings, the
+temperature and the fixture's centreline.
+
+Frames come at simulated times k / rate after the setup's start (their timestamps), each showing the physics
+state at the step nearest that time (within half a physics step). With ``realtime`` the source waits for the
+wall clock (as hardware does); otherwise it runs as fast as it can.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+from models.rod_state import RodReader
+from sim_interrogator.optics import Optics, OpticsConfig
+from sim_interrogator.setups import Setup
+from twin import FiberModel, Frame
+from twin.io.source import Source, SourceClosed
+
+__all__ = ["SimInterrogator"]
+
+
+class SimInterrogator(Source):
+    """A simulated interrogator on a simulated catheter.
+
+    Parameters
+    ----------
+    setup : Setup
+        The scene and its actuation.
+    fiber : FiberModel, optional
+        The nominal fibre (what the reconstruction is told); default the paper's.
+    optics : OpticsConfig or Optics, optional
+        Effects and the simulated fibre's true parameters; default :class:`OpticsConfig` (realistic).
+    rate : float
+        Frames per simulated second, Hz (the paper: 100; up to 1 kHz).
+    realtime : bool
+        Pace frames to the wall clock.
+    truth : bool
+        Attach :class:`twin.Truth` to every frame (turn off to save time when no one reads it).
+    progress : callable (time s, moved m), optional
+        Called while the setup settles.
+    """
+
+    def __init__(self, setup: Setup, fiber: FiberModel | None = None, optics: OpticsConfig | Optics | None = None,
+                 rate: float = 100.0, realtime: bool = False, truth: bool = True,
+                 progress: Callable[[float, float], None] | None = None):
+        if not (np.isfinite(rate) and 0 < rate <= 10_000):
+            raise ValueError(f"rate must be in (0, 10000] Hz, got {rate}")
+        self.setup = setup
+        self.fiber = fiber or FiberModel.paper()
+        self.optics = optics if isinstance(optics, Optics) else Optics(self.fiber, optics)
+        self.rate = float(rate)
+        self.realtime = realtime
+        self.with_truth = truth
+        self.url = f"sim://{setup.name}"
+        self.model, self.data = setup.build()
+        setup.prepare(self.model, self.data, progress)
+        self.reader = RodReader(self.model, setup.rod_name)
+        self._t0 = self.data.time
+        self._k = 0
+        self._wall0: float | None = None
+        self._closed = False
+        self._fixture = setup.fixture_centreline() if truth else None
+        # Darboux vectors (κ1, κ2, τ) at the interior vertices → (k_x, k_y) = (κ2, −κ1) averaged over each
+        # grating's length (models/rod_state.py), as one fixed matrix (2, n_g, n_interior)
+        basis = self.reader.interpolation_matrix(self.optics.sample_s)
+        n_g = self.fiber.n_gratings
+        avg = np.einsum("gsv,s->gv", basis.reshape(n_g, -1, basis.shape[-1]), self.optics.sample_weights)
+        self._darboux_buf = np.empty((basis.shape[-1], 3))
+        self._frames_buf = np.empty((basis.shape[-1] + 1, 3, 3))
+        self._grating_average = avg
+        self._sign = np.array([1.0, -1.0])
+        self.physics_time = 0.0  # wall seconds in mj_step
+        self.optics_time = 0.0  # wall seconds reading the rod and making wavelengths
+        self.truth_time = 0.0  # wall seconds making the truth and the frame
+
+    @property
+    def time(self) -> float:
+        """Simulated time since the setup's start, s."""
+        return self.data.time - self._t0
+
+    def _advance(self, t_target: float) -> None:
+        model, data, setup = self.model, self.data, self.setup
+        dt = model.opt.timestep
+        n = round((t_target - self.time) / dt)
+        if n <= 0:
+            return
+        t0 = time.perf_counter()
+        if setup.actuated:
+            for _ in range(n):
+                setup.actuate(model, data, self.time)
+                mujoco.mj_step(model, data)
+        else:
+            mujoco.mj_step(model, data, nstep=n)
+        self.physics_time += time.perf_counter() - t0
+
+    def read(self, timeout: float | None = None) -> Frame | None:
+        if self._closed:
+            raise SourceClosed(f"{self.url}: closed")
+        t = self._k / self.rate
+        if self.setup.duration is not None and t > self.setup.duration + 1e-12:
+            raise SourceClosed(f"{self.url}: the setup ended after {self.setup.duration} s")
+        if self.realtime:
+            now = time.monotonic()
+            if self._wall0 is None:
+                self._wall0 = now - t
+            wait = self._wall0 + t - now
+            if timeout is not None and wait > timeout:
+                time.sleep(max(timeout, 0.0))
+                return None
+            if wait > 0:
+                time.sleep(wait)
+        self._advance(t)
+        return self._frame(t)
+
+    def _frame(self, t: float) -> Frame:
+        t0 = time.perf_counter()
+        self.reader.compute(self.data, self._frames_buf, self._darboux_buf)
+        delta_t, axial = self.setup.conditions(t, self.fiber.grating_s)
+        d = self._grating_average @ self._darboux_buf  # (κ1, κ2, τ) averaged over each grating
+        k = d[:, 1::-1] * self._sign  # (k_x, k_y) = (κ2, −κ1)
+        w, status = self.optics.wavelengths(k, axial, delta_t, t=t)
+        t1 = time.perf_counter()
+        self.optics_time += t1 - t0
+        truth = None
+        if self.with_truth:
+            temp = np.broadcast_to(np.asarray(delta_t, float), self.fiber.grating_s.shape).copy()
+            state = self.reader.read(self.data)
+            truth = state.to_truth(self.fiber.grating_s, temperature=temp, fixture=self._fixture)
+        frame = Frame(w, timestamp=self.optics.timestamp(t), sequence=self._k, status=status, truth=truth)
+        self._k += 1
+        self.truth_time += time.perf_counter() - t1
+        return frame
+
+    def stats(self) -> dict:
+        return {"frames": self._k, "sim_time_s": self.time, "physics_wall_s": self.physics_time,
+                "optics_wall_s": self.optics_time, "truth_wall_s": self.truth_time}
+
+    def close(self) -> None:
+        self._closed = True
