@@ -16,9 +16,12 @@ Effects, each a field of :class:`OpticsConfig` (``OpticsConfig.ideal()`` turns a
 * finite grating length (strain averaged over it — the caller samples the curvature along each grating);
 * white wavelength noise and a slow random-walk drift per peak;
 * quantisation to the interrogator's resolution;
-* peak loss when a peak leaves its grating's wavelength slot (the paper's failure at sharp bends): NaN with
-  :attr:`twin.PeakStatus.OUT_OF_SLOT`. A real interrogator may also swap two peaks that cross; this model
-  reports them lost instead.
+* peak loss (the paper's failure at sharp bends and compression): the interrogator assigns the peaks of a core
+  to its gratings in wavelength order, so two peaks of neighbouring gratings that come closer than
+  ``min_peak_separation`` merge and both are lost, and a peak outside the interrogator's ``band`` is lost; with
+  ``slot_half_width`` set, a window-based interrogator also loses a peak that leaves its grating's window.
+  Lost peaks are NaN with :attr:`twin.PeakStatus.OUT_OF_SLOT`. (Peaks that cross would be swapped by a real
+  interrogator; the model reports them lost.)
 """
 
 from __future__ import annotations
@@ -63,14 +66,22 @@ class OpticsConfig:
         Random-walk drift per peak, nm/√s.
     quantisation : float
         Wavelength resolution, nm (0 = none).
+    min_peak_separation : float
+        Peaks of neighbouring gratings (in wavelength order) closer than this merge and are lost, nm.
+    band : tuple of float
+        The interrogator's wavelength range, nm; peaks outside it are lost.
     slot_half_width : float or None
-        A peak further than this from its grating's nominal wavelength is lost, nm (None = never).
+        For a window-based interrogator: a peak further than this from its grating's nominal wavelength is
+        lost, nm (None: peaks are tracked by order, the default).
     grating_length : float
         Length over which each grating averages the strain, m.
     jitter : float
         Timestamp jitter (1σ), s.
+    fiber_seed : int
+        Seed of the as-built scatter (λ0 spread, S_T mismatch): one value is one physical fibre, so a
+        calibration made in one run holds in the next.
     seed : int or None
-        Seed of every random effect (as-built scatter, noise, drift, jitter).
+        Seed of the noise, drift and jitter (None: fresh each time).
     """
 
     delta_theta: float | None = 1.039
@@ -84,9 +95,12 @@ class OpticsConfig:
     noise: float = 1e-3
     drift: float = 2e-4
     quantisation: float = 1e-4
-    slot_half_width: float | None = 2.5
+    min_peak_separation: float = 1.0
+    band: tuple[float, float] = (1500.0, 1600.0)
+    slot_half_width: float | None = None
     grating_length: float = 1e-3
     jitter: float = 2e-5
+    fiber_seed: int = 0
     seed: int | None = 0
 
     @classmethod
@@ -94,7 +108,8 @@ class OpticsConfig:
         """Every effect off: the nominal fibre, exact wavelengths from :func:`twin.strain.forward`."""
         off = dict(delta_theta=None, gain_scale=1.0, lambda0_spread=0.0, twist_total=0.0, twist_wobble=0.0,
                    thermal_mismatch=0.0, temperature=0.0, fiber_offset=0.0, noise=0.0, drift=0.0,
-                   quantisation=0.0, slot_half_width=None, grating_length=0.0, jitter=0.0)
+                   quantisation=0.0, min_peak_separation=0.0, band=(0.0, np.inf), slot_half_width=None,
+                   grating_length=0.0, jitter=0.0)
         off.update(changes)
         return cls(**off)
 
@@ -127,7 +142,7 @@ class Optics:
     def __init__(self, fiber: FiberModel, config: OpticsConfig | None = None):
         self.nominal = fiber
         self.config = cfg = config or OpticsConfig()
-        rng = np.random.default_rng(cfg.seed)
+        rng = np.random.default_rng(cfg.fiber_seed)
         angles = fiber.core_angles if cfg.delta_theta is None else scaled_core_angles(fiber, cfg.delta_theta)
         s_t = np.broadcast_to(np.asarray(fiber.temperature_sensitivity, float), (fiber.n_cores,))
         s_t = s_t * (1.0 + cfg.thermal_mismatch * rng.standard_normal(fiber.n_cores))
@@ -142,13 +157,15 @@ class Optics:
         self._design = strain.design_matrix(self.true_fiber, twist=self.twist)
         self._s_t = np.ascontiguousarray(np.broadcast_to(self.true_fiber.temperature_sensitivity, (fiber.n_cores,)))
         self._no_noise = np.zeros((1, 1, 1))
+        # neighbours in wavelength order, per core: the interrogator assigns peaks by order
+        self._order = np.ascontiguousarray(np.argsort(fiber.lambda0, axis=0))
         self._lost_flag = int(PeakStatus.OUT_OF_SLOT | PeakStatus.MISSING)
         if cfg.grating_length > 0:
             nodes, weights = np.polynomial.legendre.leggauss(self.N_SUB)
             self.sample_offsets, self._weights = 0.5 * cfg.grating_length * nodes, 0.5 * weights
         else:
             self.sample_offsets, self._weights = np.zeros(1), np.ones(1)
-        self._rng = rng
+        self._rng = np.random.default_rng(cfg.seed)
         self._drift = np.zeros(fiber.lambda0.shape)
         self._t_last: float | None = None
 
@@ -208,7 +225,8 @@ class Optics:
         status = np.zeros((n_f, n_g, n_c), np.uint8)
         _effects(k.reshape(n_f, n_g, 2), axial, temp, self._design, fiber.lambda0, self.nominal.lambda0,
                  fiber.strain_sensitivity, self._s_t, cfg.fiber_offset, self._drift, step, z, cfg.noise,
-                 cfg.quantisation, cfg.slot_half_width or 0.0, self._lost_flag, w, status)
+                 cfg.quantisation, cfg.slot_half_width or 0.0, cfg.min_peak_separation, float(cfg.band[0]),
+                 float(cfg.band[1]), self._order, self._lost_flag, w, status)
         if not batch:
             return w[0], status[0]
         return w.reshape(*batch, n_g, n_c), status.reshape(*batch, n_g, n_c)
@@ -245,13 +263,13 @@ class Optics:
 
 @njit(cache=True, nogil=True)
 def _effects(k, axial, temp, design, lam0, lam0_nominal, s_eps, s_t, offset, drift, drift_step, z, noise, quant,
-             slot, lost_flag, w, status):
+             slot, separation, band_lo, band_hi, order, lost_flag, w, status):
     """Wavelengths with every effect for F states, compiled because it runs at up to 1 kHz.
 
     The deterministic part is :func:`twin.strain.forward` in design form, λ = λ0 (1 + c_i + D_i1 k_x + D_i2 k_y)
     with c_i = S_ε ε_axial + S_T,i ΔT (tests/test_sim.py checks the two agree); then drift, noise,
-    quantisation and the slot check. ``z[0]`` drives the drift's random walk (step ``drift_step`` nm),
-    ``z[1 + f]`` the noise of state f.
+    quantisation and peak loss. ``z[0]`` drives the drift's random walk (step ``drift_step`` nm), ``z[1 + f]``
+    the noise of state f; ``order[:, c]`` lists core c's gratings by nominal wavelength.
     """
     n_f, n_g, n_c = w.shape
     if drift_step > 0.0:
@@ -269,7 +287,17 @@ def _effects(k, axial, temp, design, lam0, lam0_nominal, s_eps, s_t, offset, dri
                     lam += noise * z[1 + f, g, c]
                 if quant > 0.0:
                     lam = np.round(lam / quant) * quant
-                if slot > 0.0 and abs(lam - lam0_nominal[g, c]) > slot:
-                    lam = np.nan
+                if (slot > 0.0 and abs(lam - lam0_nominal[g, c]) > slot) or lam < band_lo or lam > band_hi:
                     status[f, g, c] = lost_flag
                 w[f, g, c] = lam
+        if separation > 0.0:
+            for c in range(n_c):
+                for j in range(n_g - 1):
+                    a, b = order[j, c], order[j + 1, c]
+                    if abs(w[f, a, c] - w[f, b, c]) < separation:
+                        status[f, a, c] = lost_flag
+                        status[f, b, c] = lost_flag
+        for g in range(n_g):
+            for c in range(n_c):
+                if status[f, g, c]:
+                    w[f, g, c] = np.nan

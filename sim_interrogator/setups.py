@@ -15,10 +15,10 @@ import mujoco
 import numpy as np
 
 from models import shapes
-from models.catheter import CatheterSpec
-from models.fixtures import build_connect, build_groove, build_tube, settle
+from models.catheter import CatheterSpec, Pose
+from models.fixtures import ExtendedCurve, build_connect, build_groove, build_tube, rod_base_pose, settle
 
-__all__ = ["SETUPS", "Setup", "StaticShape", "parse_params", "register"]
+__all__ = ["SETUPS", "CalibrationPoses", "Setup", "StaticShape", "parse_params", "register"]
 
 #: name → Setup subclass; ``sim://NAME?…`` instantiates it with the query parameters.
 SETUPS: dict[str, type[Setup]] = {}
@@ -75,6 +75,14 @@ class Setup:
     def describe(self) -> dict:
         """Parameters, JSON-ready."""
         return {"setup": self.name}
+
+    #: named poses the setup can put the catheter in on request (:meth:`set_pose`)
+    poses: tuple[str, ...] = ()
+
+    def set_pose(self, model: mujoco.MjModel, data: mujoco.MjData, pose: str,
+                 progress: Callable[[float, float], None] | None = None) -> None:
+        """Put the catheter in a named pose and let it settle (what a person does by hand on hardware)."""
+        raise ValueError(f"sim://{self.name} has no poses to set; known: {', '.join(self.poses) or 'none'}")
 
 
 def _number(key: str, value: str) -> float:
@@ -153,3 +161,69 @@ class StaticShape(Setup):
     def describe(self):
         return {"setup": self.name, "shape": self.curve.name, "fixture": self.fixture_kind,
                 "segments": self.spec.n_segments, "timestep": self.spec.timestep}
+
+
+@register
+class CalibrationPoses(Setup):
+    """The two poses of the two-step calibration, on request: ``straight``, then an in-plane ``bend``.
+
+    The catheter is held by connect constraints, first straight; :meth:`set_pose` retargets them. The bend is
+    a planar arc of ``bend_curvature`` (default 16 1/m, the paper's 0.16 1/cm) in the plane at ``bend_angle``
+    (rad, about the fibre axis from d1) — unknown to the calibration, which must not depend on it.
+
+    Parameters
+    ----------
+    bend_curvature : float
+        1/m.
+    bend_angle : float
+        rad.
+    segments : int
+    settle_time : float
+        s.
+    """
+
+    name = "calibration"
+    poses = ("straight", "bend")
+
+    def __init__(self, bend_curvature: float = 16.0, bend_angle: float = 0.6, segments: int = 100,
+                 settle_time: float = 10.0):
+        k = float(bend_curvature) * np.array([np.cos(bend_angle), np.sin(bend_angle)])
+        self.shapes = {
+            "straight": shapes.ShapeCurve("straight", True, lambda s: np.zeros((*np.shape(s), 2))),
+            "bend": shapes.ShapeCurve("calibration-bend", True, lambda s: np.broadcast_to(k, (*np.shape(s), 2))),
+        }
+        self.spec = CatheterSpec(n_segments=int(segments))
+        self.settle_time = float(settle_time)
+        self.pose = "straight"
+        self.fixture = None
+
+    def build(self):
+        model, data, self.fixture = build_connect(self.shapes["straight"], self.spec)
+        return model, data
+
+    def prepare(self, model, data, progress=None):
+        settle(model, data, max_time=self.settle_time, progress=progress)
+
+    def set_pose(self, model, data, pose, progress=None):
+        if pose not in self.shapes:
+            raise ValueError(f"sim://{self.name}: unknown pose {pose!r}; known: {', '.join(self.poses)}")
+        # Keep the clamp where it is: place the new curve so that its clamp pose is the current one.
+        def clamp(name):
+            return rod_base_pose(ExtendedCurve(self.shapes[name], self.spec.base_length, self.spec.tip_length),
+                                 self.spec)
+
+        old, new = clamp(self.pose), clamp(pose)
+        inverse_new = Pose(-new.rot.T @ new.pos, new.rot.T)
+        self._placement = getattr(self, "_placement", self.fixture.pose) @ old @ inverse_new
+        self.fixture.set_shape(model, self.shapes[pose], self._placement)
+        self.pose = pose
+        settle(model, data, max_time=self.settle_time, progress=progress, label=f"calibration pose {pose!r}")
+
+    def fixture_centreline(self):
+        s = np.linspace(0.0, self.spec.sensed_length, 341)
+        placement = getattr(self, "_placement", self.fixture.pose)
+        curve = ExtendedCurve(self.shapes[self.pose], self.spec.base_length, self.spec.tip_length)
+        return placement.apply(curve.positions(s))
+
+    def describe(self):
+        return {"setup": self.name, "pose": self.pose, "segments": self.spec.n_segments}

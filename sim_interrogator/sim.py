@@ -140,6 +140,22 @@ class SimInterrogator(Source):
         self.truth_time += time.perf_counter() - t1
         return frame
 
+    @property
+    def poses(self) -> tuple[str, ...]:
+        """Poses the simulated catheter can be put in on request (see :meth:`set_pose`)."""
+        return self.setup.poses
+
+    def set_pose(self, pose: str, progress: Callable[[float, float], None] | None = None) -> None:
+        """Put the simulated catheter in a named pose (e.g. the calibration's ``straight`` and ``bend``) and
+        let it settle; frames continue from the settled state."""
+        self.setup.set_pose(self.model, self.data, pose, progress)
+        self._t0 = self.data.time - self._k / self.rate
+        self._fixture = self.setup.fixture_centreline() if self.with_truth else None
+
+    def describe(self) -> dict:
+        """The setup and the simulated fibre's true parameters (what calibration should find)."""
+        return {"url": self.url, "rate_hz": self.rate, **self.setup.describe(), **self.optics.describe()}
+
     def stats(self) -> dict:
         return {"frames": self._k, "sim_time_s": self.time, "physics_wall_s": self.physics_time,
                 "optics_wall_s": self.optics_time, "truth_wall_s": self.truth_time}

@@ -50,6 +50,19 @@ def test_peak_loss_when_a_shift_leaves_its_slot():
     assert np.isfinite(np.delete(w.ravel(), 5 * 4 + 1)).all() and status.sum() == status[5, 1]
 
 
+def test_peaks_of_neighbouring_gratings_merge_at_a_kink():
+    """Gratings 5 nm apart: a smooth bend of 67.5 1/m (≈ 3 nm) loses nothing, a kink where neighbours bend
+    oppositely by 60 1/m (≈ 2.6 nm each way) brings their peaks within 1 nm and both are lost."""
+    o = Optics(FIBRE, OpticsConfig.ideal(min_peak_separation=1.0, band=(1500.0, 1600.0)))
+    assert not o.wavelengths(np.tile([67.5, 0.0], (18, 1)))[1].any()
+    k = np.zeros((18, 2))
+    k[7], k[8] = [-60.0, 0.0], [60.0, 0.0]  # core 1 (θ = 0): grating 7 stretched, grating 8 compressed
+    w, status = o.wavelengths(k)
+    assert np.isnan(w[7:9, 1]).all() and status[7:9, 1].all() and not np.delete(status, [7 * 4 + 1, 8 * 4 + 1]).any()
+    band = Optics(FIBRE, OpticsConfig.ideal(band=(1512.0, 1600.0)))
+    assert np.isnan(band.wavelengths(np.zeros((18, 2)))[0][0]).all()  # grating 0 at 1510 nm: outside
+
+
 def test_noise_quantisation_drift_and_spread():
     cfg = OpticsConfig.ideal(noise=1e-3, seed=3)
     o = Optics(FIBRE, cfg)
@@ -61,7 +74,7 @@ def test_noise_quantisation_drift_and_spread():
     steps = np.array([d.wavelengths(np.zeros((18, 2)), t=float(t))[0] for t in range(401)]) - FIBRE.lambda0
     # a random walk of 1 pm/√s: the spread of the increments over 100 s is ≈ 10 pm
     assert np.std(steps[400] - steps[300]) == pytest.approx(10e-3, rel=0.25)
-    spread = Optics(FIBRE, OpticsConfig.ideal(lambda0_spread=0.3, seed=2)).true_fiber.lambda0 - FIBRE.lambda0
+    spread = Optics(FIBRE, OpticsConfig.ideal(lambda0_spread=0.3, fiber_seed=2)).true_fiber.lambda0 - FIBRE.lambda0
     assert np.std(spread) == pytest.approx(0.3, rel=0.2)
 
 

@@ -10,6 +10,7 @@ and reports the r–S_ε degeneracy instead of returning an arbitrary point of t
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -21,7 +22,15 @@ from twin.calibration import Calibration, nominal_delta_theta, nominal_gain
 from twin.fiber import FiberModel
 from twin.reconstruct import Reconstructor
 
-__all__ = ["Identification", "Observation", "identify", "paper_cost", "parameter_jacobian"]
+__all__ = [
+    "Identification",
+    "Observation",
+    "identify",
+    "paper_cost",
+    "parameter_jacobian",
+    "read_truth",
+    "write_truth",
+]
 
 FORMULATIONS = ("lsq", "paper")
 
@@ -50,7 +59,8 @@ class Observation:
     def __post_init__(self) -> None:
         w = np.asarray(self.wavelengths, dtype=np.float64)
         if w.ndim == 3:
-            with np.errstate(invalid="ignore"):
+            with warnings.catch_warnings():  # a peak lost in every frame stays NaN: that grating drops out
+                warnings.simplefilter("ignore", RuntimeWarning)
                 w = np.nanmean(w, axis=0)
         if w.ndim != 2:
             raise ValueError(f"observation {self.name!r}: wavelengths must be (n_frames, n_gratings, n_cores)")
@@ -349,3 +359,69 @@ def paper_cost(fiber: FiberModel, observations: Sequence[Observation], calibrati
     problem = _Problem(fiber, observations, calibration, reconstructor_options)
     shape = problem.rec(problem.w)
     return np.array([problem.truth_distances(shape, i, translation).max() for i in range(len(problem.obs))])
+
+
+# ------------------------------------------------------------------------------------------ truth files
+TRUTH_COLUMNS = ("s_m", "x_m", "y_m", "z_m")
+
+
+def write_truth(path, points, s=None) -> None:
+    """Write a ground-truth curve: CSV with a header ``s_m,x_m,y_m,z_m`` (``s_m`` only when arc lengths are
+    known), one point per row, m; or ``.npy`` of shape (m, 3) points or (m, 4) rows (s, x, y, z)."""
+    from pathlib import Path
+
+    path = Path(path)
+    pts = np.asarray(points, dtype=np.float64)
+    table = pts if s is None else np.column_stack([np.asarray(s, dtype=np.float64), pts])
+    if path.suffix == ".npy":
+        np.save(path, table)
+        return
+    header = ",".join(TRUTH_COLUMNS if s is not None else TRUTH_COLUMNS[1:])
+    np.savetxt(path, table, delimiter=",", header=header, comments="", fmt="%.9e")
+
+
+def read_truth(path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read a ground-truth curve written as :func:`write_truth` describes (a lab's CT, stereo camera or mould
+    model): returns (points (m, 3) in m, arc lengths (m,) in m or None). Errors name the file and line."""
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such truth file")
+    if path.suffix == ".npy":
+        a = np.load(path, allow_pickle=False)
+        if a.ndim != 2 or a.shape[1] not in (3, 4):
+            raise ValueError(f"{path}: expected an array of shape (m, 3) points or (m, 4) rows (s, x, y, z) in m, "
+                             f"got {a.shape}")
+        a = a.astype(np.float64)
+        s, pts = (a[:, 0], a[:, 1:]) if a.shape[1] == 4 else (None, a)
+    else:
+        lines = path.read_text().splitlines()
+        if not lines:
+            raise ValueError(f"{path}: empty truth file")
+        header = [h.strip() for h in lines[0].split(",")]
+        missing = [c for c in TRUTH_COLUMNS[1:] if c not in header]
+        if missing:
+            raise ValueError(f"{path}: line 1: missing column(s) {', '.join(missing)}; expected a header "
+                             f"{','.join(TRUTH_COLUMNS)} (s_m optional), values in m")
+        cols = [header.index(c) for c in TRUTH_COLUMNS if c in header]
+        rows = []
+        for n, line in enumerate(lines[1:], start=2):
+            if not line.strip():
+                continue
+            cells = line.split(",")
+            if len(cells) != len(header):
+                raise ValueError(f"{path}: line {n}: {len(cells)} cells, the header has {len(header)}")
+            try:
+                rows.append([float(cells[c]) for c in cols])
+            except ValueError:
+                raise ValueError(f"{path}: line {n}: a value is not a number: {line.strip()!r}") from None
+        a = np.array(rows, dtype=np.float64).reshape(-1, len(cols))
+        s, pts = (a[:, 0], a[:, 1:]) if "s_m" in header else (None, a)
+    if len(pts) < 3 or not np.isfinite(pts).all() or (s is not None and not np.isfinite(s).all()):
+        raise ValueError(f"{path}: expected at least 3 finite points")
+    if s is not None and np.any(np.diff(s) <= 0):
+        raise ValueError(f"{path}: s_m must increase strictly along the curve")
+    if np.abs(pts).max() > 10:
+        raise ValueError(f"{path}: coordinates up to {np.abs(pts).max():g}: truth files are in m, not mm")
+    return pts, s

@@ -20,6 +20,11 @@ __all__ = ["SCHEMES", "Source", "SourceClosed", "open_source", "parse_url"]
 #: URL scheme → "module:function"; the function takes the URL and keyword options and returns a Source.
 SCHEMES: dict[str, str] = {
     "sim": "sim_interrogator.source:open_sim",
+    "illumisense": "twin.io.drivers:open_illumisense",
+    "fispec": "twin.io.drivers:open_fispec",
+    "hyperion": "twin.io.drivers:open_hyperion",
+    "replay": "twin.io.record:open_replay",
+    "synthetic": "twin.io.synthetic:open_synthetic",
 }
 
 
@@ -54,6 +59,10 @@ class Source:
     def stats(self) -> dict:
         """Counters the source keeps (framing errors, lost samples, reconnects, …)."""
         return {}
+
+    def describe(self) -> dict:
+        """What the source knows about itself, JSON-ready (a simulator: its setup and true fibre parameters)."""
+        return {"url": self.url}
 
     def __iter__(self) -> Iterator[Frame]:
         while True:
