@@ -18,6 +18,11 @@ distances; ``paper_…`` the same for the paper's pipeline.
 Calibration (``--calibration``): ``true`` reconstructs with the twin's true fibre parameters (as-built λ0,
 intrinsic twist, Δθ, g), leaving noise, drift, quantisation and the grating length; ``nominal`` uses the
 datasheet only; a path loads a calibration TOML.
+
+``--record DIR`` writes, per shape, the frames (``DIR/SHAPE.h5``, a twin recording) and the ground truth
+(``DIR/SHAPE_truth.csv``, arc length and points in m; ``--record-truth rod``: the catheter's own centreline,
+as a CT would give it; ``fixture``: the tube's or groove's centreline, as a mould's CAD model would): the
+inputs of ``twin identify``.
 """
 
 from __future__ import annotations
@@ -51,6 +56,8 @@ class Params:
     calibration: str = "true"
     segments: int = 100
     seed: int = 0
+    record: str | None = None
+    record_truth: str = "rod"
 
 
 @dataclass(frozen=True)
@@ -126,6 +133,23 @@ def measure(sim: SimInterrogator, frames, recs: dict[str, Reconstructor]) -> dic
     return out
 
 
+def record(directory: Path, name: str, sim: SimInterrogator, frames, cal, which: str) -> None:
+    """Write one shape's frames (twin HDF5) and its ground truth (CSV with arc lengths) into ``directory``."""
+    from twin.identify import write_truth
+    from twin.io.record import Recorder
+
+    directory.mkdir(parents=True, exist_ok=True)
+    with Recorder(directory / f"{name}.h5", fiber=sim.fiber, calibration=cal, source_url=sim.url,
+                  rate=sim.rate) as rec:
+        rec.append(frames)
+    truth = frames[0].truth
+    if which == "rod":
+        write_truth(directory / f"{name}_truth.csv", truth.positions, truth.s)
+    else:
+        write_truth(directory / f"{name}_truth.csv", truth.fixture,
+                    np.linspace(0.0, sim.fiber.sensed_length, len(truth.fixture)))
+
+
 def run_experiment(params: Params, progress=None) -> Result:
     """Run the experiment; ``progress(message)`` is called as shapes settle and are measured."""
     if params.fixture not in FIXTURES:
@@ -150,6 +174,8 @@ def run_experiment(params: Params, progress=None) -> Result:
         settle_s = sim.data.time
         frames = [sim.read() for _ in range(params.repeats)]
         cal = _calibration(params, sim)
+        if params.record:
+            record(Path(params.record), name, sim, frames, cal, params.record_truth)
         recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal)}
         lost = int(sum(np.isnan(f.wavelengths).sum() for f in frames))
         results.append(ShapeResult(name, shapes.get(name).planar, kind, float(settle_s),
@@ -170,6 +196,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="true (the twin's true parameters), nominal, or a calibration TOML (default true)")
     parser.add_argument("--segments", type=int, default=100, help="rod segments (default 100)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--record", metavar="DIR", help="write each shape's frames and truth (twin identify's inputs)")
+    parser.add_argument("--record-truth", choices=("rod", "fixture"), default="rod",
+                        help="truth written by --record: the catheter's centreline or the fixture's (default rod)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -179,7 +208,8 @@ def params_from_args(args: argparse.Namespace) -> Params:
         shapes.get(n)  # a clear error for an unknown shape
     if args.calibration not in ("true", "nominal") and not Path(args.calibration).exists():
         raise ValueError(f"--calibration {args.calibration}: no such file (or use true / nominal)")
-    return Params(names, args.repeats, args.fixture, args.optics, args.calibration, args.segments, args.seed)
+    return Params(names, args.repeats, args.fixture, args.optics, args.calibration, args.segments, args.seed,
+                  args.record, args.record_truth)
 
 
 def run(args: argparse.Namespace) -> int:

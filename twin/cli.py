@@ -20,12 +20,19 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("scenarios.demo", "the main job: reconstruct shapes from (simulated) interrogator data and compare"),
     "run": ("twin.scenario_cli", "run a scenario (an experiment of the paper, or our own)"),
     "bench": ("twin.bench", "measure reconstruction (and simulation, streaming) speed"),
+    "live": ("twin.live_cli", "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"),
+    "replay": ("twin.replay_cli", "reconstruct a recording (twin HDF5 or ILLumiSense log) and summarise it"),
+    "serve": ("sim_interrogator.serve", "serve a simulated interrogator over illumisense, fispec or hyperion"),
+    "calibrate": ("twin.calibrate_cli", "two-step calibration (straight, then an in-plane bend) from a source"),
+    "identify": ("twin.identify_cli", "identify Δθ and g = r·S_ε from recordings of shapes of known geometry"),
     "jig-calibrate": ("twin.jig_cli", "fit a calibration from jig poses (grooves of known curvature)"),
     "jig-validate": ("twin.jig_cli", "curvature and bend-direction errors of a calibration on jig poses"),
 }
 
 #: scenario name → module (each exposes add_arguments(parser) and run(args) -> int)
 SCENARIOS: dict[str, str] = {
+    "static-shapes": "scenarios.static_shapes",
+    "paper-ablation": "scenarios.paper_ablation",
     "jig": "scenarios.jig",
 }
 

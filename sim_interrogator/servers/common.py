@@ -1,0 +1,245 @@
+"""Plumbing shared by the protocol servers: a thread that pumps frames out of a Source, and a TCP server that
+pushes the same bytes to every connected client."""
+
+from __future__ import annotations
+
+import queue
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable
+
+from twin.frames import Frame
+from twin.io.source import Source, SourceClosed
+from twin.live import read_batch
+
+__all__ = ["FramePump", "TcpBroadcaster"]
+
+
+class FramePump:
+    """Reads a Source on a thread, keeps its latest frame and hands every frame to the subscribers.
+
+    Parameters
+    ----------
+    source : Source
+        Any source of frames; it owns its own pacing (the synthetic and simulated sources run in real time).
+    rate : float, optional
+        Additionally release frames no faster than this, Hz, on an absolute schedule (for sources that deliver
+        as fast as asked, e.g. a replay at maximum speed). A pump more than 1 s behind schedule restarts the
+        schedule instead of bursting.
+
+    Attributes
+    ----------
+    latest : Frame or None
+        The most recent frame (what request/response protocols answer with).
+    frames : int
+        Frames pumped.
+    ended : threading.Event
+        Set when the source ended, failed or the pump was stopped.
+    error : BaseException or None
+        Why the source failed, if it did.
+    """
+
+    def __init__(self, source: Source, *, rate: float | None = None):
+        self.source = source
+        self.rate = rate
+        self.latest: Frame | None = None
+        self.frames = 0
+        self.error: BaseException | None = None
+        self.ended = threading.Event()
+        self._subscribers: list[Callable[[Frame], None]] = []
+        self._stop = threading.Event()
+        self._first = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="frame-pump", daemon=True)
+
+    def subscribe(self, fn: Callable[[Frame], None]) -> None:
+        """Call ``fn(frame)`` (on the pump thread) for every frame from now on."""
+        self._subscribers.append(fn)
+
+    def start(self) -> FramePump:
+        self._thread.start()
+        return self
+
+    def wait_first(self, timeout: float | None = None) -> bool:
+        """Block until the first frame has been pumped; True if it was."""
+        return self._first.wait(timeout)
+
+    def _run(self) -> None:
+        t0 = None
+        k = 0
+        try:
+            while not self._stop.is_set():
+                try:
+                    frames = read_batch(self.source, 256, 0.1)
+                except SourceClosed:
+                    break
+                for frame in frames:
+                    if self.rate:
+                        now = time.monotonic()
+                        if t0 is None or now - (t0 + k / self.rate) > 1.0:
+                            t0, k = now, 0
+                        wait = t0 + k / self.rate - now
+                        if wait > 0:
+                            time.sleep(wait)
+                        k += 1
+                    self.latest = frame
+                    self.frames += 1
+                    self._first.set()
+                    for fn in self._subscribers:
+                        fn(frame)
+                    if self._stop.is_set():
+                        break
+        except Exception as exc:  # reported through .error; servers must not die silently
+            self.error = exc
+            print(f"twin serve: source failed: {exc}", file=sys.stderr, flush=True)
+        finally:
+            self.ended.set()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)
+        self.ended.set()
+
+
+class _Client:
+    def __init__(self, sock: socket.socket, addr, owner: TcpBroadcaster, max_queue: int):
+        self.sock, self.addr, self.owner = sock, addr, owner
+        self.queue: queue.Queue[bytes | None] = queue.Queue(max_queue)
+        self.alive = True
+        self.sent = 0
+        self.thread = threading.Thread(target=self._run, name=f"{owner.name}-client", daemon=True)
+
+    def _run(self) -> None:
+        try:
+            while True:
+                data = self.queue.get()
+                if data is None:
+                    break
+                self.sock.sendall(data)
+                self.sent += 1
+        except OSError:
+            pass  # the client went away; the broadcaster notices below
+        finally:
+            self.owner._remove(self, "disconnected")
+
+    def close(self) -> None:
+        self.alive = False
+        try:
+            self.sock.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        self.sock.close()
+
+
+class TcpBroadcaster:
+    """A TCP server pushing the same bytes to every connected client; clients come and go freely.
+
+    Each client has its own sender thread and queue, so a slow client delays nobody: when its queue holds
+    ``max_queue`` messages (4096 records ≈ 4 s at 1 kHz) it is disconnected and counted in ``dropped_slow``.
+
+    Parameters
+    ----------
+    host, port : str, int
+        Where to listen (port 0: any free port; see :attr:`address`).
+    name : str
+        Used in thread names and messages.
+    max_queue : int
+        Messages buffered per client.
+    on_connect : callable, optional
+        ``on_connect(sock)`` runs in the accept thread before the client joins the broadcast.
+    log : bool
+        Print connects and disconnects on stderr.
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, *, name: str = "tcp", max_queue: int = 4096,
+                 on_connect: Callable[[socket.socket], None] | None = None, log: bool = False):
+        self.name, self.max_queue, self.on_connect, self.log = name, max_queue, on_connect, log
+        try:
+            self._listener = socket.create_server((host, port), reuse_port=False)
+        except OSError as exc:
+            raise OSError(f"{name}: cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+        self._listener.settimeout(0.2)
+        self.address: tuple[str, int] = self._listener.getsockname()[:2]
+        self._clients: list[_Client] = []
+        self._lock = threading.Lock()
+        self._closed = threading.Event()
+        self.connections = 0
+        self.disconnects = 0
+        self.dropped_slow = 0
+        self.published = 0
+        self._thread = threading.Thread(target=self._accept, name=f"{name}-accept", daemon=True)
+
+    def start(self) -> TcpBroadcaster:
+        self._thread.start()
+        return self
+
+    @property
+    def clients(self) -> int:
+        with self._lock:
+            return len(self._clients)
+
+    def _accept(self) -> None:
+        while not self._closed.is_set():
+            try:
+                sock, addr = self._listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+            sock.settimeout(None)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            try:
+                if self.on_connect is not None:
+                    self.on_connect(sock)
+            except OSError:
+                sock.close()
+                continue
+            client = _Client(sock, addr, self, self.max_queue)
+            with self._lock:
+                self._clients.append(client)
+                self.connections += 1
+            client.thread.start()
+            if self.log:
+                print(f"twin serve: {self.name}: client {addr[0]}:{addr[1]} connected", file=sys.stderr, flush=True)
+
+    def _remove(self, client: _Client, why: str) -> None:
+        with self._lock:
+            if client not in self._clients:
+                return
+            self._clients.remove(client)
+            self.disconnects += 1
+        client.close()
+        if self.log and not self._closed.is_set():
+            print(f"twin serve: {self.name}: client {client.addr[0]}:{client.addr[1]} {why}", file=sys.stderr,
+                  flush=True)
+
+    def publish(self, data: bytes) -> None:
+        """Queue ``data`` for every connected client."""
+        self.published += 1
+        with self._lock:
+            clients = list(self._clients)
+        for c in clients:
+            try:
+                c.queue.put_nowait(data)
+            except queue.Full:
+                self.dropped_slow += 1
+                self._remove(c, f"dropped: more than {self.max_queue} messages behind")
+
+    def close(self) -> None:
+        """Stop accepting, disconnect every client. Idempotent."""
+        if self._closed.is_set():
+            return
+        self._closed.set()
+        self._listener.close()
+        with self._lock:
+            clients = list(self._clients)
+        for c in clients:
+            c.close()
+            try:
+                c.queue.put_nowait(None)
+            except queue.Full:
+                pass
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)

@@ -1,0 +1,123 @@
+"""Calibration and identification as a user runs them (twin calibrate, static-shapes --record, twin identify),
+and the paper's ablation in the twin."""
+
+import json
+
+import numpy as np
+import pytest
+
+from scenarios import paper_ablation
+from twin import Calibration
+from twin.cli import main
+
+
+def run_cli(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def calibration(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cal") / "calibration.toml"
+    assert main(["calibrate", "sim://calibration", "--out", str(path), "--frames", "40", "--json"]) == 0
+    return path
+
+
+def test_calibrate_against_the_twin(calibration):
+    cal = Calibration.load(calibration)
+    from twin.io import open_source
+
+    src = open_source("sim://calibration?truth=0")
+    true = src.describe()
+    # 25° + 8° of twist found to ≈ 0.1°: noise (≈ 0.01° after averaging) and the bias of measuring the bend
+    # angle with the nominal Δθ = π/3 instead of the true 1.039 rad (≈ 0.05°)
+    assert np.rad2deg(np.abs(cal.twist - np.asarray(true["twist_rad"])).max()) < 0.2
+    # the as-built reference wavelengths, to the noise of 40 averaged frames plus drift (≈ 0.2 pm)
+    assert np.abs(cal.lambda0 - src.optics.true_fiber.lambda0).max() < 2e-3
+    assert cal.provenance["source"] == "sim://calibration"
+
+
+def test_calibrate_refuses_a_weak_bend(tmp_path, capsys):
+    code, _, err = run_cli(capsys, "calibrate", "sim://calibration?bend_curvature=2", "--out",
+                           str(tmp_path / "c.toml"), "--frames", "10")
+    assert code == 2 and "refused" in err and "bend the whole sensed length more" in err
+    assert not (tmp_path / "c.toml").exists()
+
+
+def test_calibrate_source_errors_are_one_line(tmp_path, capsys):
+    code, _, err = run_cli(capsys, "calibrate", "sim://nowhere", "--out", str(tmp_path / "c.toml"))
+    assert code == 2 and err.count("\n") == 1 and "unknown simulated setup" in err
+
+
+def test_record_then_identify(calibration, tmp_path, capsys):
+    """static-shapes --record writes what twin identify reads; identification on 2 planar + 2 spatial shapes
+    (connect fixture, 1 pm noise) recovers the twin's Δθ within 0.005 rad and g within 0.5 %."""
+    rec = tmp_path / "rec"
+    names = ["arc", "hook", "helix", "two-plane"]
+    code, _, _ = run_cli(capsys, "run", "static-shapes", "--shapes", ",".join(names), "--repeats", "4",
+                         "--calibration", str(calibration), "--record", str(rec), "--json")
+    assert code == 0
+    pairs = [a for n in names for a in ("--frames", str(rec / f"{n}.h5"), "--truth", str(rec / f"{n}_truth.csv"))]
+    out_cal = tmp_path / "identified.toml"
+    code, out, _ = run_cli(capsys, "identify", *pairs, "--out", str(out_cal), "--json")
+    assert code == 0
+    r = json.loads(out)
+    g_true = 37.5 * 0.777 * 0.961
+    assert abs(r["delta_theta"] - 1.039) < 0.005 and abs(r["g_um"] / g_true - 1) < 0.005
+    assert abs(r["delta_theta"] - 1.039) < 3 * r["delta_theta_std"] + 1e-4
+    assert max(r["max_error_after_mm"]) < 0.15 < min(r["max_error_before_mm"])
+    cal = Calibration.load(out_cal)
+    assert cal.delta_theta == pytest.approx(r["delta_theta"]) and cal.twist is not None  # λ0 and twist kept
+
+
+def test_identify_input_errors(tmp_path, capsys):
+    with pytest.raises(SystemExit) as usage:  # argparse: --truth is required
+        main(["identify", "--frames", "a.h5", "--out", str(tmp_path / "x.toml")])
+    assert usage.value.code == 2
+    code, _, err = run_cli(capsys, "identify", "--frames", "a.h5", "--truth", "a.csv", "--out", str(tmp_path / "x"))
+    assert code == 2 and "no such recording" in err
+    (tmp_path / "t.csv").write_text("x_mm,y_mm,z_mm\n1,2,3\n")
+    from twin.identify import read_truth
+
+    with pytest.raises(ValueError, match="missing column"):
+        read_truth(tmp_path / "t.csv")
+    (tmp_path / "t.csv").write_text("x_m,y_m,z_m\n0,0,0\n0,0,0.001\n0,0,abc\n")
+    with pytest.raises(ValueError, match="line 4: a value is not a number"):
+        read_truth(tmp_path / "t.csv")
+    (tmp_path / "t.csv").write_text("x_m,y_m,z_m\n0,0,0\n0,0,10\n0,0,170\n")
+    with pytest.raises(ValueError, match="in m, not mm"):
+        read_truth(tmp_path / "t.csv")
+
+
+ABLATION_CI = paper_ablation.Params(identify_shapes=("arc", "hook", "helix", "two-plane"),
+                                    validate_shapes=("s-curve", "mixed"), repeats=3, calibration_frames=50)
+
+
+def check_ablation(r: dict) -> None:
+    """The issue's acceptance: identification within 0.005 rad and 0.5 % and covered by its uncertainty; the
+    paper's ordering (1) > (2) > (3) in max error for the paper mode; default mode, calibrated and identified,
+    on the validation shapes: mean ≤ 0.3 mm and max ≤ 1.0 mm against the rod."""
+    ident, true = r["identified"], r["true"]
+    assert abs(ident["delta_theta"] - true["delta_theta"]) < 0.005
+    assert abs(ident["g_um"] / true["g_um"] - 1) < 0.005
+    assert abs(ident["delta_theta"] - true["delta_theta"]) <= 3 * ident["delta_theta_std"]
+    assert abs(ident["g_um"] - true["g_um"]) <= 3 * ident["g_std_um"]
+    paper = {row["row"]: row["identification_rod"]["max_error_mm"] for row in r["rows"] if row["mode"] == "paper"}
+    assert paper["1"] > paper["2"] > paper["3"]
+    final = next(row for row in r["rows"] if row["row"] == "3" and row["mode"] == "default")["validation_rod"]
+    assert final["mean_error_mm"] <= 0.3 and final["max_error_mm"] <= 1.0
+
+
+def test_paper_ablation_reduced_set():
+    """4 identification shapes (2 planar in the groove, 2 spatial in tubes), 2 validation shapes, 3 frames."""
+    check_ablation(paper_ablation.run_experiment(ABLATION_CI))
+
+
+@pytest.mark.slow
+def test_paper_ablation_full_set():
+    r = paper_ablation.run_experiment(paper_ablation.Params())
+    check_ablation(r)
+    # the paper's interpolation ranking at the top: the spline is the best of the four
+    interp = {k: v["max_error_mm"] for k, v in r["interpolation"].items()}
+    assert interp["spline"] <= min(interp.values()) + 0.05

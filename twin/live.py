@@ -1,0 +1,610 @@
+"""The streaming loop: source → :class:`~twin.reconstruct.Reconstructor` → sinks.
+
+One iteration takes every frame the source has ready (up to ``max_batch``), reconstructs them as one batch
+(batch-first: a burst after a stall costs little more than one frame) and hands the batch to each sink. Around
+that it keeps the books a live instrument needs:
+
+- **lost samples**: forward jumps of the frames' sequence numbers (a sequence that goes backwards is counted
+  as a reset — a restarted acquisition — not as loss);
+- **partly missing peaks**: a frame whose peaks are partly missing is reconstructed from the gratings whose
+  remaining cores still determine the curvature (the reconstructor interpolates over the others) and flagged
+  :attr:`FrameFlag.MISSING_PEAKS`, plus :attr:`FrameFlag.PARTIAL` when some gratings had to be dropped and
+  :attr:`FrameFlag.UNUSABLE` when none was left (its shape is all NaN and is never shown as current);
+- **stale data**: no usable frame for ``stale_after`` s (0.5 by default) puts the loop in state ``stale``;
+  sinks keep receiving status updates (``heartbeat``) so a display can mark its last shape as old;
+- **dropped connections**: drivers reconnect by themselves (:mod:`twin.io.drivers`); a source that raises
+  instead (an I/O error out of ``read``) is closed and reopened through the factory given to the loop, with
+  exponential backoff (0.1 s doubling to 5 s);
+- **counters** from the source (framing errors, reconnects, …) are merged into the status;
+- **clean stop**: Ctrl-C (SIGINT) or SIGTERM ends the loop at the next iteration; sinks are closed (the
+  recorder flushes) and the source is closed, whatever happened. A second Ctrl-C interrupts at once.
+
+Nothing a source, the reconstructor or a sink does ends the loop with an exception, except a configuration
+error that makes every frame useless (frames whose shape does not match the fibre model from the start). A
+sink that raises is closed and dropped, and the error is reported in the summary.
+
+Sinks are tiny: any callable ``sink(frames, shapes, status)`` with an optional ``close()``. ``frames`` is the
+list of frames of the batch, ``shapes`` the batched :class:`~twin.frames.Shape` (``shapes[i]`` belongs to
+``frames[i]``; None when the batch could not be reconstructed), ``status`` a :class:`LiveStatus`. Between
+batches sinks get ``sink([], None, status)`` heartbeats (at least every ``heartbeat`` s and on every state
+change).
+"""
+
+from __future__ import annotations
+
+import enum
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol, TextIO
+
+import numpy as np
+
+from twin.frames import Frame, Shape
+from twin.io.source import Source, SourceClosed
+from twin.io.transport import Backoff
+from twin.reconstruct import Reconstructor
+
+__all__ = [
+    "CallbackSink",
+    "FrameFlag",
+    "LiveLoop",
+    "LiveStatus",
+    "LiveSummary",
+    "PrinterSink",
+    "Sink",
+    "read_batch",
+]
+
+
+class FrameFlag(enum.IntFlag):
+    """Per-frame flags of a batch (:attr:`LiveStatus.flags`)."""
+
+    OK = 0
+    MISSING_PEAKS = 1  #: some peaks missing; reconstructed from the remaining cores
+    PARTIAL = 2  #: some gratings could not be solved and were interpolated over
+    UNUSABLE = 4  #: no grating could be solved: no shape
+    SEQUENCE_GAP = 8  #: samples were lost just before this frame
+
+
+_MISSING, _PARTIAL, _UNUSABLE, _GAP = (np.uint8(f) for f in (1, 2, 4, 8))
+
+
+class Sink(Protocol):
+    """What the loop feeds: ``sink(frames, shapes, status)``; ``close()`` when the loop ends (optional)."""
+
+    def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None: ...
+
+
+@dataclass(frozen=True, eq=False)
+class LiveStatus:
+    """A snapshot of the loop's state and counters (all counts since the loop started).
+
+    Attributes
+    ----------
+    state : {"starting", "live", "stale", "ended"}
+        ``live``: a usable frame arrived within ``stale_after`` s; ``stale``: none did; ``starting``: within
+        the first ``stale_after`` s, before any usable frame.
+    connection : str or None
+        The source's own state when it reports one (``connected`` / ``disconnected``).
+    elapsed : float
+        s since the loop started.
+    frames : int
+        Frames received and matching the fibre model.
+    frames_complete, frames_partial, frames_unusable, frames_missing_peaks : int
+        Every grating solved / some dropped / none solved / some peak missing.
+    frames_rejected : int
+        Frames whose (n_gratings, n_cores) does not match the fibre model (not reconstructed, not recorded).
+    lost_samples, sequence_gaps, sequence_resets : int
+        From the frames' sequence numbers.
+    invalid_nodes : int
+        Gratings that could not be solved, summed over frames.
+    framing_errors, reconnects, disconnects : int
+        From the source's counters (plus the loop's own reopenings of a source that raised).
+    source_errors, reconstruct_errors : int
+        Exceptions out of ``source.read`` and out of the reconstructor (each batch counted once).
+    stale_events : int
+        Transitions into ``stale``.
+    last_valid_age : float
+        s since the last usable frame (inf before the first).
+    rate_hz : float
+        Frames per second over the last second or so.
+    tip : ndarray (3,) or None
+        Tip of the latest usable shape, m.
+    flags : ndarray of uint8 (n,)
+        :class:`FrameFlag` bits of the frames this status accompanies (empty for heartbeats).
+    source : dict
+        The source's ``stats()`` as last polled.
+    """
+
+    state: str = "starting"
+    connection: str | None = None
+    elapsed: float = 0.0
+    frames: int = 0
+    frames_complete: int = 0
+    frames_partial: int = 0
+    frames_unusable: int = 0
+    frames_missing_peaks: int = 0
+    frames_rejected: int = 0
+    lost_samples: int = 0
+    sequence_gaps: int = 0
+    sequence_resets: int = 0
+    invalid_nodes: int = 0
+    framing_errors: int = 0
+    reconnects: int = 0
+    disconnects: int = 0
+    source_errors: int = 0
+    reconstruct_errors: int = 0
+    stale_events: int = 0
+    last_valid_age: float = float("inf")
+    rate_hz: float = 0.0
+    tip: np.ndarray | None = None
+    flags: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))
+    source: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        """JSON-ready counters (``tip`` in m; ``flags`` left out)."""
+        out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("flags", "tip", "source")}
+        out["tip_m"] = None if self.tip is None else [float(x) for x in self.tip]
+        out["last_valid_age"] = None if not np.isfinite(self.last_valid_age) else round(self.last_valid_age, 6)
+        out["source"] = {k: v for k, v in self.source.items() if isinstance(v, int | float | str | bool | None)}
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class LiveSummary:
+    """How a run went.
+
+    Attributes
+    ----------
+    status : LiveStatus
+        The final counters (state ``ended``).
+    duration : float
+        s.
+    reason : str
+        Why the loop ended: ``duration``, ``frames``, ``source ended``, ``interrupted``, ``stopped``.
+    sink_errors : tuple of str
+        Sinks that raised (and were dropped), with the error.
+    """
+
+    status: LiveStatus
+    duration: float
+    reason: str
+    sink_errors: tuple[str, ...] = ()
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.status.frames / self.duration if self.duration > 0 else 0.0
+
+    def as_dict(self) -> dict:
+        return {
+            "reason": self.reason,
+            "duration": round(self.duration, 6),
+            "frames_per_s": round(self.frames_per_s, 3),
+            **self.status.as_dict(),
+            "sink_errors": list(self.sink_errors),
+        }
+
+
+def read_batch(source: Source, max_frames: int, timeout: float | None) -> list[Frame]:
+    """Every frame the source has ready, up to ``max_frames``, waiting up to ``timeout`` s for the first.
+
+    Uses the source's ``read_many`` when it has one (the drivers, synthetic and replay sources do), else
+    ``read(timeout)`` followed by ``read(0)`` until nothing is ready. An exception (SourceClosed included) is
+    raised only when no frame was read before it; otherwise the frames are returned and the exception is kept
+    on the source (``_twin_deferred``) and raised by the next call, so nothing received is dropped.
+    """
+    deferred = getattr(source, "_twin_deferred", None)
+    if deferred is not None:
+        source._twin_deferred = None
+        raise deferred
+    many = getattr(source, "read_many", None)
+    if many is not None:
+        return many(max_frames, timeout)
+    first = source.read(timeout)
+    if first is None:
+        return []
+    out = [first]
+    while len(out) < max_frames:
+        try:
+            nxt = source.read(0.0)
+        except Exception as exc:
+            source._twin_deferred = exc
+            break
+        if nxt is None:
+            break
+        out.append(nxt)
+    return out
+
+
+# what a source may raise besides SourceClosed; anything else (a bug in a source) is reported the same way,
+# because the live loop must outlive its source
+_SOURCE_ERRORS = (Exception,)
+
+
+class LiveLoop:
+    """Source → reconstructor → sinks, with the bookkeeping of the module docstring.
+
+    Parameters
+    ----------
+    source : Source or callable returning a Source
+        A factory lets the loop reopen a source that raised (it is called once at :meth:`run`).
+    reconstructor : Reconstructor
+        Its fibre model fixes the (n_gratings, n_cores) frames must have.
+    sinks : sequence of Sink
+    stale_after : float
+        s without a usable frame before the state becomes ``stale``.
+    max_batch : int
+        Most frames reconstructed in one call.
+    poll : float
+        Longest wait for frames in one iteration, s (bounds the latency of stopping and of heartbeats).
+    heartbeat : float
+        Sinks get a status at least this often, s.
+    """
+
+    def __init__(self, source: Source | Callable[[], Source], reconstructor: Reconstructor,
+                 sinks: Sequence[Sink] = (), *, stale_after: float = 0.5, max_batch: int = 256,
+                 poll: float = 0.05, heartbeat: float = 0.1):
+        self._factory = source if callable(source) and not isinstance(source, Source) else None
+        self.source: Source | None = None if self._factory else source
+        self.rec = reconstructor
+        self.sinks = list(sinks)
+        self.stale_after, self.max_batch = float(stale_after), int(max_batch)
+        self.poll, self.heartbeat = float(poll), float(heartbeat)
+        self._shape = (reconstructor.fiber.n_gratings, reconstructor.fiber.n_cores)
+        self._stop = threading.Event()
+        self._stop_reason = "stopped"
+        self.sink_errors: list[str] = []
+        self._reset_counters()
+
+    def _reset_counters(self) -> None:
+        self.c = dict.fromkeys(
+            ("frames", "frames_complete", "frames_partial", "frames_unusable", "frames_missing_peaks",
+             "frames_rejected", "lost_samples", "sequence_gaps", "sequence_resets", "invalid_nodes",
+             "source_errors", "reconstruct_errors", "stale_events", "reopens"), 0)
+        self._last_seq: int | None = None
+        self._matched_any = False
+        self._tip: np.ndarray | None = None
+        self._t0 = time.monotonic()
+        self._last_valid: float | None = None
+        self._state = "starting"
+        self._source_stats: dict = {}
+        self._stats_at = -1.0
+        self._rate_window: list[tuple[float, int]] = []
+
+    # ---------------------------------------------------------------- the hot path
+    def process(self, frames: Sequence[Frame]) -> tuple[list[Frame], Shape | None, np.ndarray]:
+        """Check, reconstruct and count one batch.
+
+        Returns
+        -------
+        frames : list of Frame
+            The frames that match the fibre model (the others are counted in ``frames_rejected``).
+        shapes : Shape or None
+            Batched reconstruction (None when nothing matched or the reconstructor raised).
+        flags : ndarray of uint8 (n,)
+            :class:`FrameFlag` bits per frame.
+
+        Raises
+        ------
+        ValueError
+            When no frame has matched the fibre model yet and this batch does not either: a configuration
+            error (wrong ``--fiber``), not a transient.
+        """
+        shape = self._shape
+        good = [f for f in frames if f.wavelengths.shape == shape]
+        if len(good) < len(frames):
+            self.c["frames_rejected"] += len(frames) - len(good)
+            if not good and not self._matched_any:
+                bad = frames[0].wavelengths.shape
+                raise ValueError(
+                    f"frames have {bad[0]} gratings × {bad[1]} cores but the fibre model has {shape[0]} × "
+                    f"{shape[1]}; give the sensor's fibre model (--fiber FILE)"
+                )
+        n = len(good)
+        if n == 0:
+            return good, None, np.zeros(0, np.uint8)
+        self._matched_any = True
+        w = np.stack([f.wavelengths for f in good]) if n > 1 else good[0].wavelengths[None]
+        flags = np.isnan(w.reshape(n, -1)).any(axis=1).astype(np.uint8)  # MISSING_PEAKS = 1
+        self._count_sequence([f.sequence for f in good], flags)
+        try:
+            shapes = self.rec(w)
+        except Exception as exc:  # the frames still reach the sinks (the recorder keeps them)
+            if not self.c["reconstruct_errors"]:
+                print(f"twin live: reconstruction failed: {exc}", file=sys.stderr)
+            self.c["reconstruct_errors"] += 1
+            shapes = None
+        g = shape[0]
+        c = self.c
+        n_missing = int(np.count_nonzero(flags))
+        if shapes is None:
+            n_valid = np.zeros(n, np.int64)
+        else:
+            n_valid = shapes.valid.sum(axis=-1)
+        unusable = n_valid == 0
+        partial = (n_valid < g) & ~unusable
+        flags |= (partial * _PARTIAL) | (unusable * _UNUSABLE)
+        n_partial, n_unusable = int(partial.sum()), int(unusable.sum())
+        c["frames"] += n
+        c["frames_missing_peaks"] += n_missing
+        c["frames_partial"] += n_partial
+        c["frames_unusable"] += n_unusable
+        c["frames_complete"] += n - n_partial - n_unusable
+        c["invalid_nodes"] += g * n - int(n_valid.sum())
+        if n_unusable < n:
+            self._last_valid = time.monotonic()
+            last = n - 1 if not unusable[-1] else int(np.flatnonzero(~unusable)[-1])
+            self._tip = shapes.positions[last, -1].copy()
+        return good, shapes, flags
+
+    def _count_sequence(self, seq: list[int], flags: np.ndarray) -> None:
+        """Count gaps and resets of the sequence numbers (−1 = unknown, skipped); flag frames after a gap."""
+        last = self._last_seq
+        for i, s in enumerate(seq):  # a plain loop: batches are small and this is cheaper than numpy here
+            if s < 0:
+                continue
+            if last is not None:
+                d = s - last
+                if d > 1:
+                    self.c["sequence_gaps"] += 1
+                    self.c["lost_samples"] += d - 1
+                    flags[i] |= _GAP
+                elif d <= 0:
+                    self.c["sequence_resets"] += 1
+            last = s
+        self._last_seq = last
+
+    # ---------------------------------------------------------------- status
+    def status(self, flags: np.ndarray | None = None) -> LiveStatus:
+        now = time.monotonic()
+        if self.source is not None and now - self._stats_at > 0.1:
+            try:
+                self._source_stats = dict(self.source.stats())
+            except Exception:  # a faulty stats() must not end the loop
+                self._source_stats = {}
+            self._stats_at = now
+        s = self._source_stats
+        age = float("inf") if self._last_valid is None else now - self._last_valid
+        win = self._rate_window
+        rate = 0.0
+        if len(win) >= 2 and win[-1][0] > win[0][0]:
+            rate = (win[-1][1] - win[0][1]) / (win[-1][0] - win[0][0])
+        return LiveStatus(
+            state=self._state,
+            connection=s.get("state") if isinstance(s.get("state"), str) else None,
+            elapsed=now - self._t0,
+            **{k: v for k, v in self.c.items() if k != "reopens"},
+            framing_errors=int(s.get("framing_errors", 0)),
+            reconnects=int(s.get("reconnects", 0)) + self.c["reopens"],
+            disconnects=int(s.get("disconnects", 0)),
+            last_valid_age=age,
+            rate_hz=rate,
+            tip=self._tip,
+            flags=np.zeros(0, np.uint8) if flags is None else flags,
+            source=s,
+        )
+
+    def _update_state(self) -> bool:
+        """Recompute the state; True when it changed."""
+        now = time.monotonic()
+        if self._last_valid is not None and now - self._last_valid <= self.stale_after:
+            new = "live"
+        elif self._last_valid is None and now - self._t0 <= self.stale_after:
+            new = "starting"
+        else:
+            new = "stale"
+        changed = new != self._state
+        if changed and new == "stale":
+            self.c["stale_events"] += 1
+        self._state = new
+        return changed
+
+    # ---------------------------------------------------------------- running
+    def stop(self, reason: str = "stopped") -> None:
+        """Ask the loop to end at its next iteration (thread-safe)."""
+        self._stop_reason = reason
+        self._stop.set()
+
+    def _emit(self, frames, shapes, status) -> None:
+        for sink in list(self.sinks):
+            try:
+                sink(frames, shapes, status)
+            except Exception as exc:  # a faulty sink must not end the loop
+                self.sink_errors.append(f"{type(sink).__name__}: {exc}")
+                print(f"twin live: sink {type(sink).__name__} failed and was removed: {exc}", file=sys.stderr)
+                self.sinks.remove(sink)
+                _close(sink)
+
+    def _open(self) -> None:
+        if self._factory is not None:
+            self.source = self._factory()
+
+    def run(self, duration: float | None = None, max_frames: int | None = None,
+            handle_signals: bool = True) -> LiveSummary:
+        """Run until ``duration`` s, ``max_frames`` frames, the source's end, :meth:`stop` or Ctrl-C.
+
+        The first opening of a source factory may raise (a wrong URL is the caller's error); after that
+        nothing the source does raises out of here.
+        """
+        self._reset_counters()
+        self._stop.clear()
+        self._open()
+        restore = self._install_signals() if handle_signals else None
+        backoff = Backoff()
+        reopen_at = None
+        last_emit = 0.0
+        reason = "stopped"
+        try:
+            while True:
+                if self._stop.is_set():
+                    reason = self._stop_reason
+                    break
+                now = time.monotonic()
+                if duration is not None and now - self._t0 >= duration:
+                    reason = "duration"
+                    break
+                if max_frames is not None and self.c["frames"] >= max_frames:
+                    reason = "frames"
+                    break
+                wait = self.poll
+                if duration is not None:
+                    wait = max(0.0, min(wait, self._t0 + duration - now))
+                frames: list[Frame] = []
+                if self.source is None:
+                    if reopen_at is not None and now >= reopen_at:
+                        try:
+                            self._open()
+                            self.c["reopens"] += 1
+                            reopen_at = None
+                        except _SOURCE_ERRORS:
+                            reopen_at = time.monotonic() + backoff.failed()
+                    if self.source is None:
+                        time.sleep(wait)
+                else:
+                    limit = self.max_batch if max_frames is None else max(1, min(
+                        self.max_batch, max_frames - self.c["frames"]))
+                    try:
+                        frames = read_batch(self.source, limit, wait)
+                    except SourceClosed:
+                        reason = "source ended"
+                        break
+                    except _SOURCE_ERRORS as exc:
+                        self.c["source_errors"] += 1
+                        self._source_stats = {**self._source_stats, "last_error": str(exc)}
+                        if self._factory is None:
+                            print(f"twin live: source failed: {exc}", file=sys.stderr)
+                            reason = "source failed"
+                            break
+                        _close(self.source)
+                        self.source = None
+                        reopen_at = time.monotonic() + backoff.failed()
+                if frames:
+                    good, shapes, flags = self.process(frames)
+                    t = time.monotonic()
+                    self._rate_window.append((t, self.c["frames"]))
+                    while len(self._rate_window) > 2 and t - self._rate_window[0][0] > 1.0:
+                        self._rate_window.pop(0)
+                    if self.c["frames"] and backoff.failures:
+                        backoff.reset()
+                    changed = self._update_state()
+                    if good or changed:
+                        self._emit(good, shapes, self.status(flags))
+                        last_emit = t
+                else:
+                    changed = self._update_state()
+                    t = time.monotonic()
+                    if changed or t - last_emit >= self.heartbeat:
+                        self._emit([], None, self.status())
+                        last_emit = t
+        except KeyboardInterrupt:
+            reason = "interrupted"
+        finally:
+            if restore is not None:
+                restore()
+            self._state = "ended"
+            final = self.status()
+            for sink in self.sinks:
+                try:
+                    sink([], None, final)
+                except Exception as exc:
+                    self.sink_errors.append(f"{type(sink).__name__}: {exc}")
+                err = _close(sink)
+                if err:
+                    self.sink_errors.append(f"{type(sink).__name__}.close: {err}")
+            if self.source is not None:
+                try:
+                    self._source_stats = dict(self.source.stats())
+                except Exception:
+                    pass
+                _close(self.source)
+            final = self.status()
+        return LiveSummary(final, time.monotonic() - self._t0, reason, tuple(self.sink_errors))
+
+    def _install_signals(self) -> Callable[[], None] | None:
+        if threading.current_thread() is not threading.main_thread():
+            return None
+        previous = {}
+
+        def handler(signum, _frame):
+            self.stop("interrupted" if signum == signal.SIGINT else "terminated")
+            # a second Ctrl-C interrupts at once
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                previous[sig] = signal.signal(sig, handler)
+            except (ValueError, OSError):  # pragma: no cover - not the main interpreter
+                pass
+
+        def restore() -> None:
+            for sig, h in previous.items():
+                signal.signal(sig, h)
+
+        return restore
+
+
+def _close(obj) -> str | None:
+    close = getattr(obj, "close", None)
+    if close is None:
+        return None
+    try:
+        close()
+    except Exception as exc:  # report, never raise out of cleanup
+        return str(exc)
+    return None
+
+
+# ------------------------------------------------------------------------------------------------- sinks
+
+
+class PrinterSink:
+    """Prints one status line at most ``rate`` times per second (and on every state change).
+
+    Parameters
+    ----------
+    stream : text file
+        Where to print (default stdout).
+    rate : float
+        Lines per second, Hz.
+    """
+
+    def __init__(self, stream: TextIO | None = None, rate: float = 1.0):
+        self.stream = stream or sys.stdout
+        self.period = 1.0 / rate if rate > 0 else float("inf")
+        self._last = -float("inf")
+        self._state = None
+
+    def __call__(self, frames, shapes, status: LiveStatus) -> None:
+        now = time.monotonic()
+        if status.state == "ended" or (status.state == self._state and now - self._last < self.period):
+            return
+        self._last, self._state = now, status.state
+        print(format_status(status), file=self.stream, flush=True)
+
+
+def format_status(s: LiveStatus) -> str:
+    """One human line: state, counters, tip in mm."""
+    conn = f" ({s.connection})" if s.connection and s.connection != "connected" else ""
+    tip = "—" if s.tip is None else "(" + ", ".join(f"{1e3 * x:7.2f}" for x in s.tip) + ") mm"
+    if s.state == "stale" and s.tip is not None:
+        tip += f" [stale {s.last_valid_age:.1f} s]"
+    return (
+        f"{s.elapsed:7.1f} s  {s.state:8s}{conn}  frames {s.frames} ({s.rate_hz:.0f} Hz)  lost {s.lost_samples}  "
+        f"framing errors {s.framing_errors}  reconnects {s.reconnects}  partial {s.frames_partial}  "
+        f"unusable {s.frames_unusable}  invalid nodes {s.invalid_nodes}  tip {tip}"
+    )
+
+
+class CallbackSink:
+    """Calls ``fn(frame, shape, status)`` with the latest frame of each batch (and its single Shape)."""
+
+    def __init__(self, fn: Callable[[Frame, Shape, LiveStatus], None]):
+        self.fn = fn
+
+    def __call__(self, frames, shapes, status) -> None:
+        if frames and shapes is not None:
+            self.fn(frames[-1], shapes[len(frames) - 1], status)

@@ -1,0 +1,124 @@
+"""`twin live URL`: reconstruct shapes live from any source of frames and report how the stream is doing.
+
+    twin live illumisense://127.0.0.1:2055 [--fiber FILE] [--calibration FILE] [--record FILE]
+              [--duration S] [--frames N] [--json] [--quiet]
+
+Prints a status line about once a second (state, frame rate, lost samples, framing errors, reconnects,
+partial/unusable frames, tip position in mm; on stderr with ``--json``) and a summary at the end; ``--json``
+prints the summary as one JSON object on stdout. Ctrl-C ends the run cleanly: the recording is flushed and
+marked complete, and the summary is printed. Exit status 0, or 1 when a sink failed (e.g. the recording could
+not be written).
+
+The fibre model is ``--fiber FILE``, else the one the source knows (the simulator, a recording), else the
+reference fibre :meth:`FiberModel.paper` (said on stderr). The calibration is ``--calibration FILE``, else the
+one a recording carries, else none.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from twin.calibration import Calibration
+from twin.fiber import FiberModel
+from twin.io.source import open_source, parse_url
+from twin.live import LiveLoop, LiveSummary, PrinterSink
+from twin.reconstruct import Reconstructor
+
+__all__ = ["add_arguments", "run"]
+
+#: schemes whose opener takes the fibre model (to program peak windows, map peaks to gratings, …)
+FIBER_AWARE = ("illumisense", "fispec", "hyperion", "synthetic")
+#: schemes of real interrogators, which never know the fibre model themselves
+HARDWARE = ("illumisense", "fispec", "hyperion")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("url", help="source URL: sim://SCENARIO, illumisense://HOST:PORT, fispec://PORT, "
+                                    "hyperion://HOST, replay://FILE, synthetic://?rate=1000")
+    parser.add_argument("--fiber", type=Path, help="fibre model (TOML); default: the source's, else the paper's")
+    parser.add_argument("--calibration", type=Path, help="calibration (TOML)")
+    parser.add_argument("--record", type=Path, metavar="FILE", help="record the frames to this HDF5 file")
+    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    parser.add_argument("--frames", type=int, default=None, help="stop after this many frames")
+    parser.add_argument("--method", choices=("material", "paper"), default="material",
+                        help="reconstruction method (default material)")
+    parser.add_argument("--stale", type=float, default=0.5, help="seconds without a usable frame before 'stale'")
+    parser.add_argument("--print-rate", type=float, default=1.0, help="status lines per second (default 1)")
+    parser.add_argument("--json", action="store_true", help="print the final summary as one JSON object")
+    parser.add_argument("--quiet", action="store_true", help="no status lines")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.duration is not None and args.duration <= 0:
+        raise ValueError(f"--duration must be positive, got {args.duration}")
+    fiber = FiberModel.load(args.fiber) if args.fiber else None
+    scheme = parse_url(args.url)[0]
+    if fiber is None and scheme in HARDWARE:
+        # hardware does not know its fibre; the drivers need one to program peak windows and map peaks
+        fiber = FiberModel.paper()
+        print("twin live: using the reference fibre (FiberModel.paper()); give the sensor's with --fiber FILE",
+              file=sys.stderr)
+    options = {"fiber": fiber} if (fiber is not None and scheme in FIBER_AWARE) else {}
+    first = open_source(args.url, **options)
+    pending = [first]
+
+    def factory():
+        return pending.pop() if pending else open_source(args.url, **options)
+
+    try:
+        if fiber is None:
+            fiber = first.fiber
+        if fiber is None:
+            fiber = FiberModel.paper()
+            print("twin live: using the reference fibre (FiberModel.paper()); give the sensor's with --fiber FILE",
+                  file=sys.stderr)
+        calibration = Calibration.load(args.calibration) if args.calibration else getattr(first, "calibration", None)
+        rec = Reconstructor(fiber, calibration, method=args.method)
+        sinks = []
+        if not args.quiet:
+            sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate))
+        recorder = None
+        if args.record:
+            from twin.io.record import Recorder
+
+            recorder = Recorder(args.record, fiber=fiber, calibration=calibration, source_url=args.url,
+                                rate=first.rate)
+            sinks.append(recorder)
+    except BaseException:
+        first.close()
+        raise
+    loop = LiveLoop(factory, rec, sinks, stale_after=args.stale)
+    summary = loop.run(duration=args.duration, max_frames=args.frames)
+    out = summary.as_dict()
+    if recorder is not None:
+        out["record_file"] = str(args.record)
+        out["recorded_frames"] = recorder.frames_written
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(format_summary(summary, out))
+    return 1 if summary.sink_errors else 0
+
+
+def format_summary(summary: LiveSummary, out: dict) -> str:
+    s = summary.status
+    lines = [
+        f"twin live: {summary.duration:.1f} s, {s.frames} frames ({summary.frames_per_s:.1f} Hz), "
+        f"ended: {summary.reason}",
+        f"  lost samples {s.lost_samples} in {s.sequence_gaps} gaps, sequence resets {s.sequence_resets}, "
+        f"framing errors {s.framing_errors}, disconnects {s.disconnects}, reconnects {s.reconnects}, "
+        f"stale {s.stale_events} times",
+        f"  frames complete {s.frames_complete}, partial {s.frames_partial}, unusable {s.frames_unusable}, "
+        f"with missing peaks {s.frames_missing_peaks}, rejected {s.frames_rejected}; invalid nodes "
+        f"{s.invalid_nodes}",
+    ]
+    if s.tip is not None:
+        lines.append("  last tip (" + ", ".join(f"{1e3 * x:.2f}" for x in s.tip) + ") mm")
+    if "record_file" in out:
+        lines.append(f"  recorded {out['recorded_frames']} frames to {out['record_file']}")
+    for err in summary.sink_errors:
+        lines.append(f"  error: {err}")
+    return "\n".join(lines)
