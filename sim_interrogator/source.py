@@ -7,6 +7,9 @@ Query keys are the setup's own parameters (e.g. ``shape``, ``fixture``), plus th
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
+
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import SETUPS, parse_params
 from sim_interrogator.sim import SimInterrogator
@@ -16,10 +19,21 @@ __all__ = ["open_sim"]
 
 _SOURCE_KEYS = {"rate", "realtime", "optics", "noise_pm", "seed", "truth"}
 
+#: Modules that register more setups (imported on first use; absent ones are skipped).
+SETUP_MODULES = ("sim_interrogator.sheath", "sim_interrogator.tendon", "sim_interrogator.thermal")
+
+
+def _load_setups() -> None:
+    for name in SETUP_MODULES:
+        if importlib.util.find_spec(name) is not None:
+            importlib.import_module(name)
+
 
 def open_sim(url: str, **options) -> SimInterrogator:
     """Build the setup named in ``url`` and return its SimInterrogator (``options`` override the query)."""
+    _load_setups()
     _, name, params = parse_url(url)
+    fiber = options.pop("fiber", None)
     params.update({k: str(v) for k, v in options.items()})
     name = name.strip("/")
     if name not in SETUPS:
@@ -39,7 +53,7 @@ def open_sim(url: str, **options) -> SimInterrogator:
         raise ValueError(f"{url!r}: {exc}") from None
     setup = SETUPS[name](**parse_params(SETUPS[name], params))
     flag = {"1", "true", "yes", "on"}
-    sim = SimInterrogator(setup, optics=cfg, rate=rate, realtime=source.get("realtime", "0").lower() in flag,
+    sim = SimInterrogator(setup, fiber, optics=cfg, rate=rate, realtime=source.get("realtime", "0").lower() in flag,
                           truth=source.get("truth", "1").lower() in flag)
     sim.url = url
     return sim

@@ -33,6 +33,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
 SCENARIOS: dict[str, str] = {
     "static-shapes": "scenarios.static_shapes",
     "paper-ablation": "scenarios.paper_ablation",
+    "temperature-bath": "scenarios.temperature_bath",
+    "rotation": "scenarios.rotation",
+    "repeatability": "scenarios.repeatability",
+    "tendon": "scenarios.tendon",
+    "sheath-motion": "scenarios.sheath_motion",
     "jig": "scenarios.jig",
 }
 

@@ -277,6 +277,7 @@ class _Incremental:
         self._buf.clear()
         self._base = 0
         self.failed = False
+        self._deferred = None
 
     def _fail(self, err: FramingError) -> None:
         self.framing_errors += 1
