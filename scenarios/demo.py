@@ -1,9 +1,14 @@
-"""`twin demo`: the shape library reconstructed from synthetic wavelengths, default vs paper mode.
+"""`twin demo` (`make demo`): the whole loop on one machine, with no hardware.
 
-Each of the 12 library shapes (6 planar, 6 spatial, 170 mm) is turned into the paper fibre's peak wavelengths by
-the forward model, with wavelength noise, and reconstructed by the default (material-frame) pipeline and by the
-paper's pipeline. Errors are the paper's metric: max and mean distance of the reconstruction to the true curve
-after ICP and a ±0.5 mm translation search.
+1. The simulated fibre is calibrated the way a lab would do it: the two-step calibration in the twin
+   (straight, then an in-plane bend) and identification of [Δθ, g] on six library shapes.
+2. The twin runs a scenario in real time — by default the catheter advancing through a curved sheath — and a
+   simulated interrogator serves its peaks over the FBGS ILLumiSense TCP protocol on 127.0.0.1.
+3. The project's own ILLumiSense driver reads that stream like hardware, the live loop reconstructs every frame
+   with the calibration from step 1, and a meshcat viewer shows the reconstruction beside the truth (its URL
+   is printed; ``--no-viewer`` for a headless run).
+4. A live line shows the rate, lost samples and the current error; at the end, a table of errors against the
+   truth, which the server side keeps by sequence number (the wire carries no truth, as with hardware).
 """
 
 from __future__ import annotations
@@ -11,61 +16,218 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
+import time
+from collections import OrderedDict
 
 import numpy as np
 
-from models import shapes
-from twin import FiberModel, Reconstructor, metrics, strain
+from scenarios.factory import identify_in_twin, two_step_in_twin
+from sim_interrogator.optics import OpticsConfig
+from sim_interrogator.servers.illumisense import IllumisenseServer
+from sim_interrogator.source import open_sim
+from twin import FiberModel, Frame, Reconstructor, metrics
+from twin.io.source import open_source
+from twin.live import LiveLoop
+
+DEFAULT_SCENARIO = "sim://sheath-advance?realtime=1&rate=100"
+FALLBACK_SCENARIO = "sim://static?shape=mixed&fixture=tube&realtime=1&rate=100"
+
+
+class TruthTap:
+    """Keeps the truth of the frames the server sends, by sequence number (bounded)."""
+
+    def __init__(self, keep: int = 20_000):
+        self._truth: OrderedDict[int, object] = OrderedDict()
+        self._lock = threading.Lock()
+        self.keep = keep
+
+    def __call__(self, frame: Frame) -> None:
+        with self._lock:
+            self._truth[frame.sequence] = frame.truth
+            while len(self._truth) > self.keep:
+                self._truth.popitem(last=False)
+
+    def get(self, sequence: int):
+        with self._lock:
+            return self._truth.get(sequence)
+
+
+class ErrorSink:
+    """Per-frame error of the reconstruction against the truth (Kabsch on arc length), and the tip error with
+    the true base pose; keeps the received wavelengths for the final comparison with the paper's pipeline."""
+
+    def __init__(self, tap: TruthTap, viewer=None, viewer_rate: float = 20.0):
+        self.tap, self.viewer = tap, viewer
+        self.t, self.max, self.mean, self.tip, self.seq, self.w = [], [], [], [], [], []
+        self._next_view = 0.0
+        self._period = 1.0 / viewer_rate
+
+    def __call__(self, frames, shapes, status) -> None:
+        if not frames or shapes is None:
+            return
+        truths = [self.tap.get(f.sequence) for f in frames]
+        ok = [i for i, tr in enumerate(truths) if tr is not None and shapes.all_valid[i]]
+        if not ok:
+            return
+        truth = np.stack([truths[i].positions for i in ok])
+        err = metrics.shape_error(shapes.positions[ok], truth, s=shapes.s, truth_s=truths[ok[0]].s)
+        for j, i in enumerate(ok):
+            self.t.append(frames[i].timestamp)
+            self.seq.append(frames[i].sequence)
+            self.max.append(float(np.atleast_1d(err.max)[j]))
+            self.mean.append(float(np.atleast_1d(err.mean)[j]))
+            self.tip.append(float(np.atleast_1d(err.tip)[j]))
+            self.w.append(frames[i].wavelengths)
+        if self.viewer is not None and time.monotonic() >= self._next_view:
+            self._next_view = time.monotonic() + self._period
+            i = ok[-1]
+            self.viewer.show(shapes[i], truths[i])
+
+
+class LinePrinter:
+    """One status line, refreshed a few times a second."""
+
+    def __init__(self, errors: ErrorSink, stream=sys.stderr, rate: float = 4.0):
+        self.errors, self.stream, self.period, self._next = errors, stream, 1.0 / rate, 0.0
+
+    def __call__(self, frames, shapes, status) -> None:
+        now = time.monotonic()
+        if now < self._next:
+            return
+        self._next = now + self.period
+        e = self.errors
+        err = f"error now {e.max[-1] * 1e3:5.2f} mm (max), {e.mean[-1] * 1e3:5.2f} mm (mean)" if e.max else "…"
+        self.stream.write(f"\r  {status.state:8s} {status.elapsed:6.1f} s  {status.frames:6d} frames "
+                          f"{status.rate_hz:6.1f} Hz  lost {status.lost_samples:3d}  {err}   ")
+        self.stream.flush()
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--noise-pm", type=float, default=1.0, help="wavelength noise, pm (default 1)")
-    parser.add_argument("--repeats", type=int, default=5, help="noisy repetitions per shape (default 5)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--scenario", default=None,
+                        help=f"simulated source URL (default {DEFAULT_SCENARIO})")
+    parser.add_argument("--duration", type=float, default=None,
+                        help="seconds to run (default: the scenario's duration, or 20 s)")
+    parser.add_argument("--no-viewer", action="store_true", help="headless: no 3D viewer")
+    parser.add_argument("--port", type=int, default=0, help="ILLumiSense port on 127.0.0.1 (default: a free one)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object with the final figures")
 
 
-def evaluate(noise_pm: float = 1.0, repeats: int = 5, seed: int = 0) -> dict:
-    fiber = FiberModel.paper()
-    modes = {"default": Reconstructor(fiber), "paper": Reconstructor.paper(fiber)}
-    rng = np.random.default_rng(seed)
-    rows = []
-    for curve in shapes.library():
-        w = strain.forward(fiber, curve.curvature(fiber.grating_s))
-        w = w + rng.normal(scale=noise_pm * 1e-3, size=(repeats, *w.shape))
-        truth_s, truth = curve.sample(2e-4)
-        row = {"shape": curve.name, "planar": curve.planar}
-        for mode, rec in modes.items():
-            shape = rec(w)
-            err = metrics.shape_error(shape.positions, truth, s=shape.s, truth_s=truth_s, register="icp+translation")
-            row[f"{mode}_max_error_mm"] = float(np.mean(err.max) * 1e3)
-            row[f"{mode}_mean_error_mm"] = float(np.mean(err.mean) * 1e3)
-        rows.append(row)
-    summary = {
-        f"{mode}_{stat}_error_mm": float(np.mean([r[f"{mode}_{stat}_error_mm"] for r in rows]))
-        for mode in modes for stat in ("max", "mean")
-    }
-    return {"noise_pm": noise_pm, "repeats": repeats, "shapes": rows, "summary": summary}
+def _say(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _open_viewer(enabled: bool):
+    if not enabled:
+        return None
+    try:
+        from twin.viewer import Viewer
+    except ImportError as exc:  # the viewer is optional for the demo
+        _say(f"  (no viewer: {exc})")
+        return None
+    viewer = Viewer()
+    _say(f"viewer: open {viewer.url} in a browser")
+    return viewer
 
 
 def run(args: argparse.Namespace) -> int:
-    result = evaluate(args.noise_pm, args.repeats, args.seed)
+    fiber = FiberModel.paper()
+    t_start = time.monotonic()
+    _say("1/3 calibrating the simulated fibre: two-step calibration (straight, bend) …")
+    cal, _, true = two_step_in_twin(fiber, OpticsConfig(seed=11), frames=60)
+    _say("    identification of Δθ and g = r·S_ε on six shapes …")
+    ident = identify_in_twin(fiber, cal, repeats=3, progress=None)
+    cal = ident.calibration(cal)
+    _say(f"    Δθ = {ident.delta_theta:.4f} rad (true {true['delta_theta']:.4f}), g = {ident.gain * 1e6:.3f} µm "
+         f"(true {true['gain_m'] * 1e6:.3f})")
+
+    url = args.scenario or DEFAULT_SCENARIO
+    _say(f"2/3 starting the twin: {url}")
+    try:
+        sim = open_sim(url)
+    except ValueError:
+        if args.scenario:
+            raise
+        url = FALLBACK_SCENARIO
+        sim = open_sim(url)
+    duration = args.duration or (sim.setup.duration if sim.setup.duration else 20.0)
+    tap = TruthTap()
+    server = IllumisenseServer(sim, port=args.port)
+    server.pump.subscribe(tap)
+    server.start()
+    host, port = server.address
+    _say(f"    simulated interrogator serving ILLumiSense on tcp://{host}:{port}")
+
+    viewer = _open_viewer(not args.no_viewer)
+    errors = ErrorSink(tap, viewer)
+    rec = Reconstructor(fiber, cal)
+    _say(f"3/3 reading illumisense://{host}:{port} with the driver and reconstructing live ({duration:g} s) …")
+    try:
+        loop = LiveLoop(lambda: open_source(f"illumisense://{host}:{port}"), rec, [errors, LinePrinter(errors)])
+        summary = loop.run(duration=duration)
+    finally:
+        server.close()
+    print(file=sys.stderr)
+    result = _result(errors, summary, fiber, cal, url, time.monotonic() - t_start, ident, true)
     if args.json:
         print(json.dumps(result, indent=2))
-        return 0
-    out = sys.stdout
-    print(f"Shape library reconstructed from synthetic wavelengths: paper fibre (18 gratings × 4 cores), "
-          f"{args.noise_pm:g} pm noise, {args.repeats} repetitions per shape.", file=out)
-    print("Errors after ICP and a ±0.5 mm translation search (the paper's metric), mean over repetitions.\n",
-          file=out)
-    print(f"{'shape':16s}{'kind':9s}{'default max':>12s}{'mean':>8s}{'paper max':>12s}{'mean':>8s}   (mm)", file=out)
-    for r in result["shapes"]:
-        print(f"{r['shape']:16s}{'planar' if r['planar'] else 'spatial':9s}"
-              f"{r['default_max_error_mm']:12.3f}{r['default_mean_error_mm']:8.3f}"
-              f"{r['paper_max_error_mm']:12.3f}{r['paper_mean_error_mm']:8.3f}", file=out)
-    s = result["summary"]
-    print(f"{'all shapes':25s}{s['default_max_error_mm']:12.3f}{s['default_mean_error_mm']:8.3f}"
-          f"{s['paper_max_error_mm']:12.3f}{s['paper_mean_error_mm']:8.3f}", file=out)
-    print("\nThe default pipeline (least-squares curvature vectors, material frame, Magnus-4) against the paper's "
-          "(eqs. 5–7, Frenet frame, forward-difference torsion, HEM).", file=out)
+    else:
+        print(report(result))
+    if viewer is not None:
+        if sys.stdin.isatty():
+            input(f"the viewer stays at {viewer.url}; press Enter to quit … ")
+        viewer.close()
     return 0
+
+
+def _result(errors: ErrorSink, summary, fiber, cal, url, wall, ident, true) -> dict:
+    st = summary.status
+    out = {
+        "scenario": url,
+        "wall_s": round(wall, 1),
+        "frames": st.frames,
+        "lost_samples": st.lost_samples,
+        "framing_errors": st.framing_errors,
+        "frames_partial": st.frames_partial,
+        "frames_per_s": round(summary.frames_per_s, 1),
+        "identified": {"delta_theta": ident.delta_theta, "g_um": ident.gain * 1e6},
+        "true": {"delta_theta": true["delta_theta"], "g_um": true["gain_m"] * 1e6},
+        "frames_compared": len(errors.max),
+    }
+    if errors.max:
+        mx, mn, tip = (np.array(v) * 1e3 for v in (errors.max, errors.mean, errors.tip))
+        out["default"] = {"max_error_mm": float(mx.max()), "mean_error_mm": float(mn.mean()),
+                          "p95_max_error_mm": float(np.percentile(mx, 95)), "tip_error_mm": float(tip.mean())}
+        # the paper's pipeline on the same received frames
+        paper = Reconstructor.paper(fiber, cal)(np.stack(errors.w))
+        truths = [errors.tap.get(s) for s in errors.seq]
+        perr = metrics.shape_error(paper.positions, np.stack([t.positions for t in truths]), s=paper.s,
+                                   truth_s=truths[0].s)
+        out["paper"] = {"max_error_mm": float(np.max(perr.max) * 1e3),
+                        "mean_error_mm": float(np.mean(perr.mean) * 1e3),
+                        "p95_max_error_mm": float(np.percentile(np.atleast_1d(perr.max) * 1e3, 95)),
+                        "tip_error_mm": float(np.mean(perr.tip) * 1e3)}
+    return out
+
+
+def report(r: dict) -> str:
+    lines = [
+        "",
+        f"twin demo: {r['scenario']}",
+        f"  {r['frames']} frames over ILLumiSense ({r['frames_per_s']:.1f} Hz), {r['lost_samples']} lost, "
+        f"{r['framing_errors']} framing errors, {r['frames_partial']} with gratings dropped (lost peaks)",
+        f"  calibration: Δθ = {r['identified']['delta_theta']:.4f} rad (twin's true {r['true']['delta_theta']:.4f}), "
+        f"g = {r['identified']['g_um']:.3f} µm (true {r['true']['g_um']:.3f})",
+    ]
+    if "default" in r:
+        lines += [
+            "",
+            f"  errors against the truth over {r['frames_compared']} frames (mm; Kabsch on arc length):",
+            f"  {'pipeline':30s}{'max':>8s}{'p95 of max':>12s}{'mean':>8s}{'tip':>8s}",
+        ]
+        for key, label in (("default", "default (this project)"), ("paper", "the paper's pipeline")):
+            e = r[key]
+            lines.append(f"  {label:30s}{e['max_error_mm']:8.3f}{e['p95_max_error_mm']:12.3f}"
+                         f"{e['mean_error_mm']:8.3f}{e['tip_error_mm']:8.3f}")
+    lines.append(f"\n  total wall time {r['wall_s']:.0f} s")
+    return "\n".join(lines)

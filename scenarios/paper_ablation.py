@@ -28,12 +28,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from models import shapes
+from scenarios.factory import two_step_in_twin
 from scenarios.static_shapes import fixture_for, measure
 from sim_interrogator.optics import OpticsConfig
-from sim_interrogator.setups import CalibrationPoses, StaticShape
+from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
 from twin import Calibration, FiberModel, Reconstructor
-from twin.calibration import two_step
 from twin.identify import Observation, identify
 
 #: The paper's results (Al-Ahmad et al., §V-A; docs/simulation.md §7), mm.
@@ -76,12 +76,7 @@ def run_experiment(params: Params, progress=None) -> dict:
     fiber = FiberModel.paper()
     # 1. two-step calibration in the twin
     say("calibration: straight, then an in-plane bend …")
-    sim = SimInterrogator(CalibrationPoses(), fiber, OpticsConfig(seed=params.seed), truth=False)
-    straight = np.stack([sim.read().wavelengths for _ in range(params.calibration_frames)])
-    sim.set_pose("bend")
-    bend = np.stack([sim.read().wavelengths for _ in range(params.calibration_frames)])
-    cal_twist, report = two_step(fiber, straight, bend)
-    true = sim.describe()
+    cal_twist, report, true = two_step_in_twin(fiber, OpticsConfig(seed=params.seed), params.calibration_frames)
     cal_plain = Calibration(lambda0=cal_twist.lambda0, provenance={"method": "straight step only"})
     twist_error = float(np.max(np.abs(report.twist - np.asarray(true["twist_rad"]))))
 

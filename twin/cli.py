@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 #: scenario name → module (each exposes add_arguments(parser) and run(args) -> int)
 SCENARIOS: dict[str, str] = {
+    "library": "scenarios.library",
     "static-shapes": "scenarios.static_shapes",
     "paper-ablation": "scenarios.paper_ablation",
     "temperature-bath": "scenarios.temperature_bath",

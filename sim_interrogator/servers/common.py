@@ -12,7 +12,6 @@ from collections.abc import Callable
 
 from twin.frames import Frame
 from twin.io.source import Source, SourceClosed
-from twin.live import read_batch
 
 __all__ = ["FramePump", "TcpBroadcaster"]
 
@@ -71,25 +70,25 @@ class FramePump:
         try:
             while not self._stop.is_set():
                 try:
-                    frames = read_batch(self.source, 256, 0.1)
+                    # one frame at a time: a source that runs behind real time must not be sent in bursts
+                    frame = self.source.read(0.1)
                 except SourceClosed:
                     break
-                for frame in frames:
-                    if self.rate:
-                        now = time.monotonic()
-                        if t0 is None or now - (t0 + k / self.rate) > 1.0:
-                            t0, k = now, 0
-                        wait = t0 + k / self.rate - now
-                        if wait > 0:
-                            time.sleep(wait)
-                        k += 1
-                    self.latest = frame
-                    self.frames += 1
-                    self._first.set()
-                    for fn in self._subscribers:
-                        fn(frame)
-                    if self._stop.is_set():
-                        break
+                if frame is None:
+                    continue
+                if self.rate:
+                    now = time.monotonic()
+                    if t0 is None or now - (t0 + k / self.rate) > 1.0:
+                        t0, k = now, 0
+                    wait = t0 + k / self.rate - now
+                    if wait > 0:
+                        time.sleep(wait)
+                    k += 1
+                self.latest = frame
+                self.frames += 1
+                self._first.set()
+                for fn in self._subscribers:
+                    fn(frame)
         except Exception as exc:  # reported through .error; servers must not die silently
             self.error = exc
             print(f"twin serve: source failed: {exc}", file=sys.stderr, flush=True)
