@@ -42,11 +42,13 @@ from models.shapes import ShapeCurve
 __all__ = [
     "ConnectFixture",
     "ExtendedCurve",
+    "RailSet",
     "SettleError",
     "SettleResult",
     "TubeFixture",
     "add_connect_fixture",
     "add_groove_fixture",
+    "add_rails",
     "add_tube_fixture",
     "build_connect",
     "build_groove",
@@ -55,6 +57,7 @@ __all__ = [
     "groove_rail_offsets",
     "rod_base_pose",
     "settle",
+    "tube_rail_offsets",
 ]
 
 
@@ -509,6 +512,130 @@ def _knots(
     return knots
 
 
+@dataclass(frozen=True, eq=False)
+class RailSet:
+    """Static capsule rails laid along a curve's Bishop frame, without a rod (e.g. a sheath the catheter moves
+    through; :func:`add_rails`).
+
+    Attributes
+    ----------
+    name : str
+        Prefix of the geoms (``<name>_r<rail>_<segment>``).
+    curve : ExtendedCurve
+        The centreline (curve coordinates).
+    pose : Pose
+        Curve coordinates → world.
+    width : float
+        Inner diameter (tube) or width (groove), m.
+    rail_radius : float
+        m.
+    rail_offsets : ndarray, shape (n_rails, 2)
+        Rail axes in (d1, d2), m.
+    knots : ndarray
+        Arc lengths where the rail segments meet, m (the rails cover [knots[0], knots[-1]]).
+    segments : ndarray, shape (n_rails, n_knots − 1, 2, 3)
+        Capsule end points in world coordinates, m.
+    sagitta : float
+        Largest departure of a capsule axis from its curved rail, m.
+    """
+
+    name: str
+    curve: ExtendedCurve
+    pose: Pose
+    width: float
+    rail_radius: float
+    rail_offsets: np.ndarray
+    knots: np.ndarray
+    segments: np.ndarray = field(repr=False)
+    sagitta: float
+
+    @property
+    def n_geoms(self) -> int:
+        return int(self.segments.shape[0] * self.segments.shape[1])
+
+    def centreline(self, s) -> np.ndarray:
+        """Centreline in world coordinates at arc lengths ``s`` of the curve, m."""
+        return self.pose.apply(self.curve.positions(s))
+
+
+def tube_rail_offsets(inner_diameter: float, rail_radius: float = 0.5e-3, n_rails: int = 8) -> np.ndarray:
+    """Axes (d1, d2) of ``n_rails`` rails of ``rail_radius`` evenly round a tube of ``inner_diameter`` (the first at
+    +d1), m, shape (n_rails, 2)."""
+    angles = 2 * np.pi * np.arange(n_rails) / n_rails
+    return (0.5 * inner_diameter + rail_radius) * np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+
+
+def add_rails(
+    scene: Scene,
+    name: str,
+    curve: ExtendedCurve,
+    pose: Pose | None = None,
+    *,
+    width: float,
+    rail_offsets: np.ndarray,
+    rail_radius: float = 0.5e-3,
+    s_range: tuple[float, float] | None = None,
+    max_segment: float = 4e-3,
+    max_sagitta: float = 10e-6,
+    friction: float = 0.1,
+    solref: Sequence[float] = (4e-3, 1.0),
+    solimp: Sequence[float] = (0.95, 0.99, 0.001),
+    margin: float = 0.0,
+    rgba: str = "0.6 0.7 0.9 0.35",
+    label: str | None = None,
+) -> RailSet:
+    """Add static capsule rails along ``curve`` (placed by ``pose``) over ``s_range`` (default: all of it).
+
+    Rail j runs at the fixed offset ``rail_offsets[j]`` in the curve's twist-free frame (d1, d2), split into
+    straight capsules whose chords depart from the curved rail by at most ``max_sagitta``. The geoms collide only
+    with what has ``contype`` bits (the rod's flex), not with each other. ``solref``/``solimp`` are the contacts'
+    (MuJoCo mixes them with the rod's). This is the construction of the tube and groove fixtures, usable without a
+    rod, e.g. for a sheath that the catheter moves through.
+    """
+    pose = pose or Pose()
+    s0, s1 = (curve.s_min, curve.s_max) if s_range is None else (float(s_range[0]), float(s_range[1]))
+    if not (curve.s_min - 1e-12 <= s0 < s1 <= curve.s_max + 1e-12):
+        raise ValueError(
+            f"{name}: rail range [{s0:.6g}, {s1:.6g}] m is not inside the curve's "
+            f"[{curve.s_min:.6g}, {curve.s_max:.6g}] m"
+        )
+    offsets = np.asarray(rail_offsets, dtype=np.float64).reshape(-1, 2)
+    reach = float(np.linalg.norm(offsets, axis=1).max())
+    knots = _knots(curve, s0, s1, reach, max_segment, max_sagitta)
+    mids = 0.5 * (knots[1:] + knots[:-1])
+
+    def rails_at(s):  # (n_rails, len(s), 3), curve coordinates
+        f = curve.frames(s)
+        return curve.positions(s)[None] + np.einsum("kij,rj->rki", f[:, :, :2], offsets)
+
+    rails = rails_at(knots)
+    sagitta = float(np.linalg.norm(rails_at(mids) - 0.5 * (rails[:, 1:] + rails[:, :-1]), axis=-1).max())
+    segments = pose.apply(np.stack([rails[:, :-1], rails[:, 1:]], axis=2))
+    scene.comment(
+        f"{name}: {len(offsets)} rails of {2 * rail_radius * 1e3:g} mm capsules along {label or repr(curve.name)} "
+        f"(Bishop frame), width {width * 1e3:g} mm, {len(knots) - 1} segments per rail, sagitta <= "
+        f"{sagitta * 1e6:.1f} um"
+    )
+    for j in range(len(offsets)):
+        for k in range(segments.shape[1]):
+            scene.add_geom(
+                name=f"{name}_r{j}_{k}",
+                type="capsule",
+                size=rail_radius,
+                fromto=segments[j, k].ravel(),
+                contype=0,
+                conaffinity=1,
+                condim=3,
+                friction=(friction, 0.005, 0.0001),
+                solref=tuple(solref),
+                solimp=tuple(solimp),
+                margin=margin,
+                group=1,
+                rgba=rgba,
+            )
+    return RailSet(name, curve, pose, width, rail_radius, offsets, knots, segments, sagitta)
+
+
 def _add_rails(
     scene: Scene,
     name: str,
@@ -536,42 +663,27 @@ def _add_rails(
     extra = 3e-3
     curve = ExtendedCurve(shape, spec.base_length, spec.tip_length + extra)
     rod = scene.add_rod(spec, pose @ rod_base_pose(curve, spec))
-    offsets = np.asarray(rail_offsets, dtype=np.float64).reshape(-1, 2)
-    reach = float(np.linalg.norm(offsets, axis=1).max())
-    knots = _knots(curve, curve.s_min, curve.s_max, reach, max_segment, max_sagitta)
-    mids = 0.5 * (knots[1:] + knots[:-1])
-
-    def rails_at(s):  # (n_rails, len(s), 3), curve coordinates
-        f = curve.frames(s)
-        return curve.positions(s)[None] + np.einsum("kij,rj->rki", f[:, :, :2], offsets)
-
-    rails = rails_at(knots)
-    sagitta = float(np.linalg.norm(rails_at(mids) - 0.5 * (rails[:, 1:] + rails[:, :-1]), axis=-1).max())
-    segments = pose.apply(np.stack([rails[:, :-1], rails[:, 1:]], axis=2))
-    scene.comment(
-        f"{name}: {len(offsets)} rails of {2 * rail_radius * 1e3:g} mm capsules along shape {shape.name!r} "
-        f"(Bishop frame), width {width * 1e3:g} mm, {len(knots) - 1} segments per rail, sagitta <= "
-        f"{sagitta * 1e6:.1f} um"
+    rails = add_rails(
+        scene,
+        name,
+        curve,
+        pose,
+        width=width,
+        rail_offsets=rail_offsets,
+        rail_radius=rail_radius,
+        max_segment=max_segment,
+        max_sagitta=max_sagitta,
+        friction=friction,
+        solref=spec.solref,
+        solimp=spec.contact_solimp,
+        margin=margin,
+        rgba=rgba,
+        label=f"shape {shape.name!r}",  # the comment as before this refactor
     )
-    solref, solimp = spec.solref, spec.contact_solimp
-    for j in range(len(offsets)):
-        for k in range(segments.shape[1]):
-            scene.add_geom(
-                name=f"{name}_r{j}_{k}",
-                type="capsule",
-                size=rail_radius,
-                fromto=segments[j, k].ravel(),
-                contype=0,
-                conaffinity=1,
-                condim=3,
-                friction=(friction, 0.005, 0.0001),
-                solref=solref,
-                solimp=solimp,
-                margin=margin,
-                group=1,
-                rgba=rgba,
-            )
-    fixture = TubeFixture(name, kind, rod, curve, pose, width, rail_radius, offsets, knots, segments, sagitta)
+    fixture = TubeFixture(
+        name, kind, rod, curve, pose, width, rail_radius, rails.rail_offsets, rails.knots, rails.segments,
+        rails.sagitta,
+    )
     scene.on_build(fixture.initialize)
     return fixture
 
@@ -598,8 +710,7 @@ def add_tube_fixture(
     radial clearance of 165 µm for an 8 Fr catheter), friction 0.1.
     """
     spec = spec or CatheterSpec()
-    angles = 2 * np.pi * np.arange(n_rails) / n_rails
-    offsets = (0.5 * inner_diameter + rail_radius) * np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+    offsets = tube_rail_offsets(inner_diameter, rail_radius, n_rails)
     return _add_rails(
         scene,
         name or f"{spec.name}_tube",
