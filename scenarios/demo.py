@@ -125,7 +125,7 @@ def _open_viewer(enabled: bool):
     except ImportError as exc:  # the viewer is optional for the demo
         _say(f"  (no viewer: {exc})")
         return None
-    viewer = Viewer()
+    viewer = Viewer(announce=None)
     _say(f"viewer: open {viewer.url} in a browser")
     return viewer
 

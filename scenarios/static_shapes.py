@@ -150,8 +150,9 @@ def record(directory: Path, name: str, sim: SimInterrogator, frames, cal, which:
                     np.linspace(0.0, sim.fiber.sensed_length, len(truth.fixture)))
 
 
-def run_experiment(params: Params, progress=None) -> Result:
-    """Run the experiment; ``progress(message)`` is called as shapes settle and are measured."""
+def run_experiment(params: Params, progress=None, viewer=None) -> Result:
+    """Run the experiment; ``progress(message)`` is called as shapes settle and are measured; a
+    :class:`twin.viewer.Viewer` shows each shape's last reconstruction with its truth and fixture."""
     if params.fixture not in FIXTURES:
         raise ValueError(f"fixture must be one of {', '.join(FIXTURES)}; got {params.fixture!r}")
     if params.optics not in ("realistic", "ideal"):
@@ -180,6 +181,8 @@ def run_experiment(params: Params, progress=None) -> Result:
         lost = int(sum(np.isnan(f.wavelengths).sum() for f in frames))
         results.append(ShapeResult(name, shapes.get(name).planar, kind, float(settle_s),
                                    measure(sim, frames, recs), lost))
+        if viewer is not None:
+            viewer.show(recs["default"](frames[-1]), frames[-1].truth, label=name, force=True, reframe=True)
         e = results[-1].errors["default"]["rod"]
         say(f"    {name}: default max {np.max(e['max']) * 1e3:.3f} mm, mean {np.mean(e['mean']) * 1e3:.3f} mm")
     return Result(params, tuple(results))
@@ -214,7 +217,8 @@ def params_from_args(args: argparse.Namespace) -> Params:
 
 def run(args: argparse.Namespace) -> int:
     params = params_from_args(args)
-    result = run_experiment(params, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    result = run_experiment(params, progress=lambda msg: print(msg, file=sys.stderr, flush=True),
+                            viewer=getattr(args, "viewer", None))
     if args.json:
         print(json.dumps(result.to_dict(), indent=2))
         return 0

@@ -1,13 +1,17 @@
 """`twin live URL`: reconstruct shapes live from any source of frames and report how the stream is doing.
 
     twin live illumisense://127.0.0.1:2055 [--fiber FILE] [--calibration FILE] [--record FILE]
-              [--duration S] [--frames N] [--json] [--quiet]
+              [--duration S] [--frames N] [--json] [--quiet] [--viewer [--viewer-rate HZ]]
 
 Prints a status line about once a second (state, frame rate, lost samples, framing errors, reconnects,
 partial/unusable frames, tip position in mm; on stderr with ``--json``) and a summary at the end; ``--json``
 prints the summary as one JSON object on stdout. Ctrl-C ends the run cleanly: the recording is flushed and
 marked complete, and the summary is printed. Exit status 0, or 1 when a sink failed (e.g. the recording could
 not be written).
+
+``--viewer`` shows the shapes live in a browser (meshcat, :mod:`twin.viewer`; the URL to open is printed on
+stderr): the latest shape at most ``--viewer-rate`` times a second (30), the truth beside it when the source
+carries one (the simulator), grey when the stream is stale. The viewer's server stops when the run ends.
 
 The fibre model is ``--fiber FILE``, else the one the source knows (the simulator, a recording), else the
 reference fibre :meth:`FiberModel.paper` (said on stderr). The calibration is ``--calibration FILE``, else the
@@ -49,11 +53,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--print-rate", type=float, default=1.0, help="status lines per second (default 1)")
     parser.add_argument("--json", action="store_true", help="print the final summary as one JSON object")
     parser.add_argument("--quiet", action="store_true", help="no status lines")
+    parser.add_argument("--viewer", action="store_true", help="show the shapes live in a browser (meshcat)")
+    parser.add_argument("--viewer-rate", type=float, default=30.0, metavar="HZ",
+                        help="most frames the viewer draws per second (default 30)")
 
 
 def run(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         raise ValueError(f"--duration must be positive, got {args.duration}")
+    if args.viewer and not args.viewer_rate > 0:
+        raise ValueError(f"--viewer-rate must be positive, got {args.viewer_rate}")
     fiber = FiberModel.load(args.fiber) if args.fiber else None
     scheme = parse_url(args.url)[0]
     if fiber is None and scheme in HARDWARE:
@@ -68,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
     def factory():
         return pending.pop() if pending else open_source(args.url, **options)
 
+    sinks: list = []
+    viewer_sink = None
     try:
         if fiber is None:
             fiber = first.fiber
@@ -77,7 +88,6 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
         calibration = Calibration.load(args.calibration) if args.calibration else getattr(first, "calibration", None)
         rec = Reconstructor(fiber, calibration, method=args.method)
-        sinks = []
         if not args.quiet:
             sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate))
         recorder = None
@@ -87,8 +97,15 @@ def run(args: argparse.Namespace) -> int:
             recorder = Recorder(args.record, fiber=fiber, calibration=calibration, source_url=args.url,
                                 rate=first.rate)
             sinks.append(recorder)
+        if args.viewer:
+            from twin.viewer import Viewer, ViewerConfig, ViewerSink
+
+            viewer_sink = ViewerSink(Viewer(ViewerConfig(max_fps=args.viewer_rate)), rate=args.viewer_rate)
+            sinks.append(viewer_sink)
     except BaseException:
         first.close()
+        if viewer_sink is not None:
+            viewer_sink.close()
         raise
     loop = LiveLoop(factory, rec, sinks, stale_after=args.stale)
     summary = loop.run(duration=args.duration, max_frames=args.frames)
@@ -96,6 +113,11 @@ def run(args: argparse.Namespace) -> int:
     if recorder is not None:
         out["record_file"] = str(args.record)
         out["recorded_frames"] = recorder.frames_written
+    if viewer_sink is not None:
+        out["viewer_frames"] = viewer_sink.frames_shown
+        out["viewer_errors"] = viewer_sink.errors
+        if viewer_sink.errors:
+            print(f"twin live: viewer: {viewer_sink.errors} errors, last: {viewer_sink.last_error}", file=sys.stderr)
     if args.json:
         print(json.dumps(out))
     else:

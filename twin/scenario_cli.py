@@ -1,17 +1,69 @@
-"""`twin run NAME [options]`: run a scenario found through the registry in :mod:`twin.cli`."""
+"""`twin run NAME [options]`: run a scenario found through the registry in :mod:`twin.cli`.
+
+``--viewer [--viewer-rate HZ]`` (before or among the scenario's options) opens a browser view
+(:class:`twin.viewer.Viewer`; the URL is printed on stderr) and hands it to the scenario as ``args.viewer``
+(None without the flag); the scenario's own parser never sees these options. Scenarios draw as they go with
+``viewer = getattr(args, "viewer", None)`` then ``viewer.show(shape, truth, label=…)`` (``getattr``: the same
+``run(args)`` also serves the scenario's own ``__main__``, whose parser has no viewer). A scenario that does not
+draw still runs; the viewer's server stops when the scenario returns.
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import sys
+
+VIEWER_HELP = ("--viewer [--viewer-rate HZ]: show the run in a browser (meshcat; the URL is printed on stderr), "
+               "at most HZ frames per second (default 30)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from twin.cli import SCENARIOS
 
+    parser.add_argument("--viewer", action="store_true", help="show the run in a browser (meshcat)")
+    parser.add_argument("--viewer-rate", type=float, default=None, metavar="HZ",
+                        help="most frames the viewer draws per second (default 30; implies --viewer)")
     parser.add_argument("name", metavar="NAME", help="scenario: " + ", ".join(sorted(SCENARIOS)) if SCENARIOS
                         else "scenario name")
     parser.add_argument("options", nargs=argparse.REMAINDER, help="the scenario's own options (see NAME --help)")
+
+
+def take_viewer_options(options: list[str]) -> tuple[list[str], bool, float | None]:
+    """Split ``--viewer`` and ``--viewer-rate HZ`` (or ``=HZ``) out of a scenario's options.
+
+    Returns the remaining options (in order), whether a viewer was asked for, and the rate (None: default).
+    Everything after a ``--`` is left to the scenario.
+    """
+    rest: list[str] = []
+    wanted, rate = False, None
+    i = 0
+    while i < len(options):
+        opt = options[i]
+        if opt == "--":
+            rest += options[i:]
+            break
+        if opt == "--viewer":
+            wanted = True
+        elif opt == "--viewer-rate" or opt.startswith("--viewer-rate="):
+            if opt == "--viewer-rate":
+                if i + 1 >= len(options):
+                    raise ValueError("--viewer-rate needs a value (frames per second)")
+                i += 1
+                value = options[i]
+            else:
+                value = opt.partition("=")[2]
+            try:
+                rate = float(value)
+            except ValueError:
+                raise ValueError(f"--viewer-rate: expected frames per second, got {value!r}") from None
+            if not rate > 0:
+                raise ValueError(f"--viewer-rate must be positive, got {value}")
+            wanted = True
+        else:
+            rest.append(opt)
+        i += 1
+    return rest, wanted, rate
 
 
 def run(args: argparse.Namespace) -> int:
@@ -21,6 +73,24 @@ def run(args: argparse.Namespace) -> int:
         known = ", ".join(sorted(SCENARIOS)) or "none installed"
         raise UserError(f"no scenario {args.name!r}; known scenarios: {known}")
     module = importlib.import_module(SCENARIOS[args.name])
-    parser = argparse.ArgumentParser(prog=f"twin run {args.name}", description=module.__doc__)
+    parser = argparse.ArgumentParser(prog=f"twin run {args.name}", description=module.__doc__, epilog=VIEWER_HELP)
     module.add_arguments(parser)
-    return int(module.run(parser.parse_args(args.options)) or 0)
+    options, wanted, rate = take_viewer_options(list(args.options))
+    rate = rate if rate is not None else getattr(args, "viewer_rate", None)
+    wanted = wanted or bool(getattr(args, "viewer", False)) or rate is not None
+    if rate is not None and not rate > 0:
+        raise ValueError(f"--viewer-rate must be positive, got {rate}")
+    ns = parser.parse_args(options)
+    ns.viewer = None
+    if wanted:
+        from twin.viewer import Viewer, ViewerConfig
+
+        ns.viewer = Viewer(ViewerConfig(max_fps=rate if rate is not None else 30.0))
+    try:
+        return int(module.run(ns) or 0)
+    finally:
+        if ns.viewer is not None:
+            if ns.viewer.frames_shown == 0:
+                print(f"twin run: scenario {args.name} drew nothing in the viewer (it does not use args.viewer)",
+                      file=sys.stderr)
+            ns.viewer.close()
