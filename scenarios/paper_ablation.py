@@ -163,6 +163,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration-frames", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--report", metavar="DIR", help="write PNG plots and a markdown summary to DIR")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -175,8 +176,46 @@ def run(args: argparse.Namespace) -> int:
     params = Params(names(args.identify_shapes), names(args.validate_shapes), args.repeats, args.fixture,
                     args.truth, args.calibration_frames, args.seed)
     result = run_experiment(params, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    if args.report:
+        print(f"report: {write_report(result, args.report)}", file=sys.stderr)
     print(json.dumps(result, indent=2) if args.json else report(result))
     return 0
+
+
+def write_report(r: dict, directory):
+    """The ablation table as a chart and markdown in ``directory``; returns the report's path."""
+    from scenarios.report import Report, pyplot
+
+    rep = Report(directory, "The paper's ablation in the twin")
+    i, t = r["identified"], r["true"]
+    rep.text(f"Identified Δθ = {i['delta_theta']:.5f} ± {i['delta_theta_std']:.5f} rad (true {t['delta_theta']:.5f}), "
+             f"g = {i['g_um']:.4f} ± {i['g_std_um']:.4f} µm (true {t['g_um']:.4f}).")
+    rows = [[f"({row['row']}) {row['label']}", row["mode"], row["identification_rod"]["max_error_mm"],
+             row["validation_rod"]["max_error_mm"], row["validation_rod"]["mean_error_mm"],
+             row["validation_fixture"]["max_error_mm"], PAPER["rows"][row["row"]]["max_error_mm"]]
+            for row in r["rows"]]
+    rep.table(["calibration", "pipeline", "identification max mm", "validation max mm", "validation mean mm",
+               "validation vs fixture max mm", "the paper max mm"], rows)
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for mode, marker in (("paper", "o-"), ("default", "s-")):
+        ys = [row["validation_rod"]["max_error_mm"] for row in r["rows"] if row["mode"] == mode]
+        ax.plot([1, 2, 3], ys, marker, label=f"twin, {mode} pipeline")
+    ax.plot([1, 2, 3], [PAPER["rows"][k]["max_error_mm"] for k in "123"], "k^--", label="the paper (hardware)")
+    ax.set_xticks([1, 2, 3], ["(1) nominal", "(2) + twist", "(3) + identified"])
+    ax.set_ylabel("max error, validation (mm)")
+    ax.set_yscale("log")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    rep.figure("ablation", fig, "max error on the validation shapes after each calibration step")
+    rep.table(["interpolation", "max mm (fixture)", "the paper max mm"],
+              [[k, v["max_error_mm"], PAPER["interpolation_max_error_mm"][k]] for k, v in r["interpolation"].items()])
+    g = r["integrator"]
+    rep.table(["integrator", "RMS of max errors mm"],
+              [["HEM (paper)", g["hem_rms_of_max_mm"]], ["RK4", g["rk4_rms_of_max_mm"]],
+               ["HEM, midpoint samples", g["hem_mid_rms_of_max_mm"]],
+               ["default (material frame, Magnus-4)", g["default_rms_of_max_mm"]]])
+    return rep.write()
 
 
 def report(r: dict) -> str:

@@ -268,7 +268,7 @@ def write_report(result: Result, directory: str) -> str:
         f"(return jitter {p.depth_jitter * 1e3:g} mm, {math.degrees(p.roll_jitter):g}°), so the spread is the "
         "sensor's (noise, drift) plus the catheter's own (friction history in the sheath)."
     )
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5, 5))
     true, recon = result.tips["true"], result.tips["fibre"]["default"]
     _, _, vt = np.linalg.svd(np.concatenate([recon - recon.mean(axis=0), true - true.mean(axis=0)]))
@@ -303,7 +303,7 @@ def write_report(result: Result, directory: str) -> str:
     return str(rep.write())
 
 
-def _plt():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")

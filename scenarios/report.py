@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Report", "curvature_profiles", "error_over_time", "tip_trajectories"]
+__all__ = ["Report", "curvature_profiles", "error_over_time", "pyplot", "tip_trajectories"]
 
 
-def _plt():
+def pyplot():
+    """matplotlib.pyplot on the headless Agg backend."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -54,7 +55,7 @@ class Report:
         """Save a matplotlib figure as ``name``.png and reference it in the report."""
         path = self.dir / f"{name}.png"
         fig.savefig(path, dpi=110, bbox_inches="tight")
-        _plt().close(fig)
+        pyplot().close(fig)
         self.lines += [f"![{caption or name}]({path.name})", ""]
         if caption:
             self.lines += [f"*{caption}*", ""]
@@ -69,7 +70,7 @@ class Report:
 def error_over_time(t: np.ndarray, series_mm: Mapping[str, np.ndarray], ylabel: str = "max error (mm)",
                     marks: np.ndarray | None = None, mark_label: str = "peaks lost"):
     """Error curves over time, one per label; ``marks`` (bool per sample) shades where something happened."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 3.2))
     for label, y in series_mm.items():
         ax.plot(t, y, label=label, lw=1.2)
@@ -85,7 +86,7 @@ def error_over_time(t: np.ndarray, series_mm: Mapping[str, np.ndarray], ylabel: 
 
 def tip_trajectories(truth_mm: np.ndarray, recon_mm: Mapping[str, np.ndarray], title: str = "tip trajectory"):
     """Tip positions (n, 3) in mm, truth and reconstructions, in the two planes of largest motion."""
-    plt = _plt()
+    plt = pyplot()
     centred = truth_mm - truth_mm.mean(axis=0)
     _, _, vt = np.linalg.svd(centred, full_matrices=False)
     axes = vt[:2] if np.linalg.matrix_rank(centred) >= 2 else np.eye(3)[:2]
@@ -112,7 +113,7 @@ def tip_trajectories(truth_mm: np.ndarray, recon_mm: Mapping[str, np.ndarray], t
 def curvature_profiles(grating_s: np.ndarray, truth: np.ndarray, recon: Mapping[str, np.ndarray],
                        title: str = "curvature along the fibre"):
     """k_x and k_y (1/m) at the gratings, truth vs reconstructions; s in m (plotted in mm)."""
-    plt = _plt()
+    plt = pyplot()
     fig, axs = plt.subplots(1, 2, figsize=(9, 3.2), sharex=True)
     for j, name in enumerate(("k_x", "k_y")):
         ax = axs[j]

@@ -295,7 +295,7 @@ def write_report(result: Result, directory: str) -> str:
         f"({s['max_error_while_turning_mm']:.1f} mm); during the dwell the wind-up creeps out (at the measurements "
         f"≤ {s['max_windup_at_measurement_deg']:.2f}°)."
     )
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 3.2))
     deg = np.degrees(result.angles)
     for mode, style in (("default", "o-"), ("paper", "s--")):
@@ -330,7 +330,7 @@ def write_report(result: Result, directory: str) -> str:
     return str(rep.write())
 
 
-def _plt():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")

@@ -347,7 +347,7 @@ def write_report(result: Result, directory: str) -> str:
         ax.set_yscale("log")
     ax.legend(fontsize=8)
     rep.figure("error_over_time", fig, "Max error per frame; shaded where peaks were lost")
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 3.2))
     ax.plot(result.t, result.sheath_curvature, label="sheath under the sensed region, max (1/m)")
     ax.plot(result.t, result.rod_curvature, label="catheter at the gratings, max (1/m)")
@@ -384,7 +384,7 @@ def _pair(a, b) -> str:
     return f"{f(a)} / {f(b)} mm"
 
 
-def _plt():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")

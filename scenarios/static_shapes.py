@@ -203,6 +203,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record-truth", choices=("rod", "fixture"), default="rod",
                         help="truth written by --record: the catheter's centreline or the fixture's (default rod)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--report", metavar="DIR", help="write PNG plots and a markdown summary to DIR")
 
 
 def params_from_args(args: argparse.Namespace) -> Params:
@@ -219,11 +220,47 @@ def run(args: argparse.Namespace) -> int:
     params = params_from_args(args)
     result = run_experiment(params, progress=lambda msg: print(msg, file=sys.stderr, flush=True),
                             viewer=getattr(args, "viewer", None))
+    if args.report:
+        print(f"report: {write_report(result, args.report)}", file=sys.stderr)
     if args.json:
         print(json.dumps(result.to_dict(), indent=2))
         return 0
     print(report(result))
     return 0
+
+
+def write_report(result: Result, directory) -> Path:
+    """A bar chart of the per-shape errors (both pipelines, against the rod and the fixture) and a markdown
+    summary in ``directory``; returns the report's path."""
+    from scenarios.report import Report, pyplot
+
+    p, s = result.params, result.summary()
+    rep = Report(directory, "Static shapes in the twin")
+    rep.text(f"{len(result.shapes)} shapes, {p.repeats} frames each; fixture {p.fixture}, optics {p.optics}, "
+             f"calibration {p.calibration}. Against the rod: Kabsch on arc length, then point-to-curve distances; "
+             "against the fixture: the paper's ICP and ±0.5 mm translation search. The paper (hardware, after "
+             "identification): max 2.52 mm, mean 0.70 mm.")
+    rows = []
+    for r in result.shapes:
+        d, pp = r.errors["default"], r.errors["paper"]
+        rows.append([r.name, r.fixture, float(np.max(d["rod"]["max"]) * 1e3), float(np.mean(d["rod"]["mean"]) * 1e3),
+                     float(np.max(d["fixture"]["max"]) * 1e3), float(np.max(pp["rod"]["max"]) * 1e3), r.lost_peaks])
+    rep.table(["shape", "fixture", "default max mm", "default mean mm", "default vs fixture max mm",
+               "paper max mm", "lost peaks"], rows)
+    rep.text(f"All shapes, against the rod: default max {s['max_error_mm']:.3f} mm, mean {s['mean_error_mm']:.3f} mm; "
+             f"paper's pipeline max {s['paper_max_error_mm']:.3f} mm, mean {s['paper_mean_error_mm']:.3f} mm.")
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    x = np.arange(len(rows))
+    ax.bar(x - 0.2, [r[2] for r in rows], 0.4, label="default pipeline")
+    ax.bar(x + 0.2, [r[5] for r in rows], 0.4, label="paper's pipeline")
+    ax.set_xticks(x, [r[0] for r in rows], rotation=45, ha="right")
+    ax.set_ylabel("max error against the rod (mm)")
+    ax.set_yscale("log")
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(fontsize=8)
+    rep.figure("errors_per_shape", fig, "max error per shape (log scale), both pipelines")
+    return rep.write()
 
 
 def report(result: Result) -> str:

@@ -399,9 +399,9 @@ def report_text(result: Result) -> str:
 
 def write_report(result: Result, directory: str | Path) -> Path:
     """PNG plots and a markdown summary in ``directory``; returns the report's path."""
-    from scenarios.report import Report, _plt, curvature_profiles, error_over_time
+    from scenarios.report import Report, curvature_profiles, error_over_time, pyplot
 
-    plt = _plt()
+    plt = pyplot()
     p = result.params
     rep = Report(directory, "Temperature bath: tip variation while the bath cools")
     rep.text(f"The catheter is held in the **{p.shape}** shape ({p.fixture} fixture) while the bath cools from "
@@ -489,9 +489,9 @@ def _tip_scatter(result: Result):
     """Default-pipeline tips minus the true tip (mm) in the plane of their largest spread, coloured by temperature
     (the paper pipeline's tips sit ≈ 2.7 mm away on the helix, its own systematic error, and would hide the
     spread)."""
-    from scenarios.report import _plt
+    from scenarios.report import pyplot
 
-    plt = _plt()
+    plt = pyplot()
     r0 = result.runs[0]
     rel = {f"default, mismatch {r.mismatch * 100:g} %": (r.tips["default"] - r.true_tip) * 1e3 for r in result.runs}
     allp = np.concatenate(list(rel.values()))

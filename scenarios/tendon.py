@@ -286,9 +286,9 @@ def report_text(result: Result) -> str:
 
 def _trajectory_figure(result: Result):
     """Tip trajectories in the steering plane (the plane of largest motion of the true tip), mm."""
-    from scenarios.report import _plt
+    from scenarios.report import pyplot
 
-    plt = _plt()
+    plt = pyplot()
     tip = result.true_tip * 1e3
     origin = tip.mean(axis=0)
     _, _, vt = np.linalg.svd(tip - origin, full_matrices=False)
@@ -315,9 +315,9 @@ def _trajectory_figure(result: Result):
 
 def _load_figure(result: Result, grating: int):
     """Tension and the curvature at one grating in the section over time: truth, beam theory, reconstruction."""
-    from scenarios.report import _plt
+    from scenarios.report import pyplot
 
-    plt = _plt()
+    plt = pyplot()
     p = result.params
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 4.8), sharex=True)
     a1.plot(result.t, result.tension, "C3-")

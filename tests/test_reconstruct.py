@@ -2,6 +2,9 @@
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from models import shapes
 from twin import FiberModel, Frame, Reconstructor, strain
@@ -205,3 +208,45 @@ def test_bad_wavelengths_are_clear(default):
         default(np.full((18, 4), np.inf))
     with pytest.raises(TypeError, match="FiberModel"):
         Reconstructor("paper")
+
+
+# ------------------------------------------------------------------ property-based bad input
+_REC = Reconstructor(FIBRE)
+
+
+@settings(max_examples=300, deadline=None)
+@given(shape=st.lists(st.integers(0, 20), min_size=0, max_size=4))
+def test_any_wrong_shape_is_a_clear_error(shape):
+    if len(shape) >= 2 and tuple(shape[-2:]) == (18, 4):
+        return
+    try:
+        _REC(np.full(shape, 1550.0))
+    except ValueError as exc:
+        assert "shape" in str(exc) and "18, 4" in str(exc)
+    else:
+        raise AssertionError(f"shape {shape} was accepted")
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(mask=hnp.arrays(bool, (3, 18, 4)))
+def test_missing_peaks_never_crash_and_are_flagged(mask):
+    """Any pattern of NaN peaks: no exception; a grating is valid exactly when its remaining cores determine
+    the curvature; a frame with a usable grating has a finite shape, one without has NaN (never a silent
+    number)."""
+    w = synthetic(shapes.get("mixed"), n=3)
+    w[mask] = np.nan
+    shape = _REC(w)
+    assert np.isnan(shape.curvature[~shape.valid]).all()
+    for i in range(3):
+        finite = np.isfinite(shape.positions[i]).all()
+        assert finite == shape.valid[i].any()
+        assert finite or np.isnan(shape.positions[i]).all()
+
+
+@settings(max_examples=100, deadline=None)
+@given(radius=st.floats(max_value=-1e-12, allow_nan=False, allow_infinity=False), core=st.integers(0, 3))
+def test_negative_radii_are_refused(radius, core):
+    radii = FIBRE.core_radii.copy()
+    radii[core] = radius
+    with pytest.raises(ValueError, match="core_radii"):
+        FIBRE.replace(core_radii=radii)

@@ -109,9 +109,13 @@ def check_ablation(r: dict) -> None:
     assert final["mean_error_mm"] <= 0.3 and final["max_error_mm"] <= 1.0
 
 
-def test_paper_ablation_reduced_set():
+def test_paper_ablation_reduced_set(tmp_path):
     """4 identification shapes (2 planar in the groove, 2 spatial in tubes), 2 validation shapes, 3 frames."""
-    check_ablation(paper_ablation.run_experiment(ABLATION_CI))
+    r = paper_ablation.run_experiment(ABLATION_CI)
+    check_ablation(r)
+    report = paper_ablation.write_report(r, tmp_path / "report")
+    assert (tmp_path / "report" / "ablation.png").stat().st_size > 10_000
+    assert "identified, compensated" in report.read_text()
 
 
 @pytest.mark.slow
