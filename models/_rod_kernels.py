@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from twin._kernels import exp_coefficients
+
 
 @njit(cache=True, nogil=True)
 def frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux):
@@ -86,14 +88,7 @@ def frames_at(edge_s, edge_frames, darboux, s, out):
         e = min(max(e, 0), ne - 2)
         h = sq - edge_s[e]
         wx, wy, wz = h * darboux[e, 0], h * darboux[e, 1], h * darboux[e, 2]
-        t2 = wx * wx + wy * wy + wz * wz
-        if t2 < 1e-8:
-            a = 1.0 - t2 / 6.0
-            b = 0.5 - t2 / 24.0
-        else:
-            t = np.sqrt(t2)
-            a = np.sin(t) / t
-            b = (1.0 - np.cos(t)) / t2
+        a, b, _ = exp_coefficients(wx * wx + wy * wy + wz * wz)
         # E = I + a ŵ + b ŵ²
         e00 = 1.0 - b * (wy * wy + wz * wz)
         e11 = 1.0 - b * (wx * wx + wz * wz)

@@ -19,7 +19,7 @@ _SQRT3_12 = np.sqrt(3.0) / 12.0
 
 
 @njit(cache=True, nogil=True)
-def _exp_coeffs(t2):
+def exp_coefficients(t2):
     """A = sin t/t, B = (1 − cos t)/t², C = (t − sin t)/t³ for t² = |φ|², finite at t = 0 (math.md §3.3)."""
     if t2 < 0.04:
         # Taylor series to t^8: truncation error < 2e-17 for t < 0.2.
@@ -90,7 +90,7 @@ def exp_chain(rates, frenet, h, r0, pos, frames):
             q0 = h * t0 + d1 * t2_
             q1 = d2 * t0 - d0 * t2_
             q2 = h * t2_ - d1 * t0
-            aa, bb, cc = _exp_coeffs(x0 * x0 + x1 * x1 + x2 * x2)
+            aa, bb, cc = exp_coefficients(x0 * x0 + x1 * x1 + x2 * x2)
             # E = exp(φ̂) = I + A φ̂ + B φ̂²
             e00 = 1.0 - bb * (x1 * x1 + x2 * x2)
             e11 = 1.0 - bb * (x0 * x0 + x2 * x2)

@@ -279,6 +279,32 @@ class _Incremental:
         self.failed = False
         self._deferred = None
 
+    def _feed(self, data: bytes, body_length, decode) -> list:
+        """Split the buffered stream into complete messages: ``body_length(header, stream offset)`` gives the
+        bytes after the 8-byte header (raising FramingError on a bad header), ``decode(message)`` the object."""
+        self._check_usable()
+        buf = self._buf
+        buf += data
+        out: list = []
+        pos = 0
+        try:
+            while len(buf) - pos >= HEADER_SIZE:
+                end = pos + HEADER_SIZE + body_length(bytes(buf[pos : pos + HEADER_SIZE]), self._base + pos)
+                if len(buf) < end:
+                    break
+                try:
+                    out.append(decode(bytes(buf[pos:end])))
+                except FramingError as exc:
+                    off = None if exc.offset is None else self._base + pos + exc.offset
+                    raise type(exc)(exc.what, offset=off, expected=exc.expected, protocol=PROTOCOL) from None
+                pos = end
+        except FramingError as exc:
+            self._fail(exc)
+            return self._finish(out)
+        del buf[:pos]
+        self._base += pos
+        return out
+
     def _fail(self, err: FramingError) -> None:
         self.framing_errors += 1
         self.last_error = err
@@ -318,30 +344,11 @@ class RequestDecoder(_Incremental):
 
     def feed(self, data: bytes) -> list[Request]:
         """Consume bytes; return the complete requests among them."""
-        self._check_usable()
-        buf = self._buf
-        buf += data
-        out: list[Request] = []
-        pos = 0
-        try:
-            while len(buf) - pos >= HEADER_SIZE:
-                head = bytes(buf[pos : pos + HEADER_SIZE])
-                _, n_cmd, n_arg = _request_header(head, self._base + pos, self.max_argument)
-                end = pos + HEADER_SIZE + n_cmd + n_arg
-                if len(buf) < end:
-                    break
-                try:
-                    out.append(decode_request(bytes(buf[pos:end]), max_argument=self.max_argument))
-                except FramingError as exc:
-                    off = None if exc.offset is None else self._base + pos + exc.offset
-                    raise type(exc)(exc.what, offset=off, expected=exc.expected, protocol=PROTOCOL) from None
-                pos = end
-        except FramingError as exc:
-            self._fail(exc)
-            return self._finish(out)
-        del buf[:pos]
-        self._base += pos
-        return out
+        return self._feed(
+            data,
+            lambda head, offset: sum(_request_header(head, offset, self.max_argument)[1:]),
+            lambda message: decode_request(message, max_argument=self.max_argument),
+        )
 
 
 class ResponseDecoder(_Incremental):
@@ -368,31 +375,11 @@ class ResponseDecoder(_Incremental):
 
     def feed(self, data: bytes) -> list[Response]:
         """Consume bytes; return the complete responses among them."""
-        self._check_usable()
-        buf = self._buf
-        buf += data
-        out: list[Response] = []
-        pos = 0
-        try:
-            while len(buf) - pos >= HEADER_SIZE:
-                _, _, n_msg, n_content = _response_header(
-                    bytes(buf[pos : pos + HEADER_SIZE]), self._base + pos, self.max_content
-                )
-                end = pos + HEADER_SIZE + n_msg + n_content
-                if len(buf) < end:
-                    break
-                try:
-                    out.append(decode_response(bytes(buf[pos:end]), max_content=self.max_content))
-                except FramingError as exc:
-                    off = None if exc.offset is None else self._base + pos + exc.offset
-                    raise type(exc)(exc.what, offset=off, expected=exc.expected, protocol=PROTOCOL) from None
-                pos = end
-        except FramingError as exc:
-            self._fail(exc)
-            return self._finish(out)
-        del buf[:pos]
-        self._base += pos
-        return out
+        return self._feed(
+            data,
+            lambda head, offset: sum(_response_header(head, offset, self.max_content)[2:]),
+            lambda message: decode_response(message, max_content=self.max_content),
+        )
 
     def feed_frames(self, data: bytes) -> list[Frame]:
         """Consume peak-stream bytes (port 51972); return the decoded frames, counting sequence gaps."""
