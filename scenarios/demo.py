@@ -122,10 +122,11 @@ def _open_viewer(enabled: bool):
         return None
     try:
         from twin.viewer import Viewer
-    except ImportError as exc:  # the viewer is optional for the demo
+
+        viewer = Viewer(announce=None)
+    except (ImportError, OSError) as exc:  # the viewer is optional for the demo: run headless instead
         _say(f"  (no viewer: {exc})")
         return None
-    viewer = Viewer(announce=None)
     _say(f"viewer: open {viewer.url} in a browser")
     return viewer
 

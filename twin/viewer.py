@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import functools
 import io
 import subprocess
 import sys
@@ -379,8 +380,8 @@ class Viewer:
     ----------
     config : ViewerConfig, optional
         Drawing options (defaults: 1.3 mm tube, 30 fps, scene scale ×10).
-    announce : text file or None
-        Where to print the URL to open (stderr by default; None: silent).
+    announce : text file, "stderr" or None
+        Where to print the URL to open (the current ``sys.stderr`` by default; None: silent).
 
     Attributes
     ----------
@@ -394,7 +395,7 @@ class Viewer:
         How the last reconstruction was placed (see :func:`placement`).
     """
 
-    def __init__(self, config: ViewerConfig | None = None, *, announce: TextIO | None = sys.stderr):
+    def __init__(self, config: ViewerConfig | None = None, *, announce: TextIO | str | None = "stderr"):
         self.config = config or ViewerConfig()
         self._meshcat = _import_meshcat()
         self._g = self._meshcat.geometry
@@ -417,7 +418,7 @@ class Viewer:
         self._label_at = -float("inf")
         self._last: dict[str, Any] | None = None  # last reconstruction drawn, to recolour when stale
         self._camera = np.array([1.0, 0.0, 0.0])
-        self._top = 0.0
+        self._label_pose = np.eye(4)
         self._state_detail = ""
         self._proc, zmq_url, self.url = self._start_server()
         try:
@@ -427,7 +428,8 @@ class Viewer:
             raise
         atexit.register(self.close)
         if announce is not None:
-            print(f"twin viewer: open {self.url}", file=announce, flush=True)
+            stream = sys.stderr if announce == "stderr" else announce  # looked up now: redirections count
+            print(f"twin viewer: open {self.url}", file=stream, flush=True)
 
     # ---------------------------------------------------------------- server
     def _start_server(self) -> tuple[subprocess.Popen, str, str]:
@@ -638,7 +640,6 @@ class Viewer:
         x = points - c
         extent = float(np.max(np.linalg.norm(x, axis=1))) + cfg.radius
         self._centre, self._extent = c, max(extent, 10 * cfg.radius)
-        self._top = float(points[:, 2].max() - c[2]) + cfg.radius
         s = cfg.scale
         root = np.eye(4)
         root[:3, :3] *= s
@@ -651,6 +652,15 @@ class Viewer:
         direction = view_direction(points)
         distance = camera_distance(self._extent * s)
         eye = distance * direction
+        # the label faces the camera, just above the catheter as seen from there (screen-up: +z, made
+        # perpendicular to the view)
+        up = np.array([0.0, 0.0, 1.0]) - direction[2] * direction
+        up /= np.linalg.norm(up)
+        self._label_pose = np.eye(4)
+        self._label_pose[:3, 0], self._label_pose[:3, 1], self._label_pose[:3, 2] = np.cross(up, direction), up, \
+            direction
+        top = float(np.max(x @ up)) + cfg.radius
+        self._label_pose[:3, 3] = (top + 0.2 * self._extent) * s * up
         # The camera node hangs under /Cameras/default/rotated, turned +90° about x (three.js is y-up):
         # a world offset (x, y, z) is (x, z, −y) in the camera's parent frame.
         self._call(self.vis["/Cameras/default/rotated/<object>"].set_property, "position",
@@ -698,20 +708,10 @@ class Viewer:
         g = self._g
         s = self.config.scale
         height = 0.12 * self._extent * s
-        box = g.Box([height * aspect, height, 1e-4 * s])
-        # front faces only: the box's back face would show the text mirrored through the transparent margin
+        # a flat plane, front face only (a box's edges and back face would show slivers and mirrored text)
         material = g.MeshBasicMaterial(map=g.ImageTexture(g.PngImage(png)), transparent=True, side=0)
-        self._call(self.vis["/label"].set_object, box, material)
-        # upright, facing the camera's horizontal direction, above the catheter
-        back = self._camera.copy()
-        back[2] = 0.0
-        nb = np.linalg.norm(back)
-        back = back / nb if nb > 1e-9 else np.array([1.0, 0.0, 0.0])
-        up = np.array([0.0, 0.0, 1.0])
-        m = np.eye(4)
-        m[:3, 0], m[:3, 1], m[:3, 2] = np.cross(up, back), up, back
-        m[:3, 3] = [0.0, 0.0, (self._top + 0.15 * self._extent) * s]
-        self._set_transform("/label", m)
+        self._call(self.vis["/label"].set_object, _plane(g, height * aspect, height), material)
+        self._set_transform("/label", self._label_pose)
         self._label_text, self._label_at = text, now
 
     # ---------------------------------------------------------------- output and end
@@ -771,16 +771,38 @@ def _translation(v) -> np.ndarray:
     return m
 
 
-def _marker_material(g, size: float):
-    """meshcat PointsMaterial drawn on top of the tube (the markers sit on the centreline, inside it)."""
+@functools.cache
+def _extra_classes(g) -> tuple[type, type]:
+    """meshcat 0.3.2 lacks a plane geometry and points drawn on top; made once, when meshcat is imported."""
 
-    class _OnTop(g.PointsMaterial):
+    class Plane(g.Geometry):
+        """three.js PlaneGeometry: in the local x-y plane, facing +z."""
+
+        def __init__(self, width: float, height: float):
+            super().__init__()
+            self.width, self.height = width, height
+
+        def lower(self, object_data):
+            return {"uuid": self.uuid, "type": "PlaneGeometry", "width": self.width, "height": self.height}
+
+    class OnTopPoints(g.PointsMaterial):
+        """Points drawn over the tube (the markers sit on the centreline, inside it); boolean vertexColors
+        as three.js ≥ r113 wants."""
+
         def lower(self, object_data):
             data = super().lower(object_data)
             data.update(depthTest=False, transparent=True, vertexColors=True)
             return data
 
-    return _OnTop(size=size)
+    return Plane, OnTopPoints
+
+
+def _plane(g, width: float, height: float):
+    return _extra_classes(g)[0](width, height)
+
+
+def _marker_material(g, size: float):
+    return _extra_classes(g)[1](size=size)
 
 
 def view_direction(points: np.ndarray, min_elevation_deg: float = 15.0,
