@@ -1,6 +1,6 @@
 """Ground-truth fixtures that shape the catheter rod: connect constraints, a rigid tube of rails, a groove.
 
-Every fixture takes a curve from :mod:`models.shapes` (base at the origin, tangent +z, d1 = +x, 170 mm) and a
+Every fixture takes a curve from :mod:`twin.shapes` (base at the origin, tangent +z, d1 = +x, 170 mm) and a
 :class:`~models.catheter.Pose` that places the curve in the world. The rod (:mod:`models.catheter`) is longer
 than the curve: ``base_length`` before s = 0 and ``tip_length`` after the end. The curve is continued over
 those parts with its own curvature function (:class:`ExtendedCurve`), so the curvature is smooth across
@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 
 from models.catheter import CatheterSpec, Pose, RodHandle, Scene, set_rod_positions
 from models.rod_state import RodReader, RodState
-from models.shapes import ShapeCurve
+from twin.shapes import ShapeCurve
 
 __all__ = [
     "ConnectFixture",
@@ -71,7 +71,7 @@ class ExtendedCurve:
     """A library curve continued ``before`` its start and ``after`` its end.
 
     Over [0, L] it is the shape itself. Beyond, the frames and positions are integrated (8th-order
-    Runge–Kutta, rtol 1e-12, as :mod:`models.shapes` does) from the end states with the continued curvature:
+    Runge–Kutta, rtol 1e-12, as :mod:`twin.shapes` does) from the end states with the continued curvature:
 
     * ``"natural"``: the shape's own curvature function evaluated beyond [0, L] (the library's are
       analytic), so the curvature is smooth across s = 0 and s = L and a vertex near a junction sees no kink;

@@ -12,11 +12,11 @@ a measurement window, as an experimenter averages a held position.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -101,17 +101,6 @@ def optics_config(kind: str, seed: int) -> OpticsConfig:
     if kind not in ("realistic", "ideal"):
         raise ValueError(f"optics must be realistic or ideal; got {kind!r}")
     return OpticsConfig(seed=seed) if kind == "realistic" else OpticsConfig.ideal()
-
-
-def calibration_for(kind: str, sim: SimInterrogator) -> Calibration | None:
-    """``true`` (the twin's true fibre parameters), ``nominal`` (datasheet only) or a calibration TOML."""
-    if kind == "true":
-        return sim.optics.true_calibration()
-    if kind == "nominal":
-        return None
-    if not Path(kind).exists():
-        raise ValueError(f"calibration {kind!r}: no such file (or use true / nominal)")
-    return Calibration.load(kind)
 
 
 def reconstructors(fiber: FiberModel, cal: Calibration | None) -> dict[str, Reconstructor]:
@@ -206,17 +195,22 @@ def stderr_progress(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def run_cli(name: str, experiment: Callable[[], object], output: Callable[[object], None]) -> int:
-    """Run ``experiment()`` and ``output(result)``; a catheter that does not settle, or a simulation that goes
-    unstable, is one line on stderr (which setup, how far it still moved) and exit status 1."""
+def run_cli(name: str, args, module) -> int:
+    """``twin run NAME`` for a sheath experiment ``module`` (its params_from_args, run_experiment, write_report
+    and text_report): run it with progress on stderr, write ``--report``, print ``--json`` or the text report.
+    A catheter that does not settle, or a simulation that goes unstable, is one line on stderr (which setup,
+    how far it still moved) and exit status 1."""
     from models.fixtures import SettleError
 
+    params = module.params_from_args(args)
     try:
-        result = experiment()
+        result = module.run_experiment(params, progress=stderr_progress, viewer=getattr(args, "viewer", None))
     except SettleError as exc:
         print(f"{name}: error: {exc}", file=sys.stderr)
         return 1
-    output(result)
+    if args.report:
+        stderr_progress(f"report: {module.write_report(result, args.report)}")
+    print(json.dumps(result.to_dict(), indent=2) if args.json else module.text_report(result))
     return 0
 
 

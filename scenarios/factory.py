@@ -14,7 +14,7 @@ from sim_interrogator.setups import CalibrationPoses, StaticShape
 from sim_interrogator.sim import SimInterrogator
 from twin import Calibration, FiberModel
 from twin.calibration import CalibrationReport, two_step
-from twin.identify import Identification, Observation, identify
+from twin.calibration.identify import Identification, Observation, identify
 
 __all__ = ["IDENTIFY_SHAPES", "identify_in_twin", "two_step_in_twin"]
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from sim_interrogator.optics import Optics, OpticsConfig
 from twin import FiberModel
-from twin.jig import MATCH_TOL, JigPoses, cross_validate, gauge_layout, match_orientations, write_poses
+from twin.calibration.jig import MATCH_TOL, JigPoses, cross_validate, gauge_layout, match_orientations, write_poses
 
 __all__ = ["JigParams", "evaluate", "needle_fiber", "simulate"]
 
@@ -218,8 +218,9 @@ def evaluate(params: JigParams = JigParams(), fiber: FiberModel | None = None, o
 
 
 def _recovery(nominal: FiberModel, truth: dict, jig_fit) -> dict:
-    """How well the fit found the true sensor, both in the calibration's gauge (twin.jig.gauge_layout): largest
-    core angle error (deg), relative gain error, and error of the core rotation between gratings (twist, deg)."""
+    """How well the fit found the true sensor, both in the calibration's gauge
+    (twin.calibration.jig.gauge_layout): largest core angle error (deg), relative gain error, and error of the core
+    rotation between gratings (twist, deg)."""
     g = np.asarray(truth["gratings_in_groove"])
     twist = np.asarray(truth["twist_rad"])[g]
     true_angles = np.asarray(truth["core_angles_rad"])[None, :] + nominal.handedness * twist[:, None]

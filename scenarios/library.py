@@ -14,8 +14,7 @@ import sys
 
 import numpy as np
 
-from models import shapes
-from twin import FiberModel, Reconstructor, metrics, strain
+from twin import FiberModel, Reconstructor, metrics, shapes, strain
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

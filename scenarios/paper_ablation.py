@@ -27,14 +27,13 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from models import shapes
 from scenarios.factory import two_step_in_twin
 from scenarios.static_shapes import fixture_for, measure
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
-from twin import Calibration, FiberModel, Reconstructor
-from twin.identify import Observation, identify
+from twin import Calibration, FiberModel, Reconstructor, shapes
+from twin.calibration.identify import Observation, identify
 
 #: The paper's results (Al-Ahmad et al., §V-A; docs/simulation.md §7), mm.
 PAPER = {

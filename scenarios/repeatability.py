@@ -23,7 +23,6 @@ By default the hub returns exactly to the reference (a motorised stage); ``--dep
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from dataclasses import asdict, dataclass, field
@@ -32,6 +31,7 @@ import numpy as np
 
 from scenarios import _sheath_common as common
 from scenarios.report import Report, curvature_profiles, error_over_time, tip_trajectories
+from scenarios.series import calibration_for
 from sim_interrogator.sheath import SheathCycle
 
 PAPER_STD_MM = 0.82
@@ -183,7 +183,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     run = common.run_setup(setup, optics=params.optics, seed=params.seed, rate=params.rate, label="repeatability",
                            progress=progress)
     ser, sim = run.series, run.sim
-    recs = common.reconstructors(sim.fiber, common.calibration_for(params.calibration, sim))
+    recs = common.reconstructors(sim.fiber, calibration_for(params.calibration, sim))
     t = ser.t
     win = common.windows(t, setup.reference_times[1:], params.window)  # each return (not the settled start)
     last = int(win[-1][-1])
@@ -336,15 +336,7 @@ def params_from_args(args: argparse.Namespace) -> Params:
 
 
 def run(args: argparse.Namespace) -> int:
-    params = params_from_args(args)
-
-    def output(result: Result) -> None:
-        if args.report:
-            common.stderr_progress(f"report: {write_report(result, args.report)}")
-        print(json.dumps(result.to_dict(), indent=2) if args.json else text_report(result))
-
-    return common.run_cli("repeatability", lambda: run_experiment(
-        params, progress=common.stderr_progress, viewer=getattr(args, "viewer", None)), output)
+    return common.run_cli("repeatability", args, sys.modules[__name__])
 
 
 if __name__ == "__main__":

@@ -31,7 +31,6 @@ both, and the wind-up (∫ τ ds over the gratings) beside the error.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from dataclasses import asdict, dataclass, field
@@ -40,6 +39,7 @@ import numpy as np
 
 from scenarios import _sheath_common as common
 from scenarios.report import Report, curvature_profiles, error_over_time, tip_trajectories
+from scenarios.series import calibration_for
 from sim_interrogator.sheath import SheathRotate
 
 PAPER_MAX_DEVIATION_MM = 0.36
@@ -186,7 +186,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     run = common.run_setup(setup, optics=params.optics, seed=params.seed, rate=params.rate, label="rotation",
                            progress=progress)
     ser, sim = run.series, run.sim
-    recs = common.reconstructors(sim.fiber, common.calibration_for(params.calibration, sim))
+    recs = common.reconstructors(sim.fiber, calibration_for(params.calibration, sim))
     t = ser.t
     win = common.windows(t, setup.dwell_ends, params.window)
     last = int(win[-1][-1])
@@ -360,15 +360,7 @@ def params_from_args(args: argparse.Namespace) -> Params:
 
 
 def run(args: argparse.Namespace) -> int:
-    params = params_from_args(args)
-
-    def output(result: Result) -> None:
-        if args.report:
-            common.stderr_progress(f"report: {write_report(result, args.report)}")
-        print(json.dumps(result.to_dict(), indent=2) if args.json else text_report(result))
-
-    return common.run_cli("rotation", lambda: run_experiment(
-        params, progress=common.stderr_progress, viewer=getattr(args, "viewer", None)), output)
+    return common.run_cli("rotation", args, sys.modules[__name__])
 
 
 if __name__ == "__main__":

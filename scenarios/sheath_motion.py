@@ -25,7 +25,6 @@ sheath under the sensed region: ``sharp`` (≥ 100 1/m: an 8 mm bend) and ``gent
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import asdict, dataclass, field
 
@@ -33,7 +32,7 @@ import numpy as np
 
 from scenarios import _sheath_common as common
 from scenarios.report import Report, curvature_profiles, error_over_time, tip_trajectories
-from scenarios.series import errors
+from scenarios.series import calibration_for, errors
 from sim_interrogator.sheath import SheathPath
 from twin import metrics
 
@@ -226,7 +225,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     run = common.run_setup(setup, optics=params.optics, seed=params.seed, rate=params.rate, label="sheath-motion",
                            progress=progress)
     ser, sim = run.series, run.sim
-    recs = common.reconstructors(sim.fiber, common.calibration_for(params.calibration, sim))
+    recs = common.reconstructors(sim.fiber, calibration_for(params.calibration, sim))
     t = ser.t
     every = max(1, round(params.rate / params.analysis_rate))
     analysed = np.zeros(t.size, bool)
@@ -414,15 +413,7 @@ def params_from_args(args: argparse.Namespace) -> Params:
 
 
 def run(args: argparse.Namespace) -> int:
-    params = params_from_args(args)
-
-    def output(result: Result) -> None:
-        if args.report:
-            common.stderr_progress(f"report: {write_report(result, args.report)}")
-        print(json.dumps(result.to_dict(), indent=2) if args.json else text_report(result))
-
-    return common.run_cli("sheath-motion", lambda: run_experiment(
-        params, progress=common.stderr_progress, viewer=getattr(args, "viewer", None)), output)
+    return common.run_cli("sheath-motion", args, sys.modules[__name__])
 
 
 if __name__ == "__main__":

@@ -16,8 +16,8 @@ Summary (``--json``: ``summary``): over all shapes and repetitions, default mode
 distances; ``paper_…`` the same for the paper's pipeline.
 
 Calibration (``--calibration``): ``true`` reconstructs with the twin's true fibre parameters (as-built λ0,
-intrinsic twist, Δθ, g), leaving noise, drift, quantisation and the grating length; ``nominal`` uses the
-datasheet only; a path loads a calibration TOML.
+intrinsic twist, Δθ, g), leaving noise, drift, quantisation and the grating length; ``lambda0`` its as-built λ0
+only; ``nominal`` the datasheet only; a path loads a calibration TOML.
 
 ``--record DIR`` writes, per shape, the frames (``DIR/SHAPE.h5``, a twin recording) and the ground truth
 (``DIR/SHAPE_truth.csv``, arc length and points in m; ``--record-truth rod``: the catheter's own centreline,
@@ -35,11 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
-from models import shapes
+from scenarios.series import CALIBRATIONS, calibration_for
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
-from twin import Calibration, FiberModel, Reconstructor, metrics
+from twin import FiberModel, Reconstructor, metrics, shapes
 
 FIXTURES = ("connect", "tube", "paper")
 MODES = ("default", "paper")
@@ -107,14 +107,6 @@ def fixture_for(name: str, fixture: str) -> str:
     return fixture
 
 
-def _calibration(params: Params, sim: SimInterrogator) -> Calibration | None:
-    if params.calibration == "true":
-        return sim.optics.true_calibration()
-    if params.calibration == "nominal":
-        return None
-    return Calibration.load(params.calibration)
-
-
 def _stats(err: metrics.ErrorStats) -> dict:
     return {"max": np.atleast_1d(err.max), "mean": np.atleast_1d(err.mean), "tip": np.atleast_1d(err.tip)}
 
@@ -135,7 +127,7 @@ def measure(sim: SimInterrogator, frames, recs: dict[str, Reconstructor]) -> dic
 
 def record(directory: Path, name: str, sim: SimInterrogator, frames, cal, which: str) -> None:
     """Write one shape's frames (twin HDF5) and its ground truth (CSV with arc lengths) into ``directory``."""
-    from twin.identify import write_truth
+    from twin.calibration.identify import write_truth
     from twin.io.record import Recorder
 
     directory.mkdir(parents=True, exist_ok=True)
@@ -174,7 +166,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
         sim = SimInterrogator(setup, fiber, cfg, progress=tick if progress else None)
         settle_s = sim.data.time
         frames = [sim.read() for _ in range(params.repeats)]
-        cal = _calibration(params, sim)
+        cal = calibration_for(params.calibration, sim)
         if params.record:
             record(Path(params.record), name, sim, frames, cal, params.record_truth)
         recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal)}
@@ -196,7 +188,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="connect constraints (exact), a 3 mm tube, or paper (groove/tube) (default connect)")
     parser.add_argument("--optics", choices=("realistic", "ideal"), default="realistic")
     parser.add_argument("--calibration", default="true",
-                        help="true (the twin's true parameters), nominal, or a calibration TOML (default true)")
+                        help="true (the twin's true parameters), lambda0, nominal or a calibration TOML (default true)")
     parser.add_argument("--segments", type=int, default=100, help="rod segments (default 100)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--record", metavar="DIR", help="write each shape's frames and truth (twin identify's inputs)")
@@ -210,8 +202,8 @@ def params_from_args(args: argparse.Namespace) -> Params:
     names = tuple(shapes.names()) if args.shapes == "all" else tuple(s.strip() for s in args.shapes.split(","))
     for n in names:
         shapes.get(n)  # a clear error for an unknown shape
-    if args.calibration not in ("true", "nominal") and not Path(args.calibration).exists():
-        raise ValueError(f"--calibration {args.calibration}: no such file (or use true / nominal)")
+    if args.calibration not in CALIBRATIONS and not Path(args.calibration).exists():
+        raise ValueError(f"--calibration {args.calibration}: no such file (or one of {', '.join(CALIBRATIONS)})")
     return Params(names, args.repeats, args.fixture, args.optics, args.calibration, args.segments, args.seed,
                   args.record, args.record_truth)
 

@@ -47,12 +47,11 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.distance import pdist
 
-from models import shapes
-from scenarios.series import Series, collect
+from scenarios.series import Series, calibration_for, collect
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.thermal import PROFILES, Bath
-from twin import Calibration, FiberModel, Reconstructor, Shape, metrics
+from twin import FiberModel, Reconstructor, Shape, metrics, shapes
 from twin.frames import Truth
 
 MODES = ("default", "paper")
@@ -258,19 +257,6 @@ def check(params: Params) -> None:
         raise ValueError("rate and duration must be > 0 and average >= 0")
     if not params.mismatches or any(not 0 <= m < 0.1 for m in params.mismatches):
         raise ValueError(f"mismatches must be fractions in [0, 0.1) (0.003 = 0.3 %), got {params.mismatches}")
-
-
-def calibration_for(name: str, sim: SimInterrogator) -> Calibration | None:
-    """``true``: the simulated fibre's true parameters; ``lambda0``: its as-built λ0 only; ``nominal``: None;
-    otherwise a calibration TOML."""
-    if name == "true":
-        return sim.optics.true_calibration()
-    if name == "lambda0":
-        return Calibration(lambda0=sim.optics.true_fiber.lambda0,
-                           provenance={"method": "the simulated fibre's as-built λ0 only"})
-    if name == "nominal":
-        return None
-    return Calibration.load(name)
 
 
 def _windows(series: Series, n_avg: int) -> tuple[np.ndarray, ...]:

@@ -52,8 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scenarios.series import Series, collect, to_world
-from scenarios.temperature_bath import calibration_for
+from scenarios.series import Series, calibration_for, collect, to_world
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.tendon import Tendon

@@ -14,9 +14,9 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
-from models import shapes
 from models.catheter import CatheterSpec, Pose
 from models.fixtures import ExtendedCurve, build_connect, build_groove, build_tube, rod_base_pose, settle
+from twin import shapes
 
 __all__ = ["SETUPS", "CalibrationPoses", "Setup", "StaticShape", "parse_params", "register"]
 
@@ -121,7 +121,7 @@ class StaticShape(Setup):
     Parameters
     ----------
     shape : str
-        A :mod:`models.shapes` name.
+        A :mod:`twin.shapes` name.
     fixture : {"connect", "tube", "groove"}
         Exact shaping by connect constraints, a 3 mm rigid tube, or a grooved plate (planar shapes).
     segments : int

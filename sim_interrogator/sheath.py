@@ -48,8 +48,8 @@ from scipy.spatial import cKDTree
 
 from models.catheter import CatheterSpec, Pose, Scene, set_rod_positions
 from models.fixtures import ExtendedCurve, RailSet, add_rails, settle, tube_rail_offsets
-from models.shapes import ShapeCurve
 from sim_interrogator.setups import Setup, register
+from twin.shapes import ShapeCurve
 
 __all__ = [
     "SHEATH_8FR_ID",
@@ -120,7 +120,7 @@ class SheathGeometry:
     The first section is the straight guide the hub slides in. The curvature vector is piecewise constant over
     the sections with each change smoothed over ``ramp`` (a C¹ smoothstep centred on the junction), so every
     section keeps its turning angle; the centreline starts at the origin with tangent +z and d1 = +x (the
-    :mod:`models.shapes` convention) and is placed in the world by the setup.
+    :mod:`twin.shapes` convention) and is placed in the world by the setup.
 
     Attributes
     ----------
@@ -186,7 +186,7 @@ class SheathGeometry:
 
     @cached_property
     def shape(self) -> ShapeCurve:
-        """The centreline as a :class:`models.shapes.ShapeCurve` (positions and Bishop frames)."""
+        """The centreline as a :class:`twin.shapes.ShapeCurve` (positions and Bishop frames)."""
         planar = all(s.curvature == 0 or abs(math.sin(s.direction)) < 1e-12 for s in self.sections)
         return ShapeCurve(self.name, planar, self.curvature, f"sheath {self.name}", self.length)
 

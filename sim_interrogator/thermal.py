@@ -62,7 +62,7 @@ class Bath(StaticShape):
     Parameters
     ----------
     shape : str
-        A :mod:`models.shapes` name.
+        A :mod:`twin.shapes` name.
     fixture : {"connect", "tube", "groove"}
         How the shape is held (see :class:`~sim_interrogator.setups.StaticShape`).
     start_celsius, end_celsius : float

@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 
-from models import shapes
-from twin import Calibration, CalibrationError, FiberModel, Reconstructor, strain
+from twin import Calibration, CalibrationError, FiberModel, Reconstructor, shapes, strain
 from twin.calibration import nominal_gain, scaled_core_angles, two_step
 
 FIBRE = FiberModel.paper()

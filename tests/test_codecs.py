@@ -307,7 +307,7 @@ def test_illumisense_stream_survives_every_split_point():
         assert dec.framing_errors == 0
     dec = illumisense.StreamDecoder()
     frames = [f for b in stream for f in dec.feed(bytes([b]))]
-    assert len(frames) == 3 and dec.sequence_resets == 1
+    assert len(frames) == 3 and dec.sequence.sequence_resets == 1
 
 
 def test_illumisense_stream_refuses_a_huge_prefix_and_resynchronises():
@@ -332,7 +332,7 @@ def test_illumisense_stream_counts_garbage_gaps_and_truncation():
     frames = dec.feed(rec(1) + b"garbage\r\n\x00\x01" + rec(2) + rec(5) + b"\x00\x00\x00\x20abc" + rec(6))
     assert [f.sequence for f in frames] == [1, 2, 5, 6]
     assert dec.framing_errors == 2
-    assert dec.sequence_gaps == 1 and dec.lost_samples == 2
+    assert dec.sequence.sequence_gaps == 1 and dec.sequence.lost_samples == 2
     dec.feed(rec(7)[:20])
     dec.finish()
     assert dec.framing_errors == 3 and isinstance(dec.last_error, TruncatedFrameError)
@@ -771,7 +771,7 @@ def test_hyperion_stream_any_split_and_failure_needs_reset():
         dec = hyperion.ResponseDecoder()
         frames = dec.feed_frames(stream[:cut]) + dec.feed_frames(stream[cut:])
         assert [x.sequence for x in frames] == [5, 8]
-        assert dec.lost_samples == 2
+        assert dec.sequence.lost_samples == 2
     dec = hyperion.ResponseDecoder(max_content=1000)
     good = hyperion.encode_stream_frame(f)
     assert len(dec.feed_frames(good + b"\x00\x00\x00\x00\xff\xff\xff\x7f")) == 1  # delivered, error deferred

@@ -4,10 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from models import shapes
-from twin import Calibration, FiberModel, strain
+from twin import Calibration, FiberModel, shapes, strain
 from twin.calibration import scaled_core_angles
-from twin.identify import Observation, identify, paper_cost, parameter_jacobian
+from twin.calibration.identify import Observation, identify, paper_cost, parameter_jacobian
 
 NOMINAL = FiberModel.paper()
 # The paper's identified fibre (math.md §5.3): Δθ = 1.039 rad, r = 38.0 µm, S_ε = 0.737 → g = 28.006 µm

@@ -7,11 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models.shapes import ShapeCurve
 from scenarios.jig import JigParams, needle_fiber, simulate
 from twin import Calibration, FiberModel, Reconstructor, metrics, strain
-from twin.cli import main
-from twin.jig import (
+from twin.calibration.jig import (
     JigPoses,
     cross_validate,
     fit,
@@ -21,6 +19,8 @@ from twin.jig import (
     validate,
     write_poses,
 )
+from twin.cli import main
+from twin.shapes import ShapeCurve
 from twin.strain import CurvatureSolver, optical_strain
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
@@ -439,9 +439,9 @@ def test_cli_calibrate_validate_and_cross_validate(twin_jig, tmp_path, capsys):
 
 
 def test_jig_scenario_runs_and_passes(tmp_path, capsys):
-    from twin.cli import SCENARIOS
+    from twin.cli import scenarios
 
-    assert SCENARIOS["jig"] == "scenarios.jig"
+    assert scenarios()["jig"] == "scenarios.jig"
     out_csv = tmp_path / "jig.csv"
     assert main(["run", "jig", "--out", str(out_csv), "--trials", "2", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)

@@ -342,3 +342,12 @@ def test_frame_flags_of_a_hand_made_batch():
                               FrameFlag.MISSING_PEAKS | FrameFlag.UNUSABLE]
     assert np.isfinite(shapes.positions[2]).all() and np.isnan(shapes.positions[3]).all()
     assert loop.c["invalid_nodes"] == 1 + 18
+
+
+def test_sequence_counter():
+    from twin.frames import SequenceCounter
+
+    c = SequenceCounter()
+    lost = [c.count(s) for s in (5, 6, 9, -1, 10, 3, 4)]
+    assert lost == [0, 0, 2, 0, 0, 0, 0]  # −1 unknown: skipped; 3 after 10: a reset, not loss
+    assert (c.sequence_gaps, c.lost_samples, c.sequence_resets, c.last) == (1, 2, 1, 4)

@@ -26,7 +26,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from models import shapes
 from models.catheter import CatheterSpec, Pose, Scene, set_rod_positions
 from models.fixtures import (
     ExtendedCurve,
@@ -38,6 +37,7 @@ from models.fixtures import (
     settle,
 )
 from models.rod_state import RodReader, RodState, so3_exp, so3_log
+from twin import shapes
 
 
 def _rot(rotvec) -> np.ndarray:

@@ -6,8 +6,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from models import shapes
-from twin import FiberModel, Frame, Reconstructor, strain
+from twin import FiberModel, Frame, Reconstructor, shapes, strain
 
 FIBRE = FiberModel.paper()
 

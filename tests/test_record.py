@@ -20,13 +20,13 @@ import pytest
 from io_helpers import synthetic_frames, wait_until
 
 from twin import Calibration, FiberModel, Reconstructor
+from twin.cli.replay import replay
 from twin.frames import Frame
 from twin.io import illumisense
 from twin.io.record import Recorder, open_recording
 from twin.io.source import SourceClosed, open_source
 from twin.io.synthetic import SyntheticSource
 from twin.live import LiveLoop
-from twin.replay_cli import replay
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg"}

@@ -385,7 +385,7 @@ def test_sink_in_the_live_loop_at_1_khz_draws_at_most_its_rate(make_viewer):
 
 # ------------------------------------------------------------------------------------------------ command line
 def test_take_viewer_options_anywhere_among_the_scenario_options():
-    from twin.scenario_cli import take_viewer_options
+    from twin.cli.run import take_viewer_options
 
     assert take_viewer_options(["--shapes", "arc", "--viewer", "--json"]) == (["--shapes", "arc", "--json"],
                                                                              True, None)
@@ -417,7 +417,9 @@ def test_twin_run_passes_a_viewer_to_the_scenario(monkeypatch, capsys):
 
     probe.run = run
     monkeypatch.setitem(sys.modules, "_viewer_probe", probe)
-    monkeypatch.setitem(cli.SCENARIOS, "viewer-probe", "_viewer_probe")
+    from twin import registry
+
+    registry.register("twin.scenarios", "viewer-probe", "_viewer_probe")
     assert cli.main(["run", "viewer-probe", "--n", "3", "--viewer", "--viewer-rate", "10"]) == 0
     v = seen["viewer"]
     assert isinstance(v, Viewer) and v.config.max_fps == 10.0 and seen["n"] == 3
@@ -425,6 +427,7 @@ def test_twin_run_passes_a_viewer_to_the_scenario(monkeypatch, capsys):
     assert "twin viewer: open http://127.0.0.1:" in capsys.readouterr().err
     assert cli.main(["run", "--viewer", "viewer-probe"]) == 0 and seen["viewer"].closed
     assert cli.main(["run", "viewer-probe"]) == 0 and seen["viewer"] is None
+    registry.unregister("twin.scenarios", "viewer-probe")
 
 
 def test_twin_live_viewer_flag():

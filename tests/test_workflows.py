@@ -78,7 +78,7 @@ def test_identify_input_errors(tmp_path, capsys):
     code, _, err = run_cli(capsys, "identify", "--frames", "a.h5", "--truth", "a.csv", "--out", str(tmp_path / "x"))
     assert code == 2 and "no such recording" in err
     (tmp_path / "t.csv").write_text("x_mm,y_mm,z_mm\n1,2,3\n")
-    from twin.identify import read_truth
+    from twin.calibration.identify import read_truth
 
     with pytest.raises(ValueError, match="missing column"):
         read_truth(tmp_path / "t.csv")

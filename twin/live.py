@@ -43,7 +43,7 @@ from typing import Protocol, TextIO
 
 import numpy as np
 
-from twin.frames import Frame, Shape
+from twin.frames import Frame, SequenceCounter, Shape
 from twin.io.source import Source, SourceClosed
 from twin.io.transport import Backoff
 from twin.reconstruct import Reconstructor
@@ -265,7 +265,7 @@ class LiveLoop:
             ("frames", "frames_complete", "frames_partial", "frames_unusable", "frames_missing_peaks",
              "frames_rejected", "lost_samples", "sequence_gaps", "sequence_resets", "invalid_nodes",
              "source_errors", "reconstruct_errors", "stale_events", "reopens"), 0)
-        self._last_seq: int | None = None
+        self._sequence = SequenceCounter()
         self._matched_any = False
         self._tip: np.ndarray | None = None
         self._t0 = time.monotonic()
@@ -342,21 +342,14 @@ class LiveLoop:
         return good, shapes, flags
 
     def _count_sequence(self, seq: list[int], flags: np.ndarray) -> None:
-        """Count gaps and resets of the sequence numbers (−1 = unknown, skipped); flag frames after a gap."""
-        last = self._last_seq
+        """Count gaps and resets of the sequence numbers; flag the frames that follow a gap."""
+        counter = self._sequence
         for i, s in enumerate(seq):  # a plain loop: batches are small and this is cheaper than numpy here
-            if s < 0:
-                continue
-            if last is not None:
-                d = s - last
-                if d > 1:
-                    self.c["sequence_gaps"] += 1
-                    self.c["lost_samples"] += d - 1
-                    flags[i] |= _GAP
-                elif d <= 0:
-                    self.c["sequence_resets"] += 1
-            last = s
-        self._last_seq = last
+            if counter.count(s):
+                flags[i] |= _GAP
+        self.c["sequence_gaps"] = counter.sequence_gaps
+        self.c["lost_samples"] = counter.lost_samples
+        self.c["sequence_resets"] = counter.sequence_resets
 
     # ---------------------------------------------------------------- status
     def status(self, flags: np.ndarray | None = None) -> LiveStatus:

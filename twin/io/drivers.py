@@ -51,7 +51,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from twin.fiber import FiberModel
-from twin.frames import Frame, PeakStatus
+from twin.frames import Frame, PeakStatus, SequenceCounter
 from twin.io import fispec, hyperion, illumisense
 from twin.io.errors import FramingError
 from twin.io.source import Source, SourceClosed, parse_url
@@ -291,9 +291,9 @@ class IllumisenseSource(Driver):
         out = super().stats()
         out.update(
             framing_errors=d.framing_errors,
-            lost_samples=d.lost_samples,
-            sequence_gaps=d.sequence_gaps,
-            sequence_resets=d.sequence_resets,
+            lost_samples=d.sequence.lost_samples,
+            sequence_gaps=d.sequence.sequence_gaps,
+            sequence_resets=d.sequence.sequence_resets,
             bytes_discarded=d.bytes_discarded,
         )
         if d.last_error is not None:
@@ -379,7 +379,7 @@ class HyperionSource(Driver):
         self._stream: TcpClient | None = None
         self._decoder: hyperion.ResponseDecoder | None = None
         self._framing_errors = 0
-        self._last_seq: int | None = None
+        self._sequence = SequenceCounter()
         super().__init__(url or f"hyperion://{host}:{port}", **kw)
 
     def _query(self, client: TcpClient, decoder: hyperion.ResponseDecoder, command: str) -> hyperion.Response:
@@ -434,11 +434,10 @@ class HyperionSource(Driver):
         # gaps are counted here rather than by the per-connection decoder, so that samples lost across a
         # reconnect count too
         for f in frames:
-            last = self._last_seq
-            if last is not None and f.sequence > last + 1:
+            lost = self._sequence.count(f.sequence)
+            if lost:
                 self.counters["sequence_gaps"] += 1
-                self.counters["lost_samples"] += f.sequence - last - 1
-            self._last_seq = f.sequence
+                self.counters["lost_samples"] += lost
         self._push(frames)
 
     def _map(self, frame: Frame) -> Frame:

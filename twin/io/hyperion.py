@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from twin.frames import Frame, PeakStatus
+from twin.frames import Frame, PeakStatus, SequenceCounter
 from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
 
 __all__ = [
@@ -369,9 +369,7 @@ class ResponseDecoder(_Incremental):
         super().__init__()
         self.max_content = max_content
         self.n_gratings = n_gratings
-        self._last_seq: int | None = None
-        self.sequence_gaps = 0
-        self.lost_samples = 0
+        self.sequence = SequenceCounter()
 
     def feed(self, data: bytes) -> list[Response]:
         """Consume bytes; return the complete responses among them."""
@@ -400,10 +398,7 @@ class ResponseDecoder(_Incremental):
             except FramingError as exc:
                 self._fail(exc)
                 return self._finish(frames)
-            if self._last_seq is not None and f.sequence > self._last_seq + 1:
-                self.sequence_gaps += 1
-                self.lost_samples += f.sequence - self._last_seq - 1
-            self._last_seq = f.sequence
+            self.sequence.count(f.sequence)
             frames.append(f)
         return frames
 

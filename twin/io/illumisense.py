@@ -62,7 +62,7 @@ from typing import Literal
 
 import numpy as np
 
-from twin.frames import Frame, PeakStatus
+from twin.frames import Frame, PeakStatus, SequenceCounter
 from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
 
 __all__ = [
@@ -556,10 +556,8 @@ class StreamDecoder:
         not decode, bytes left over at :meth:`finish`).
     bytes_discarded : int
         Bytes skipped while resynchronising.
-    sequence_gaps, lost_samples : int
-        Forward jumps of the sample number, and the samples they skipped.
-    sequence_resets : int
-        Times the sample number did not increase (a restarted acquisition).
+    sequence : SequenceCounter
+        Gaps, lost samples and resets of the records' sample numbers.
     last_error : FramingError or None
         The most recent error (offsets count bytes since the decoder was created).
     errors : collections.deque of FramingError
@@ -590,13 +588,10 @@ class StreamDecoder:
         self._base = 0  # stream offset of _buf[0]
         self._hunting = False
         self._scanned = 0  # payload bytes of the current candidate already checked for NUL / early LF
-        self._last_seq: int | None = None
+        self.sequence = SequenceCounter()
         self.records = 0
         self.framing_errors = 0
         self.bytes_discarded = 0
-        self.sequence_gaps = 0
-        self.lost_samples = 0
-        self.sequence_resets = 0
         self.last_error: FramingError | None = None
         self.errors: deque[FramingError] = deque(maxlen=keep_errors)
 
@@ -693,7 +688,7 @@ class StreamDecoder:
             self._pos = end
             self._scanned = 0
             self._hunting = False
-            self._count_sequence(rec.frame.sequence)
+            self.sequence.count(rec.frame.sequence)
             self.records += 1
             out.append(rec)
         if self._pos > 65536 and self._pos * 2 > len(buf):  # amortised O(n): drop consumed bytes now and then
@@ -732,12 +727,3 @@ class StreamDecoder:
         self._scanned = 0
         self.bytes_discarded += 1
 
-    def _count_sequence(self, seq: int) -> None:
-        last = self._last_seq
-        if last is not None:
-            if seq > last + 1:
-                self.sequence_gaps += 1
-                self.lost_samples += seq - last - 1
-            elif seq <= last:
-                self.sequence_resets += 1
-        self._last_seq = seq

@@ -3,29 +3,26 @@
 Every source — the simulator in-process, an interrogator over TCP or serial, a recording — is a :class:`Source`:
 ``read(timeout)`` returns the next :class:`~twin.frames.Frame` (or None when nothing arrived in time), and
 iteration yields frames until the source ends. :func:`open_source` picks the implementation from the URL
-scheme through :data:`SCHEMES`, importing it only then, so the sensing core never imports the simulator.
+scheme through the registry (:mod:`twin.registry`, group ``twin.sources``), importing it only then, so the
+sensing core never names the simulator.
 """
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Iterator
 from urllib.parse import parse_qsl, urlsplit
 
+from twin import registry
+from twin.extras import MissingExtra
 from twin.fiber import FiberModel
 from twin.frames import Frame
 
-__all__ = ["SCHEMES", "Source", "SourceClosed", "open_source", "parse_url"]
+__all__ = ["Source", "SourceClosed", "open_source", "parse_url", "schemes"]
 
-#: URL scheme → "module:function"; the function takes the URL and keyword options and returns a Source.
-SCHEMES: dict[str, str] = {
-    "sim": "sim_interrogator.source:open_sim",
-    "illumisense": "twin.io.drivers:open_illumisense",
-    "fispec": "twin.io.drivers:open_fispec",
-    "hyperion": "twin.io.drivers:open_hyperion",
-    "replay": "twin.io.record:open_replay",
-    "synthetic": "twin.io.synthetic:open_synthetic",
-}
+
+def schemes() -> dict[str, str]:
+    """URL scheme → ``"module:function"`` of every registered source (group ``twin.sources``)."""
+    return registry.entries("twin.sources")
 
 
 class SourceClosed(EOFError):
@@ -84,7 +81,7 @@ def parse_url(url: str) -> tuple[str, str, dict[str, str]]:
     """Split ``scheme://rest?key=value&…`` into (scheme, rest without the query, options)."""
     parts = urlsplit(url)
     if not parts.scheme:
-        raise ValueError(f"{url!r}: a source URL starts with a scheme: {', '.join(s + '://' for s in SCHEMES)}")
+        raise ValueError(f"{url!r}: a source URL starts with a scheme: {', '.join(s + '://' for s in schemes())}")
     rest = url.split("://", 1)[1].split("?", 1)[0] if "://" in url else parts.path
     return parts.scheme, rest, dict(parse_qsl(parts.query, keep_blank_values=True))
 
@@ -96,11 +93,11 @@ def open_source(url: str, **options) -> Source:
     ``fispec://PORT_OR_PYSERIAL_URL``, ``hyperion://HOST``, ``replay://FILE`` (see README).
     """
     scheme = parse_url(url)[0]
-    if scheme not in SCHEMES:
-        raise ValueError(f"{url!r}: unknown source scheme {scheme!r}; known: {', '.join(sorted(SCHEMES))}")
-    module, func = SCHEMES[scheme].split(":")
+    known = schemes()
+    if scheme not in known:
+        raise ValueError(f"{url!r}: unknown source scheme {scheme!r}; known: {', '.join(known)}")
     try:
-        opener = getattr(importlib.import_module(module), func)
-    except ImportError as exc:
-        raise ValueError(f"{url!r}: the {scheme} source is not available here ({exc})") from None
+        opener = registry.load("twin.sources", scheme)
+    except MissingExtra as exc:
+        raise MissingExtra(exc.package, exc.extra, f"{scheme}://") from None
     return opener(url, **options)

@@ -6,7 +6,7 @@ A :class:`Calibration` refines a :class:`~twin.fiber.FiberModel` for one physica
 * ``twist`` — the cores' intrinsic twist at each grating relative to grating 0, rad: core i sits at
   θ_i + twist[n] (step 2; the paper's θ_b,t with the opposite sign and the global roll removed);
 * ``delta_theta``, ``gain`` — identified outer-core spacing Δθ (rad) and gain g = r·S_ε (m), with 1σ
-  uncertainties (see :mod:`twin.identify`);
+  uncertainties (see :mod:`twin.calibration.identify`);
 * ``design`` — fitted per-grating design matrices (n_gratings, n_cores, 3) from a jig calibration, which
   replace the physical model entirely when present;
 * ``provenance`` — free-form record of how it was made.

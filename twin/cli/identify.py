@@ -2,9 +2,9 @@
 
 Each ``--frames`` recording (a twin HDF5 recording or an ILLumiSense log) is paired with the ``--truth`` file
 given after it: the centreline of the shape the catheter held, as a CSV or NPY of points in m, with arc lengths
-when known (:func:`twin.identify.read_truth` documents the format). Use several shapes, planar and spatial: from
-planar shapes alone Δθ is only weakly identifiable. ``twin run static-shapes --record DIR`` writes such pairs
-from the twin.
+when known (:func:`twin.calibration.identify.read_truth` documents the format). Use several shapes, planar
+and spatial: from planar shapes alone Δθ is only weakly identifiable.
+``twin run static-shapes --record DIR`` writes such pairs from the twin.
 
 The default fits [Δθ, g] on the smooth registered residual with uncertainties; ``--formulation paper`` fits the
 paper's [Δθ, r, S_ε] with the max-distance cost and reports why r and S_ε are not separately determined.
@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from twin.calibration import Calibration
+from twin.calibration.identify import Observation, identify, paper_cost, read_truth
 from twin.fiber import FiberModel
-from twin.identify import Observation, identify, paper_cost, read_truth
 from twin.io.record import open_recording
 
 

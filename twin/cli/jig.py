@@ -17,8 +17,7 @@ import sys
 
 import numpy as np
 
-from twin import jig
-from twin.calibration import Calibration
+from twin.calibration import Calibration, jig
 from twin.fiber import FiberModel
 
 CALIBRATE, VALIDATE = "jig-calibrate", "jig-validate"

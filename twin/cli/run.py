@@ -1,4 +1,4 @@
-"""`twin run NAME [options]`: run a scenario found through the registry in :mod:`twin.cli`.
+"""`twin run NAME [options]`: run a scenario found through the registry (:mod:`twin.registry`).
 
 ``--viewer [--viewer-rate HZ]`` (before or among the scenario's options) opens a browser view
 (:class:`twin.viewer.Viewer`; the URL is printed on stderr) and hands it to the scenario as ``args.viewer``
@@ -11,7 +11,6 @@ draw still runs; the viewer's server stops when the scenario returns.
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 
 VIEWER_HELP = ("--viewer [--viewer-rate HZ]: show the run in a browser (meshcat; the URL is printed on stderr), "
@@ -19,13 +18,13 @@ VIEWER_HELP = ("--viewer [--viewer-rate HZ]: show the run in a browser (meshcat;
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from twin.cli import SCENARIOS
+    from twin.cli import scenarios
 
+    known = scenarios()
     parser.add_argument("--viewer", action="store_true", help="show the run in a browser (meshcat)")
     parser.add_argument("--viewer-rate", type=float, default=None, metavar="HZ",
                         help="most frames the viewer draws per second (default 30; implies --viewer)")
-    parser.add_argument("name", metavar="NAME", help="scenario: " + ", ".join(sorted(SCENARIOS)) if SCENARIOS
-                        else "scenario name")
+    parser.add_argument("name", metavar="NAME", help="scenario: " + ", ".join(known) if known else "scenario name")
     parser.add_argument("options", nargs=argparse.REMAINDER, help="the scenario's own options (see NAME --help)")
 
 
@@ -67,12 +66,13 @@ def take_viewer_options(options: list[str]) -> tuple[list[str], bool, float | No
 
 
 def run(args: argparse.Namespace) -> int:
-    from twin.cli import SCENARIOS, UserError
+    from twin import registry
+    from twin.cli import UserError, scenarios
 
-    if args.name not in SCENARIOS:
-        known = ", ".join(sorted(SCENARIOS)) or "none installed"
-        raise UserError(f"no scenario {args.name!r}; known scenarios: {known}")
-    module = importlib.import_module(SCENARIOS[args.name])
+    known = scenarios()
+    if args.name not in known:
+        raise UserError(f"no scenario {args.name!r}; known scenarios: {', '.join(known) or 'none installed'}")
+    module = registry.load("twin.scenarios", args.name)
     parser = argparse.ArgumentParser(prog=f"twin run {args.name}", description=module.__doc__, epilog=VIEWER_HELP)
     module.add_arguments(parser)
     options, wanted, rate = take_viewer_options(list(args.options))

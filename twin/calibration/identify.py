@@ -125,7 +125,7 @@ class Identification:
         """``base`` (reference wavelengths, twist) with these parameters."""
         base = base or Calibration()
         provenance = dict(base.provenance)
-        provenance.update({"identified_by": f"twin.identify ({self.formulation})",
+        provenance.update({"identified_by": f"twin.calibration.identify ({self.formulation})",
                            "identification_rms_m": self.rms_end})
         return base.replace(delta_theta=self.delta_theta, gain=self.gain, delta_theta_std=self.delta_theta_std,
                             gain_std=self.gain_std, provenance=provenance)

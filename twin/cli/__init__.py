@@ -1,0 +1,124 @@
+"""The `twin` command line.
+
+Each sub-command lives in its own module exposing ``add_arguments(parser)`` and ``run(args) -> int``; this file
+only routes. Modules are imported when their command runs, so `twin --help` is quick and the sensing core never
+imports the simulator. The core's commands are listed in :data:`COMMANDS`; commands and scenarios of the packages
+above the core (the demo, ``serve``, every ``twin run NAME``) come from the registry (:mod:`twin.registry`).
+A command that needs an optional dependency which is not installed says which extra installs it.
+
+User mistakes (bad files, wrong options, unreachable sources) print one line on stderr and exit with status 2;
+set TWIN_DEBUG=1 to see the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+from twin import registry
+from twin.extras import EXTRAS, MissingExtra
+
+#: the core's commands: command → (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "run": ("twin.cli.run", "run a scenario (an experiment of the paper, or our own)"),
+    "bench": ("twin.bench", "measure reconstruction (and simulation, streaming) speed"),
+    "live": ("twin.cli.live", "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"),
+    "replay": ("twin.cli.replay", "reconstruct a recording (twin HDF5 or ILLumiSense log) and summarise it"),
+    "calibrate": ("twin.cli.calibrate", "two-step calibration (straight, then an in-plane bend) from a source"),
+    "identify": ("twin.cli.identify", "identify Δθ and g = r·S_ε from recordings of shapes of known geometry"),
+    "jig-calibrate": ("twin.cli.jig", "fit a calibration from jig poses (grooves of known curvature)"),
+    "jig-validate": ("twin.cli.jig", "curvature and bend-direction errors of a calibration on jig poses"),
+}
+
+#: help of the registered commands, so that `twin --help` imports none of them
+PLUGIN_HELP: dict[str, str] = {
+    "demo": "the main job: reconstruct shapes from (simulated) interrogator data and compare",
+    "serve": "serve a simulated interrogator over illumisense, fispec or hyperion",
+}
+
+
+class UserError(Exception):
+    """An error caused by the user's input; reported as one line, no traceback."""
+
+
+def commands() -> dict[str, tuple[str, str]]:
+    """Every command: the core's and the registered ones, name → (module, one-line help)."""
+    found = {name: (module, PLUGIN_HELP.get(name, "")) for name, module in registry.entries("twin.commands").items()}
+    found.update(COMMANDS)
+    return found
+
+
+def scenarios() -> dict[str, str]:
+    """Every registered scenario (``twin run NAME``): name → module."""
+    return registry.entries("twin.scenarios")
+
+
+def _command_module(name: str):
+    module = commands()[name][0]
+    if name in COMMANDS:
+        return importlib.import_module(module)
+    return registry.load("twin.commands", name)
+
+
+def missing_extra(exc: ImportError) -> MissingExtra | None:
+    """The :class:`MissingExtra` behind an ImportError, or None when it is not a missing optional package."""
+    if isinstance(exc, MissingExtra):
+        return exc
+    root = (getattr(exc, "name", None) or "").split(".")[0]
+    return MissingExtra(root, EXTRAS[root]) if isinstance(exc, ModuleNotFoundError) and root in EXTRAS else None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="twin",
+        description="Fibre-optic shape sensing of catheters, with a MuJoCo physics twin.",
+    )
+    parser.add_argument("--version", action="version", version=_version())
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (_, help_text) in commands().items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_command=name)
+    return parser
+
+
+def _version() -> str:
+    from twin import __version__
+
+    return f"twin {__version__}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    try:
+        parser = build_parser()
+        # Only the chosen command's module is imported and asked for its arguments.
+        if command in commands():
+            sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+            _command_module(command).add_arguments(sub.choices[command])
+        args = parser.parse_args(argv)
+        if not getattr(args, "_command", None):
+            parser.print_help()
+            return 0
+        return int(_command_module(args._command).run(args) or 0)
+    except KeyboardInterrupt:
+        print("twin: interrupted", file=sys.stderr)
+        return 130
+    except ImportError as exc:
+        extra = missing_extra(exc)
+        if extra is None or os.environ.get("TWIN_DEBUG"):
+            raise
+        print(f"twin {command}: error: {extra}", file=sys.stderr)
+        return 2
+    except (UserError, ValueError, OSError, KeyError) as exc:
+        if os.environ.get("TWIN_DEBUG"):
+            raise
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"twin {command}: error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
