@@ -345,9 +345,20 @@ def test_frame_flags_of_a_hand_made_batch():
 
 
 def test_sequence_counter():
-    from twin.frames import SequenceCounter
+    from twin.io.sequence import SequenceCounter
 
     c = SequenceCounter()
     lost = [c.count(s) for s in (5, 6, 9, -1, 10, 3, 4)]
     assert lost == [0, 0, 2, 0, 0, 0, 0]  # −1 unknown: skipped; 3 after 10: a reset, not loss
     assert (c.sequence_gaps, c.lost_samples, c.sequence_resets, c.last) == (1, 2, 1, 4)
+
+
+def test_sequence_counter_batch_equals_one_by_one():
+    from twin.io.sequence import SequenceCounter
+
+    rng = np.random.default_rng(3)
+    seqs = np.cumsum(rng.integers(-3, 5, 400))
+    one, many = SequenceCounter(), SequenceCounter()
+    lost_one = [one.count(int(s)) for s in seqs]
+    lost_many = np.concatenate([many.count_many(chunk) for chunk in np.array_split(seqs, 7)])
+    assert lost_many.tolist() == lost_one and one.as_dict() == many.as_dict()

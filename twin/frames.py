@@ -11,7 +11,7 @@ import numpy as np
 
 from twin._validate import frozen
 
-__all__ = ["Frame", "PeakStatus", "SequenceCounter", "Shape", "Truth", "stack_frames"]
+__all__ = ["Frame", "PeakStatus", "Shape", "Truth", "stack_frames"]
 
 
 class PeakStatus(enum.IntFlag):
@@ -99,41 +99,6 @@ class Frame:
     def missing(self) -> np.ndarray:
         """Boolean (n_gratings, n_cores): peaks that are absent."""
         return np.isnan(self.wavelengths)
-
-
-class SequenceCounter:
-    """The books kept on an interrogator's sample numbers.
-
-    A forward jump is a gap of lost samples; a backward or repeated number is a reset (a restarted acquisition),
-    not loss; a negative number means "unknown" and is skipped.
-
-    Attributes
-    ----------
-    sequence_gaps, lost_samples, sequence_resets : int
-    last : int or None
-        The last sample number counted.
-    """
-
-    def __init__(self) -> None:
-        self.last: int | None = None
-        self.sequence_gaps = 0
-        self.lost_samples = 0
-        self.sequence_resets = 0
-
-    def count(self, sequence: int) -> int:
-        """Count one sample number; return how many samples were lost just before it."""
-        if sequence < 0:
-            return 0
-        lost = 0
-        if self.last is not None:
-            if sequence > self.last + 1:
-                lost = sequence - self.last - 1
-                self.sequence_gaps += 1
-                self.lost_samples += lost
-            elif sequence <= self.last:
-                self.sequence_resets += 1
-        self.last = sequence
-        return lost
 
 
 def stack_frames(frames: Sequence[Frame]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

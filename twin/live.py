@@ -43,7 +43,8 @@ from typing import Protocol, TextIO
 
 import numpy as np
 
-from twin.frames import Frame, SequenceCounter, Shape
+from twin.frames import Frame, Shape
+from twin.io.sequence import SequenceCounter
 from twin.io.source import Source, SourceClosed
 from twin.io.transport import Backoff
 from twin.reconstruct import Reconstructor

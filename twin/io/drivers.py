@@ -51,9 +51,10 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from twin.fiber import FiberModel
-from twin.frames import Frame, PeakStatus, SequenceCounter
+from twin.frames import Frame, PeakStatus
 from twin.io import fispec, hyperion, illumisense
 from twin.io.errors import FramingError
+from twin.io.sequence import SequenceCounter
 from twin.io.source import Source, SourceClosed, parse_url
 from twin.io.transport import Backoff, ConnectionLost, TcpClient, open_serial, parse_host_port
 

@@ -44,8 +44,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from twin.frames import Frame, PeakStatus, SequenceCounter
+from twin.frames import Frame, PeakStatus
 from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
+from twin.io.sequence import SequenceCounter
 
 __all__ = [
     "COMMAND_PORT",

@@ -62,8 +62,9 @@ from typing import Literal
 
 import numpy as np
 
-from twin.frames import Frame, PeakStatus, SequenceCounter
+from twin.frames import Frame, PeakStatus
 from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
+from twin.io.sequence import SequenceCounter
 
 __all__ = [
     "DEFAULT_MAX_PAYLOAD",

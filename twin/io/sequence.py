@@ -1,0 +1,71 @@
+"""The books kept on an interrogator's sample numbers: one counter, one meaning, for every driver, the live loop
+and replay.
+
+A forward jump is a gap of lost samples; a backward or repeated number is a reset (a restarted acquisition), not
+loss; a negative number means "unknown" and is skipped (it neither counts nor moves the reference).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SequenceCounter"]
+
+
+class SequenceCounter:
+    """Counts sequence gaps, lost samples and resets of a stream of sample numbers.
+
+    Attributes
+    ----------
+    sequence_gaps, lost_samples, sequence_resets : int
+    last : int or None
+        The last (non-negative) sample number counted.
+    """
+
+    def __init__(self) -> None:
+        self.last: int | None = None
+        self.sequence_gaps = 0
+        self.lost_samples = 0
+        self.sequence_resets = 0
+
+    def count(self, sequence: int) -> int:
+        """Count one sample number; return how many samples were lost just before it."""
+        return int(self.count_many(np.array([sequence], dtype=np.int64))[0])
+
+    def count_many(self, sequences) -> np.ndarray:
+        """Count a batch of sample numbers in order; return, per number, the samples lost just before it.
+
+        Parameters
+        ----------
+        sequences : array_like of int, shape (n,)
+
+        Returns
+        -------
+        ndarray of int64, shape (n,)
+            0 for a number that follows its predecessor, for a reset and for an unknown (negative) number.
+        """
+        seq = np.asarray(sequences, dtype=np.int64).reshape(-1)
+        lost = np.zeros(seq.shape, dtype=np.int64)
+        known = np.flatnonzero(seq >= 0)
+        if known.size == 0:
+            return lost
+        s = seq[known]
+        prev = np.empty_like(s)
+        prev[1:] = s[:-1]
+        if self.last is None:
+            prev[0] = s[0] - 1  # the first number ever seen opens the books
+        else:
+            prev[0] = self.last
+        d = s - prev
+        gaps = d > 1
+        lost[known[gaps]] = d[gaps] - 1
+        self.sequence_gaps += int(np.count_nonzero(gaps))
+        self.lost_samples += int(lost.sum())
+        self.sequence_resets += int(np.count_nonzero(d <= 0))
+        self.last = int(s[-1])
+        return lost
+
+    def as_dict(self) -> dict[str, int]:
+        """The three counters, JSON-ready."""
+        return {"sequence_gaps": self.sequence_gaps, "lost_samples": self.lost_samples,
+                "sequence_resets": self.sequence_resets}
