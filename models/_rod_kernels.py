@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from twin._kernels import exp_coefficients
+from twin.so3 import exp_entries, log_entries
 
 
 @njit(cache=True, nogil=True)
@@ -67,15 +67,10 @@ def frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux):
             for k in range(3):
                 q[j, k] = (frames[i, 0, j] * frames[i + 1, 0, k] + frames[i, 1, j] * frames[i + 1, 1, k]
                            + frames[i, 2, j] * frames[i + 1, 2, k])
-        w0 = q[2, 1] - q[1, 2]
-        w1 = q[0, 2] - q[2, 0]
-        w2 = q[1, 0] - q[0, 1]
-        sin2 = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)  # 2 sin φ
-        phi = np.arctan2(0.5 * sin2, 0.5 * (q[0, 0] + q[1, 1] + q[2, 2] - 1.0))
-        f = phi / sin2 if sin2 > 1e-6 else 0.5 + phi * phi / 12.0
-        darboux[i, 0] = w0 * f * inv_lbar[i]
-        darboux[i, 1] = w1 * f * inv_lbar[i]
-        darboux[i, 2] = w2 * f * inv_lbar[i]
+        w0, w1, w2 = log_entries(q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2], q[2, 0], q[2, 1], q[2, 2])
+        darboux[i, 0] = w0 * inv_lbar[i]
+        darboux[i, 1] = w1 * inv_lbar[i]
+        darboux[i, 2] = w2 * inv_lbar[i]
 
 
 @njit(cache=True, nogil=True)
@@ -88,17 +83,7 @@ def frames_at(edge_s, edge_frames, darboux, s, out):
         e = min(max(e, 0), ne - 2)
         h = sq - edge_s[e]
         wx, wy, wz = h * darboux[e, 0], h * darboux[e, 1], h * darboux[e, 2]
-        a, b, _ = exp_coefficients(wx * wx + wy * wy + wz * wz)
-        # E = I + a ŵ + b ŵ²
-        e00 = 1.0 - b * (wy * wy + wz * wz)
-        e11 = 1.0 - b * (wx * wx + wz * wz)
-        e22 = 1.0 - b * (wx * wx + wy * wy)
-        e01 = -a * wz + b * wx * wy
-        e10 = a * wz + b * wx * wy
-        e02 = a * wy + b * wx * wz
-        e20 = -a * wy + b * wx * wz
-        e12 = -a * wx + b * wy * wz
-        e21 = a * wx + b * wy * wz
+        e00, e01, e02, e10, e11, e12, e20, e21, e22 = exp_entries(wx, wy, wz)
         for r in range(3):
             f0, f1, f2 = edge_frames[e, r, 0], edge_frames[e, r, 1], edge_frames[e, r, 2]
             out[q, r, 0] = f0 * e00 + f1 * e10 + f2 * e20

@@ -191,7 +191,7 @@ def test_gratings_not_starting_at_zero_and_uneven():
         ({"method": "frenet"}, "method must be one of material, paper"),
         ({"interpolation": "cubic"}, "interpolation must be one of"),
         ({"integrator": "euler"}, "integrator must be one of"),
-        ({"torsion": "backward"}, "torsion must be one of"),
+        ({"method": "paper", "torsion": "backward"}, "torsion must be one of"),
         ({"step": -1.0}, "step must be a positive length"),
     ],
 )
@@ -249,3 +249,8 @@ def test_negative_radii_are_refused(radius, core):
     radii[core] = radius
     with pytest.raises(ValueError, match="core_radii"):
         FIBRE.replace(core_radii=radii)
+
+
+def test_torsion_with_the_material_method_is_an_error():
+    with pytest.raises(ValueError, match="torsion applies to method='paper' only"):
+        Reconstructor(FIBRE, torsion="centred")

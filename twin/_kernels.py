@@ -15,24 +15,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from twin.so3 import exp_coefficients
+
 _SQRT3_12 = np.sqrt(3.0) / 12.0
-
-
-@njit(cache=True, nogil=True)
-def exp_coefficients(t2):
-    """A = sin t/t, B = (1 − cos t)/t², C = (t − sin t)/t³ for t² = |φ|², finite at t = 0 (math.md §3.3)."""
-    if t2 < 0.04:
-        # Taylor series to t^8: truncation error < 2e-17 for t < 0.2.
-        a = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0 * (1.0 - t2 / 72.0)))
-        b = 0.5 * (1.0 - t2 / 12.0 * (1.0 - t2 / 30.0 * (1.0 - t2 / 56.0 * (1.0 - t2 / 90.0))))
-        c = (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0 * (1.0 - t2 / 72.0 * (1.0 - t2 / 110.0)))) / 6.0
-    else:
-        t = np.sqrt(t2)
-        s = np.sin(t)
-        a = s / t
-        b = (1.0 - np.cos(t)) / t2
-        c = (t - s) / (t2 * t)
-    return a, b, c
 
 
 @njit(cache=True, nogil=True)

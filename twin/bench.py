@@ -4,14 +4,13 @@ The measurements run in a child process pinned to one CPU with single-threaded B
 core. The report compares each figure with its goal and, with ``--compare FILE``, with an earlier run;
 ``--json`` prints one JSON object and ``--out FILE`` writes it.
 
-Sections are found through :data:`SECTIONS` (``module:function`` returning a dict), so the simulator and the
-stream benchmarks can live in their own packages without the sensing core importing them.
+Sections are found through the registry (:mod:`twin.registry`, group ``twin.bench``: ``module:function``
+returning a dict), so the simulator's benchmarks live in their own packages without the sensing core naming them.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import os
 import platform
@@ -22,12 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-#: section → "module:function"; each function takes ``quick: bool`` and returns a flat dict of figures.
-SECTIONS: dict[str, str] = {
-    "reconstruct": "twin.bench:bench_reconstruct",
-    "sim": "sim_interrogator.bench:bench_sim",
-    "stream": "twin.io.bench:bench_stream",
-}
+
+def sections() -> dict[str, str]:
+    """Section → ``"module:function"``; each function takes ``quick: bool`` and returns a flat dict of figures."""
+    from twin import registry
+
+    return registry.entries("twin.bench")
+
 
 #: (section, key) → (comparison, goal, unit) for the report
 GOALS: dict[tuple[str, str], tuple[str, float, str]] = {
@@ -48,23 +48,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, help="also write the JSON to this file")
     parser.add_argument("--compare", type=Path, help="compare with an earlier `twin bench --json` file")
     parser.add_argument("--quick", action="store_true", help="fewer repetitions (a rough figure in seconds)")
-    parser.add_argument("--sections", default=",".join(SECTIONS),
-                        help=f"comma-separated sections to run (default: {','.join(SECTIONS)})")
+    known = ",".join(sections())
+    parser.add_argument("--sections", default=known, help=f"comma-separated sections to run (default: {known})")
     parser.add_argument("--cpu", type=int, default=None, help="CPU to pin the measurement to (default: the last)")
 
 
 def run(args: argparse.Namespace) -> int:
-    sections = [s.strip() for s in args.sections.split(",") if s.strip()]
-    unknown = sorted(set(sections) - set(SECTIONS))
+    known = sections()
+    chosen = [s.strip() for s in args.sections.split(",") if s.strip()]
+    unknown = sorted(set(chosen) - set(known))
     if unknown:
-        raise ValueError(f"unknown section(s) {', '.join(unknown)}; known: {', '.join(SECTIONS)}")
+        raise ValueError(f"unknown section(s) {', '.join(unknown)}; known: {', '.join(known)}")
     previous = None
     if args.compare:
         try:
             previous = json.loads(args.compare.read_text())
         except json.JSONDecodeError as exc:
             raise ValueError(f"{args.compare}: not a JSON benchmark file ({exc})") from None
-    result = measure_in_child(sections, quick=args.quick, cpu=args.cpu)
+    result = measure_in_child(chosen, quick=args.quick, cpu=args.cpu)
     text = json.dumps(result, indent=2)
     if args.out:
         args.out.write_text(text + "\n")
@@ -121,11 +122,12 @@ def machine() -> dict:
 
 
 def _child(spec: dict) -> dict:
+    from twin import registry
+
     result: dict = {"machine": machine()}
     for name in spec["sections"]:
-        module, func = SECTIONS[name].split(":")
         try:
-            fn = getattr(importlib.import_module(module), func)
+            fn = registry.load("twin.bench", name)
         except ImportError as exc:
             print(f"bench: skipping {name} ({exc})", file=sys.stderr)
             continue

@@ -40,8 +40,9 @@ class Reconstructor:
         Default ``magnus4`` for the material method and ``hem-left`` (the paper's literal HEM, κ and τ taken at
         the start of each step) for the paper method.
     torsion : {"forward", "centred", "theta-spline"}
-        Paper method only: the paper's forward difference placed at node n (default), the same difference
-        placed at the interval midpoints, or the derivative of a spline through the unwrapped θ_b.
+        Paper method only (an error with the material method): the paper's forward difference placed at node n
+        (default), the same difference placed at the interval midpoints, or the derivative of a spline through
+        the unwrapped θ_b.
     step : float
         Largest integration step and output point spacing, m (the actual step divides the length evenly).
     inversion : {"lstsq", "paper"}, optional
@@ -67,7 +68,7 @@ class Reconstructor:
         method: str = "material",
         interpolation: str = "spline",
         integrator: str | None = None,
-        torsion: str = "forward",
+        torsion: str | None = None,
         step: float = 1e-3,
         inversion: str | None = None,
     ):
@@ -80,6 +81,9 @@ class Reconstructor:
         integrator = integrator or ("magnus4" if method == "material" else "hem-left")
         if integrator not in curve.INTEGRATORS:
             raise ValueError(f"integrator must be one of {', '.join(curve.INTEGRATORS)}; got {integrator!r}")
+        if torsion is not None and method == "material":
+            raise ValueError("torsion applies to method='paper' only (the material frame needs no torsion)")
+        torsion = torsion or "forward"
         if torsion not in curve.TORSIONS:
             raise ValueError(f"torsion must be one of {', '.join(curve.TORSIONS)}; got {torsion!r}")
         inversion = inversion or ("lstsq" if method == "material" else "paper")

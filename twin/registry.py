@@ -10,8 +10,10 @@ in ``pyproject.toml``, and the core finds them here:
     scenario name (``twin run NAME``) → ``"module"``; the module exposes ``add_arguments(parser)`` and
     ``run(args) -> int``.
 ``twin.commands``
-    command name (``twin NAME``) → ``"module"``, with the same two functions; the module's docstring's first
-    line is its help.
+    command name (``twin NAME``) → ``"module"``, with the same two functions.
+``twin.bench``
+    section of ``twin bench`` → ``"module:function"``; the function takes ``quick: bool`` and returns a flat dict
+    of figures.
 
 Entry points are read from the installed package metadata, so a new entry needs ``pip install -e .`` again.
 Tests may add entries for the life of the process with :func:`register`.
@@ -23,7 +25,7 @@ from importlib.metadata import entry_points
 
 __all__ = ["GROUPS", "entries", "load", "register"]
 
-GROUPS = ("twin.sources", "twin.scenarios", "twin.commands")
+GROUPS = ("twin.sources", "twin.scenarios", "twin.commands", "twin.bench")
 
 _extra: dict[str, dict[str, str]] = {group: {} for group in GROUPS}
 
