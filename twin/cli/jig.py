@@ -130,7 +130,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     s = fiber.grating_s
     if result.model == "physical":
         print(f"{'grating':>7s}{'s (mm)':>8s}{'core':>6s}{'angle (°)':>21s}{'g (µm)':>20s}{'R²':>10s}"
-              f"{'rms e (ppm)':>12s}{'χ²/dof':>8s}", file=out)
+              f"{'rms e (ppm)':>12s}{'χ²/dof':>10s}", file=out)
     else:
         print(f"{'grating':>7s}{'s (mm)':>8s}{'core':>6s}{'M row k_x (1/m)':>22s}{'M row k_y (1/m)':>22s}"
               f"{'angle (°)':>11s}{'g (µm)':>9s}{'R²':>10s}", file=out)
@@ -141,7 +141,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             if result.model == "physical":
                 tail = ""
                 if c == 0:
-                    chi = "" if result.chi2_reduced is None else f"{result.chi2_reduced[i]:8.2f}"
+                    chi = "" if result.chi2_reduced is None else f"{result.chi2_reduced[i]:10.4g}"
                     tail = f"{result.explained[i]:10.6f}{result.rms_strain_residual[i] * 1e6:12.3f}{chi}"
                 print(f"{head}{c:6d}{ang:11.3f} ± {np.rad2deg(result.core_angles_std[i, c]):6.3f}"
                       f"{g:10.2f} ± {result.gains_std[i, c] * 1e6:6.2f}{tail}", file=out)
