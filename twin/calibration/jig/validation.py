@@ -297,9 +297,14 @@ class LoroStatistics:
             "orientations_rad": self.orientations.tolist(),
             "levels_1_per_m": self.levels.tolist(),
             "min_curvature_1_per_m": self.min_curvature,
-            "kappa_rms_1_per_m": np.round(self.kappa_rms, 6).tolist(),
-            "direction_mean_deg": np.round(np.rad2deg(self.direction_mean), 4).tolist(),
+            "kappa_rms_1_per_m": _json_array(np.round(self.kappa_rms, 6)),
+            "direction_mean_deg": _json_array(np.round(np.rad2deg(self.direction_mean), 4)),
         }
+
+
+def _json_array(a: np.ndarray) -> list:
+    """Nested lists with None where a level had no valid pose (JSON has no NaN)."""
+    return np.where(np.isnan(a), None, a).tolist()
 
 
 def leave_one_rotation_out(
