@@ -121,6 +121,10 @@ class JigParams:
     reference_curvature : float
         Std (per component) of the reference pose's curvature at each grating, per orientation session, 1/m: a
         reference that is not straight, or drift between the reference and the poses.
+    reference_bias : (float, float)
+        The part of the reference pose's curvature that is the same in every session in the jig's frame, 1/m:
+        along the grooves' bend direction and across it (90° counter-clockwise from it): a "flat" groove that
+        holds the sensor slightly bent.
     seat_curvature : float
         Std (per component) of a curvature offset at each grating, drawn per seating (one orientation and
         groove), 1/m: the sensor does not lie the same way in every groove.
@@ -156,6 +160,7 @@ class JigParams:
     conformity_std: float = 0.0
     seat_twist_deg: float = 0.0
     reference_curvature: float = 0.0
+    reference_bias: tuple[float, float] = (0.0, 0.0)
     seat_curvature: float = 0.0
     pose_curvature: float = 0.0
     order: str = "trial"
@@ -187,7 +192,8 @@ AMIRO = JigParams(
     grating_conformity=(1.0, 1.0, 1.0, 0.5),
     conformity_std=0.045,
     seat_twist_deg=1.2,
-    reference_curvature=0.14,
+    reference_curvature=0.10,
+    reference_bias=(0.14, 0.10),
     seat_curvature=0.07,
     pose_curvature=0.015,
     order="groove",
@@ -299,6 +305,9 @@ def _seated_curvature(params: JigParams, n_gratings: int, bearing: np.ndarray, o
     seat = params.seat_curvature * rng.standard_normal((n_o, n_l, n_gratings, 2))
     pose = params.pose_curvature * rng.standard_normal((n_p, n_gratings, 2))
     a = bearing[o_idx][:, None] - twist[o_idx]  # (P, G)
+    along, across = params.reference_bias
+    ref = ref + (along * np.stack([np.cos(bearing), np.sin(bearing)], axis=-1)
+                 + across * np.stack([-np.sin(bearing), np.cos(bearing)], axis=-1))[:, None, :]
     groove = (kappa[:, None] * scale[o_idx])[..., None] * np.stack([np.cos(a), np.sin(a)], axis=-1)
     seating = seat[o_idx, l_idx] + pose + np.where((kappa == 0.0)[:, None, None], ref[o_idx], 0.0)
     return groove, seating
