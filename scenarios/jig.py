@@ -12,6 +12,11 @@ a groove adds axial strain.
 It writes the CSV `twin jig-calibrate` reads (``--out``), fits the physical and the matrix model on two
 orientations and validates both on the other two. Acceptance (the issue's): curvature error ≤ 0.02 1/m and bend
 direction within 1° for κ ≥ 0.8 1/m at every grating in the groove. The exit status is 1 when a model fails.
+
+``--sensor amiro`` simulates a real needle in a real jig instead: JHU AMIRo's needle_3CH_4AA_v2 (:func:`amiro_fiber`)
+with what its real table shows a jig does (:data:`AMIRO`: the sensor seated a little differently at every rotation
+and groove, a reference that is not the zero of the bent poses, the tip grating at the groove's end). It has no
+acceptance verdict; `twin run real-jig` compares its statistics with the real table's.
 """
 
 from __future__ import annotations

@@ -148,3 +148,12 @@ def test_real_jig_command_json(capsys):
     for k in KEYS:
         assert out["ratio"][k] == pytest.approx(out["twin"][k] / out["real"][k])
         assert out["real"][k] == pytest.approx(REAL[k], rel=5e-4)
+
+
+def test_jig_validate_leave_one_rotation_out_command(capsys):
+    assert main(["jig-validate", str(POSES), "--fiber", str(NEEDLE), "--gratings", "0,1,2",
+                 "--leave-one-rotation-out", "--model", "physical", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)["results"]["physical"]
+    for k in KEYS:
+        assert out[k] == pytest.approx(REAL[k], rel=5e-4)
+    assert main(["jig-validate", str(POSES), "--calibration", str(CALIBRATION), "--leave-one-rotation-out"]) == 2
