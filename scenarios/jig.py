@@ -116,7 +116,8 @@ class JigParams:
         Arc length from the base that lies in the groove, m; gratings beyond it stay straight. None: all.
     grating_conformity : tuple of float or None
         Fraction of the groove's curvature each grating follows (a grating near the groove's end, or where the
-        sensor lifts out, reads less); None: 1 everywhere.
+        sensor lifts out, reads less); None: 1 everywhere. A grating that follows less than 3/4 of the groove
+        counts as outside it: it is not fitted (``truth["gratings_in_groove"]``).
     conformity_std : float
         Relative std of how well the sensor follows the groove, drawn per orientation session and grating (the
         sensor's stiffness against the groove: seated a little differently each time).

@@ -291,8 +291,9 @@ class LoroStatistics:
         """The three figures (strain dimensionless, 1/m, deg) and the per-level arrays, JSON-ready."""
         return {
             "rms_strain_residual": self.rms_strain_residual,
-            "loro_kappa_error_1_per_m": self.kappa_error,
-            "loro_direction_error_deg": float(np.rad2deg(self.direction_error)),
+            "loro_kappa_error_1_per_m": _stat(np.nanmedian, self.kappa_rms),
+            "loro_direction_error_deg": _stat(lambda d: np.rad2deg(np.nanmedian(np.abs(d))),
+                                              self.direction_mean[:, :, self.levels >= self.min_curvature]),
             "gratings": self.gratings.tolist(),
             "orientations_rad": self.orientations.tolist(),
             "levels_1_per_m": self.levels.tolist(),
