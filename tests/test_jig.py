@@ -447,3 +447,15 @@ def test_jig_scenario_runs_and_passes(tmp_path, capsys):
     result = json.loads(capsys.readouterr().out)
     assert result["acceptance"]["passes"] and set(result["models"]) == {"physical", "matrix"}
     assert read_poses(out_csv, fiber=NEEDLE).n_poses == 2 * 6 * 4
+
+
+def test_run_jig_sensor_amiro_json(capsys):
+    """`twin run jig --sensor amiro`: the real needle's session, no acceptance verdict (its errors are the point), the
+    leave-one-rotation-out figures of the session, the tip grating outside the groove."""
+    assert main(["run", "jig", "--sensor", "amiro", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["acceptance"]["applies"] is False and out["acceptance"]["passes"] is None
+    assert out["truth"]["gratings_in_groove"] == [0, 1, 2]
+    assert out["params"]["order"] == "groove" and out["poses"] == 84
+    loro = out["loro"]
+    assert 5e-6 < loro["rms_strain_residual"] < 1e-4 and 0.03 < loro["loro_kappa_error_1_per_m"] < 0.5

@@ -36,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "with a deg suffix: 180deg,270deg)")
         parser.add_argument("--model", choices=(*jig.MODELS, "both"), default="both",
                             help="with --holdout-orientations: the model(s) to fit (default both)")
+        parser.add_argument("--leave-one-rotation-out", action="store_true",
+                            help="hold out each orientation in turn (fit on the others): in-sample RMS strain "
+                            "residual and the median curvature and direction errors (docs/jig.md)")
         parser.add_argument("--fit-roll", action="store_true",
                             help="fit the jig roll to these poses instead of using the calibration's (remounted)")
         parser.add_argument("--max-error", type=float, metavar="1/m",
@@ -130,7 +133,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     s = fiber.grating_s
     if result.model == "physical":
         print(f"{'grating':>7s}{'s (mm)':>8s}{'core':>6s}{'angle (°)':>21s}{'g (µm)':>20s}{'R²':>10s}"
-              f"{'rms e (ppm)':>12s}{'χ²/dof':>8s}", file=out)
+              f"{'rms e (ppm)':>12s}{'χ²/dof':>10s}", file=out)
     else:
         print(f"{'grating':>7s}{'s (mm)':>8s}{'core':>6s}{'M row k_x (1/m)':>22s}{'M row k_y (1/m)':>22s}"
               f"{'angle (°)':>11s}{'g (µm)':>9s}{'R²':>10s}", file=out)
@@ -141,7 +144,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             if result.model == "physical":
                 tail = ""
                 if c == 0:
-                    chi = "" if result.chi2_reduced is None else f"{result.chi2_reduced[i]:8.2f}"
+                    chi = "" if result.chi2_reduced is None else f"{result.chi2_reduced[i]:10.4g}"
                     tail = f"{result.explained[i]:10.6f}{result.rms_strain_residual[i] * 1e6:12.3f}{chi}"
                 print(f"{head}{c:6d}{ang:11.3f} ± {np.rad2deg(result.core_angles_std[i, c]):6.3f}"
                       f"{g:10.2f} ± {result.gains_std[i, c] * 1e6:6.2f}{tail}", file=out)
@@ -172,6 +175,8 @@ def _validate(args: argparse.Namespace) -> int:
     poses = jig.read_poses(args.poses, fiber=fiber)
     gratings = _gratings(args.gratings)
     results = []
+    if args.leave_one_rotation_out:
+        return _leave_one_rotation_out(args, fiber, poses, gratings)
     if args.holdout_orientations is not None:
         if fiber is None:
             raise ValueError("--holdout-orientations refits the calibration: give the fibre model with --fiber")
@@ -248,3 +253,29 @@ def _validate(args: argparse.Namespace) -> int:
             f"{r['model']} {_fmt(r['validation'].summary()['max_abs_magnitude_error_1_per_m'], '.4f')} 1/m, "
             f"{_fmt(r['validation'].summary()['max_abs_direction_error_deg'], '.3f')}°" for r in results), file=out)
     return 0 if ok in (None, True) else 1
+
+
+def _leave_one_rotation_out(args: argparse.Namespace, fiber: FiberModel | None, poses: jig.JigPoses,
+                            gratings: list[int] | None) -> int:
+    if fiber is None or args.calibration or args.holdout_orientations is not None:
+        raise ValueError("--leave-one-rotation-out fits its own calibrations: give --fiber FIBER.toml, without "
+                         "--calibration or --holdout-orientations")
+    models = jig.MODELS if args.model == "both" else (args.model,)
+    stats = {m: jig.leave_one_rotation_out(fiber, poses, model=m, gratings=gratings,
+                                           trust_references=args.trust_references,
+                                           min_curvature=args.min_curvature) for m in models}
+    if args.json:
+        print(json.dumps({"poses": args.poses, "results": {m: st.to_dict() for m, st in stats.items()}}, indent=2))
+        return 0
+    for model, st in stats.items():
+        big = st.levels >= st.min_curvature
+        print(f"{model} model, leave one rotation out ({_deg_list(st.orientations)}), gratings "
+              f"{st.gratings.tolist()}: in-sample RMS strain residual {st.rms_strain_residual * 1e6:.2f} µε")
+        print(f"{'held out':>9s}{'median RMS |Δκ| (1/m)':>24s}{'median |mean Δdir|':>20s}")
+        for o, psi in enumerate(st.orientations):
+            d = np.rad2deg(np.nanmedian(np.abs(st.direction_mean[o][:, big]))) if big.any() else float("nan")
+            print(f"{np.rad2deg(psi):8.1f}°{np.nanmedian(st.kappa_rms[o]):24.4f}{d:19.2f}°")
+        print(f"{'all':>9s}{st.kappa_error:24.4f}{np.rad2deg(st.direction_error):19.2f}°   "
+              f"(direction: κ ≥ {st.min_curvature:g} 1/m)\n")
+    return 0
+

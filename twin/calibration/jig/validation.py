@@ -1,0 +1,355 @@
+"""Jig validation: a calibration's curvature against the jig's on poses (:func:`validate`), cross-validation on
+held-out orientations (:func:`cross_validate`) and leave-one-rotation-out statistics
+(:func:`leave_one_rotation_out`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from twin.calibration import Calibration
+from twin.calibration.jig.fits import JigFit, fit
+from twin.calibration.jig.poses import JigPoses, _rot, jig_curvature, match_orientations
+from twin.fiber import FiberModel
+from twin.strain import CurvatureSolver
+
+
+@dataclass(frozen=True, eq=False)
+class JigValidation:
+    """How well a calibration reproduces the jig's curvature on a set of poses.
+
+    Per bent pose p and validated grating n, the calibrated curvature k̂ (own-orientation reference) is compared
+    with the jig's k = κ (cos(α − ψ), sin(α − ψ)).
+
+    Attributes
+    ----------
+    gratings : ndarray of int, shape (G,)
+    grating_s : ndarray, shape (G,)
+        m.
+    orientation, curvature : ndarray, shape (P,)
+        ψ (rad) and κ (1/m) of each bent pose.
+    measured : ndarray, shape (P, G, 2)
+        k̂, 1/m (NaN where it could not be solved).
+    magnitude_error : ndarray, shape (P, G)
+        |k̂| − |κ|, 1/m.
+    direction_error : ndarray, shape (P, G)
+        Signed angle from the jig's direction to k̂, rad.
+    roll : float
+        α used, rad.
+    roll_fitted : bool
+        Whether α was fitted to these poses (a rotation only) instead of taken from the calibration.
+    min_curvature : float
+        The summary covers poses with |κ| ≥ this, 1/m.
+    source : str
+    """
+
+    gratings: np.ndarray
+    grating_s: np.ndarray
+    orientation: np.ndarray
+    curvature: np.ndarray
+    measured: np.ndarray
+    magnitude_error: np.ndarray
+    direction_error: np.ndarray
+    roll: float
+    roll_fitted: bool
+    min_curvature: float
+    source: str = ""
+
+    @property
+    def levels(self) -> np.ndarray:
+        """Distinct |κ| of the bent poses, 1/m."""
+        return np.unique(np.abs(self.curvature))
+
+    def table(self) -> list[dict]:
+        """One row per grating and curvature level (JSON-ready, SI; directions in deg)."""
+        lv = np.abs(self.curvature)
+        rows = []
+        for i, n in enumerate(self.gratings):
+            for level in self.levels:
+                sel = lv == level
+                m, d = self.magnitude_error[sel, i], np.rad2deg(self.direction_error[sel, i])
+                rows.append({
+                    "grating": int(n),
+                    "s_m": float(self.grating_s[i]),
+                    "curvature_1_per_m": float(level),
+                    "n": int(sel.sum()),
+                    "n_invalid": int(np.isnan(m).sum()),
+                    "magnitude_error_mean_1_per_m": _stat(np.nanmean, m),
+                    "magnitude_error_max_abs_1_per_m": _stat(np.nanmax, np.abs(m)),
+                    "magnitude_error_rms_1_per_m": _stat(lambda x: np.sqrt(np.nanmean(x**2)), m),
+                    "direction_error_mean_deg": _stat(np.nanmean, d),
+                    "direction_error_max_abs_deg": _stat(np.nanmax, np.abs(d)),
+                })
+        return rows
+
+    def summary(self) -> dict:
+        """Worst errors over poses with |κ| ≥ ``min_curvature`` (and over all bent poses), JSON-ready."""
+        big = np.abs(self.curvature) >= self.min_curvature
+        m, d = self.magnitude_error, np.rad2deg(self.direction_error)
+        return {
+            "min_curvature_1_per_m": self.min_curvature,
+            "n_poses": int(big.sum()),
+            "n_invalid": int(np.isnan(m[big]).sum()),
+            "max_abs_magnitude_error_1_per_m": _stat(np.nanmax, np.abs(m[big])),
+            "rms_magnitude_error_1_per_m": _stat(lambda x: np.sqrt(np.nanmean(x**2)), m[big]),
+            "max_abs_direction_error_deg": _stat(np.nanmax, np.abs(d[big])),
+            "rms_direction_error_deg": _stat(lambda x: np.sqrt(np.nanmean(x**2)), d[big]),
+            "all_levels_max_abs_magnitude_error_1_per_m": _stat(np.nanmax, np.abs(m)),
+            "all_levels_max_abs_direction_error_deg": _stat(np.nanmax, np.abs(d)),
+        }
+
+    def passes(self, max_error: float, max_direction_error_deg: float) -> bool:
+        """Whether every pose with |κ| ≥ ``min_curvature`` is within both tolerances (invalid poses fail)."""
+        s = self.summary()
+        if s["n_poses"] == 0 or s["n_invalid"]:
+            return False
+        return (s["max_abs_magnitude_error_1_per_m"] <= max_error
+                and s["max_abs_direction_error_deg"] <= max_direction_error_deg)
+
+    def to_dict(self) -> dict:
+        return {
+            "source": self.source,
+            "roll_rad": self.roll,
+            "roll_fitted": self.roll_fitted,
+            "orientations_rad": np.unique(self.orientation).tolist(),
+            "gratings": self.gratings.tolist(),
+            "n_poses": int(self.curvature.size),
+            "levels": self.table(),
+            "summary": self.summary(),
+        }
+
+
+def _stat(fn, x) -> float | None:
+    x = np.asarray(x, dtype=np.float64)
+    if x.size == 0 or np.all(np.isnan(x)):
+        return None
+    return float(fn(x))
+
+
+def validate(
+    calibration: Calibration,
+    poses: JigPoses,
+    *,
+    fiber: FiberModel | None = None,
+    gratings=None,
+    roll: float | None = None,
+    fit_roll: bool = False,
+    min_curvature: float = 0.8,
+) -> JigValidation:
+    """Compare a calibration's curvature with the jig's on ``poses``.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        A jig calibration (its design and roll are used), or any calibration together with ``fiber``.
+    poses : JigPoses
+        Each row is referenced to its own orientation's curvature-0 rows.
+    fiber : FiberModel, optional
+        Needed when the calibration has no ``design``.
+    gratings : sequence of int, optional
+        Gratings to validate; default those the jig calibration fitted (``provenance['jig_gratings']``), or all.
+    roll : float, optional
+        α, rad; default the calibration's (``provenance['jig_roll_rad']``).
+    fit_roll : bool
+        Fit α to these poses instead (a single rotation: use it when the sensor was remounted in the jig).
+    min_curvature : float
+        The summary covers |κ| ≥ this, 1/m.
+    """
+    prov = calibration.provenance
+    if calibration.design is not None:
+        design = np.array(calibration.design)
+        if fiber is not None:
+            calibration.check(fiber)
+    elif fiber is not None:
+        design = calibration.design_for(fiber)
+    else:
+        raise ValueError("this calibration has no jig design matrices; give the fibre model it was made for")
+    n_g, n_c = design.shape[:2]
+    poses.check(n_g, n_c, "the calibration")
+    if gratings is None:
+        gratings = prov.get("jig_gratings")
+    g = np.arange(n_g) if gratings is None else np.unique(np.asarray(gratings, dtype=np.int64).ravel())
+    if g.size == 0 or g.min() < 0 or g.max() >= n_g:
+        raise ValueError(f"gratings to validate must be in 0–{n_g - 1}, got {g.tolist()}")
+    bent = ~poses.is_reference
+    if not bent.any():
+        raise ValueError(f"{poses.source}: only reference rows (curvature 0); nothing to validate")
+    e, _ = poses.strain()
+    k_hat = CurvatureSolver(design[g]).solve(e[bent][:, g]).curvature  # (P, G, 2)
+    j = jig_curvature(poses.orientation[bent], poses.curvature[bent])  # jig frame
+    if fit_roll:
+        z = (k_hat[..., 0] + 1j * k_hat[..., 1]) * np.conj(j[:, None, 0] + 1j * j[:, None, 1])
+        alpha = float(np.angle(np.nansum(z)))
+    elif roll is not None:
+        alpha = float(roll)
+    elif "jig_roll_rad" in prov:
+        alpha = float(prov["jig_roll_rad"])
+    else:
+        raise ValueError("this calibration records no jig roll; pass the roll (rad) or fit it (--fit-roll)")
+    k = j @ _rot(alpha).T
+    kappa = np.abs(poses.curvature[bent])
+    mag = np.hypot(k_hat[..., 0], k_hat[..., 1]) - kappa[:, None]
+    z = (k_hat[..., 0] + 1j * k_hat[..., 1]) * np.conj(k[:, None, 0] + 1j * k[:, None, 1])
+    direction = np.angle(z)
+    direction = np.where(np.isnan(mag), np.nan, direction)
+    s = prov.get("jig_grating_s_m")
+    if fiber is not None:
+        grating_s = fiber.grating_s[g]
+    else:
+        grating_s = np.asarray(s, dtype=np.float64)[g] if s is not None else np.full(g.size, np.nan)
+    return JigValidation(
+        gratings=g,
+        grating_s=grating_s,
+        orientation=poses.orientation[bent],
+        curvature=poses.curvature[bent],
+        measured=k_hat,
+        magnitude_error=mag,
+        direction_error=direction,
+        roll=alpha,
+        roll_fitted=bool(fit_roll),
+        min_curvature=float(min_curvature),
+        source=poses.source,
+    )
+
+
+def cross_validate(
+    fiber: FiberModel,
+    poses: JigPoses,
+    holdout,
+    *,
+    model: str = "physical",
+    gratings=None,
+    trust_references: bool = False,
+    min_curvature: float = 0.8,
+) -> tuple[JigFit, JigValidation]:
+    """Fit on the orientations not in ``holdout`` and validate on those in it — how to judge a calibration.
+
+    Parameters
+    ----------
+    holdout : sequence of float
+        Orientations to validate on, rad (matched within 1e-3 rad); the rest are fitted.
+    model, gratings, trust_references : see :func:`fit`.
+    """
+    test = match_orientations(poses, holdout)
+    if test.all():
+        raise ValueError(f"{poses.source}: every orientation is held out; leave at least two to fit on")
+    result = fit(fiber, poses.select(~test), model=model, gratings=gratings, trust_references=trust_references)
+    check = validate(result.calibration, poses.select(test), fiber=fiber, min_curvature=min_curvature)
+    return result, check
+
+
+@dataclass(frozen=True, eq=False)
+class LoroStatistics:
+    """A jig table's own statistics: the in-sample strain residual and the leave-one-rotation-out errors.
+
+    Each orientation in turn is held out: the calibration is fitted on the others and validated on it. The errors
+    are summarised per held-out orientation o, grating n and curvature level κ over the trials of that level:
+
+    * ``kappa_rms[o, n, l]`` — RMS of Δκ = |k̂| − κ, 1/m;
+    * ``direction_mean[o, n, l]`` — mean signed direction error, rad (a systematic rotation; the trial scatter
+      averages out).
+
+    The scalar figures are medians over o, n and the bent levels (direction: levels ≥ ``min_curvature``), so one
+    bad rotation or grating does not dominate them, and they compare a twin with a real table (``twin run
+    real-jig``).
+
+    Attributes
+    ----------
+    gratings : ndarray of int, shape (G,)
+    orientations : ndarray, shape (O,)
+        Held-out orientations, rad.
+    levels : ndarray, shape (L,)
+        Bent curvature levels, 1/m.
+    kappa_rms, direction_mean : ndarray, shape (O, G, L)
+    rms_strain_residual : float
+        RMS strain residual of the fit on all orientations, over the gratings (dimensionless).
+    min_curvature : float
+        1/m.
+    """
+
+    gratings: np.ndarray
+    orientations: np.ndarray
+    levels: np.ndarray
+    kappa_rms: np.ndarray
+    direction_mean: np.ndarray
+    rms_strain_residual: float
+    min_curvature: float
+
+    @property
+    def kappa_error(self) -> float:
+        """Median of the per-level RMS |κ| error, 1/m."""
+        return float(np.nanmedian(self.kappa_rms))
+
+    @property
+    def direction_error(self) -> float:
+        """Median |mean direction error| over levels ≥ ``min_curvature``, rad."""
+        big = self.levels >= self.min_curvature
+        return float(np.nanmedian(np.abs(self.direction_mean[:, :, big])))
+
+    def to_dict(self) -> dict:
+        """The three figures (strain dimensionless, 1/m, deg) and the per-level arrays, JSON-ready."""
+        return {
+            "rms_strain_residual": self.rms_strain_residual,
+            "loro_kappa_error_1_per_m": _stat(np.nanmedian, self.kappa_rms),
+            "loro_direction_error_deg": _stat(lambda d: np.rad2deg(np.nanmedian(np.abs(d))),
+                                              self.direction_mean[:, :, self.levels >= self.min_curvature]),
+            "gratings": self.gratings.tolist(),
+            "orientations_rad": self.orientations.tolist(),
+            "levels_1_per_m": self.levels.tolist(),
+            "min_curvature_1_per_m": self.min_curvature,
+            "kappa_rms_1_per_m": _json_array(np.round(self.kappa_rms, 6)),
+            "direction_mean_deg": _json_array(np.round(np.rad2deg(self.direction_mean), 4)),
+        }
+
+
+def _json_array(a: np.ndarray) -> list:
+    """Nested lists with None where a level had no valid pose (JSON has no NaN)."""
+    return np.where(np.isnan(a), None, a).tolist()
+
+
+def leave_one_rotation_out(
+    fiber: FiberModel,
+    poses: JigPoses,
+    *,
+    model: str = "physical",
+    gratings=None,
+    trust_references: bool = False,
+    min_curvature: float = 0.8,
+) -> LoroStatistics:
+    """Fit on all orientations but one, validate on that one, for each orientation in turn (and once on all).
+
+    Parameters
+    ----------
+    fiber, poses, model, gratings, trust_references : see :func:`fit`.
+    min_curvature : float
+        Direction errors are summarised over levels ≥ this, 1/m.
+    """
+    orientations = np.unique(poses.orientation)
+    if orientations.size < 3:
+        raise ValueError(f"{poses.source}: leave-one-rotation-out needs at least 3 orientations, "
+                         f"got {orientations.size}")
+    full = fit(fiber, poses, model=model, gratings=gratings, trust_references=trust_references)
+    levels = np.unique(np.abs(poses.curvature[~poses.is_reference]))
+    g = full.gratings
+    kappa_rms = np.full((orientations.size, g.size, levels.size), np.nan)
+    direction = np.full_like(kappa_rms, np.nan)
+    for o, psi in enumerate(orientations):
+        _, check = cross_validate(fiber, poses, [psi], model=model, gratings=g,
+                                  trust_references=trust_references, min_curvature=min_curvature)
+        lv = np.abs(check.curvature)
+        for li, level in enumerate(levels):
+            sel = lv == level
+            if not sel.any():
+                continue
+            kappa_rms[o, :, li] = np.sqrt(np.nanmean(check.magnitude_error[sel] ** 2, axis=0))
+            direction[o, :, li] = np.nanmean(check.direction_error[sel], axis=0)
+    return LoroStatistics(
+        gratings=g,
+        orientations=orientations,
+        levels=levels,
+        kappa_rms=kappa_rms,
+        direction_mean=direction,
+        rms_strain_residual=float(np.sqrt(np.mean(full.rms_strain_residual**2))),
+        min_curvature=float(min_curvature),
+    )
