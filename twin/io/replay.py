@@ -1,0 +1,234 @@
+"""What a recording holds: reconstruct every frame in batches and summarise (the library behind ``twin replay``).
+
+:func:`summarize` reads a twin HDF5 recording or an ILLumiSense log (:mod:`twin.io.record`), reconstructs every
+readable frame and returns a :class:`ReplaySummary`: frames, time span, lost samples and resets (one meaning
+everywhere: :class:`~twin.io.sequence.SequenceCounter` — a forward jump is lost samples, a backward or repeated
+number a reset), complete / partial / unusable frames, invalid nodes, reconstruction speed, the damage of a
+damaged file, and — when the recording holds the simulator's truth — the shape error against it
+(:func:`twin.metrics.shape_error` after a registration, on at most ``max_compare`` frames spread evenly).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from twin.calibration import Calibration
+from twin.fiber import FiberModel
+from twin.io.errors import RecordingDamaged
+from twin.io.record import _damage_line, open_recording
+from twin.io.sequence import SequenceCounter
+from twin.metrics import shape_error
+from twin.reconstruct import Reconstructor
+
+__all__ = ["ReplaySummary", "TruthErrors", "summarize"]
+
+
+@dataclass(frozen=True)
+class TruthErrors:
+    """Shape error against the recorded truth, mm (over ``frames_compared`` complete frames)."""
+
+    frames_compared: int
+    register: str
+    mean_error_mm: float
+    max_error_mm: float
+    rms_error_mm: float
+    tip_error_mm_mean: float
+    tip_error_mm_max: float
+
+
+@dataclass(frozen=True)
+class ReplaySummary:
+    """The summary of one recording (JSON-ready through :meth:`as_dict`; None where unknown, never NaN).
+
+    Attributes
+    ----------
+    file, kind, source_url, fiber : str
+        The file, ``twin-hdf5`` or ``illumisense-log``, where its frames came from, the fibre model's name.
+    complete : bool
+        Closed cleanly by its writer and not damaged.
+    damaged : bool
+    damage : tuple of str
+        What is damaged, each naming the place.
+    frames : int
+        Frames read and reconstructed (those before the first damage).
+    frames_recorded : int
+        Frames the file says it holds.
+    time_span : float or None
+        Last minus first finite timestamp, s.
+    rate_hz : float or None
+    lost_samples, sequence_gaps, sequence_resets : int
+    frames_complete, frames_partial, frames_unusable, frames_missing_peaks, invalid_nodes : int
+    reconstruct_frames_per_s : float or None
+    skipped_lines : int
+        Log lines that did not parse.
+    truth : TruthErrors or None
+    notes : tuple of str
+    """
+
+    file: str
+    kind: str
+    complete: bool
+    damaged: bool
+    source_url: str
+    fiber: str
+    frames: int
+    frames_recorded: int
+    time_span: float | None
+    rate_hz: float | None
+    lost_samples: int
+    sequence_gaps: int
+    sequence_resets: int
+    frames_complete: int
+    frames_partial: int
+    frames_unusable: int
+    frames_missing_peaks: int
+    invalid_nodes: int
+    reconstruct_frames_per_s: float | None
+    skipped_lines: int
+    damage: tuple[str, ...] = ()
+    truth: TruthErrors | None = None
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    def as_dict(self) -> dict:
+        out = asdict(self)
+        out["damage"], out["notes"] = list(self.damage), list(self.notes)
+        if self.truth is None:
+            del out["truth"]
+        return out
+
+
+def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration: Calibration | None = None,
+              method: str = "material", register: str = "kabsch", max_compare: int = 1000,
+              channels_as: str = "cores", n_cores: int | None = None, batch: int = 2048,
+              salvage: bool = False) -> ReplaySummary:
+    """Reconstruct a recording and summarise it.
+
+    Parameters
+    ----------
+    path : str or Path
+        A twin HDF5 recording or an ILLumiSense log.
+    fiber, calibration : optional
+        Default: the ones stored in the recording (else the reference fibre, said in the notes).
+    method, register, max_compare :
+        Reconstruction method; registration before comparing with the truth; most frames compared.
+    channels_as, n_cores :
+        Log files: channel layout (:mod:`twin.io.record`).
+    batch : int
+        Frames reconstructed per call.
+    salvage : bool
+        A damaged recording is summarised from its readable frames instead of raising.
+
+    Raises
+    ------
+    RecordingDamaged
+        The file is damaged and ``salvage`` is False (one line: readable frames of how many, the damage).
+    ValueError
+        Unreadable file, or frames that do not fit the fibre model.
+    """
+    path = Path(path)
+    with open_recording(path, channels_as=channels_as, n_cores=n_cores) as reader:
+        if reader.damaged and not salvage:
+            raise RecordingDamaged(_damage_line(reader))
+        notes = []
+        if fiber is None:
+            fiber = reader.fiber
+        if fiber is None:
+            fiber = FiberModel.paper()
+            notes.append("no fibre model in the recording: using the reference fibre (FiberModel.paper())")
+        if calibration is None:
+            calibration = reader.calibration
+        if len(reader) and reader.shape != (fiber.n_gratings, fiber.n_cores):
+            g, c = reader.shape
+            raise ValueError(f"{path}: frames have {g} gratings × {c} cores but the fibre model has "
+                             f"{fiber.n_gratings} × {fiber.n_cores}; give the sensor's model with --fiber")
+        rec = Reconstructor(fiber, calibration, method=method)
+        stride = max(1, math.ceil(len(reader) / max(1, max_compare)))
+        g = fiber.n_gratings
+        counts = dict.fromkeys(("frames_complete", "frames_partial", "frames_unusable", "frames_missing_peaks",
+                                "invalid_nodes"), 0)
+        sequence = SequenceCounter()
+        n = 0
+        t_first = t_last = math.nan
+        errors: dict[str, list[np.ndarray]] = {"mean": [], "max": [], "rms": [], "tip": []}
+        truth_note = None
+        t_rec = 0.0
+        for start, frames in reader.chunks(batch, truth=False):
+            m = len(frames)
+            n += m
+            t0 = time.perf_counter()
+            shapes = rec(frames.wavelengths)
+            t_rec += time.perf_counter() - t0
+            n_valid = np.count_nonzero(shapes.valid, axis=-1)
+            counts["frames_complete"] += int(np.count_nonzero(n_valid == g))
+            counts["frames_partial"] += int(np.count_nonzero((n_valid < g) & (n_valid > 0)))
+            counts["frames_unusable"] += int(np.count_nonzero(n_valid == 0))
+            counts["frames_missing_peaks"] += int(np.count_nonzero(frames.missing.any(axis=(1, 2))))
+            counts["invalid_nodes"] += int(g * m - n_valid.sum())
+            sequence.count_many(frames.sequence)
+            ts = frames.timestamp[np.isfinite(frames.timestamp)]
+            if ts.size:
+                t_first = ts[0] if math.isnan(t_first) else t_first
+                t_last = ts[-1]
+            if reader.has_truth and truth_note is None:
+                truth = reader.truth(start, start + m, fields=("positions",))
+                idx = np.arange(start, start + len(truth))
+                sel = np.flatnonzero((idx % stride == 0) & truth.all_present & (n_valid[: len(truth)] == g))
+                if sel.size:
+                    try:
+                        e = shape_error(shapes.positions[sel], truth.positions[sel], s=rec.s, truth_s=truth.s,
+                                        register=register)
+                    except ValueError as exc:
+                        truth_note = f"truth comparison skipped: {exc}"
+                    else:
+                        for k in errors:
+                            errors[k].append(np.atleast_1d(getattr(e, k)))
+        if reader.damaged and not salvage:  # found while reading (a chunk failing its checksum)
+            raise RecordingDamaged(_damage_line(reader))
+        truth_errors = None
+        if reader.has_truth:
+            if errors["mean"]:
+                e = {k: np.concatenate(v) for k, v in errors.items()}
+                truth_errors = TruthErrors(
+                    frames_compared=int(e["mean"].size),
+                    register=register,
+                    mean_error_mm=round(float(e["mean"].mean()) * 1e3, 4),
+                    max_error_mm=round(float(e["max"].max()) * 1e3, 4),
+                    rms_error_mm=round(float(np.sqrt(np.mean(e["rms"] ** 2))) * 1e3, 4),
+                    tip_error_mm_mean=round(float(e["tip"].mean()) * 1e3, 4),
+                    tip_error_mm_max=round(float(e["tip"].max()) * 1e3, 4),
+                )
+            else:
+                notes.append(truth_note or "truth present but no complete frame to compare")
+        if reader.errors:
+            notes.append(f"{len(reader.errors)} line(s) skipped, first: {reader.errors[0]}")
+        if reader.damaged:
+            notes.append(f"damaged: {len(reader)} of {reader.frames_recorded} frames readable; "
+                         + "; ".join(reader.damage))
+        elif not reader.complete:
+            notes.append("the recording was not closed cleanly (killed writer, or still being written)")
+        span = None if math.isnan(t_first) else float(t_last - t_first)
+        return ReplaySummary(
+            file=str(path),
+            kind=reader.kind,
+            complete=reader.complete,
+            damaged=reader.damaged,
+            source_url=reader.source_url,
+            fiber=fiber.name,
+            frames=n,
+            frames_recorded=max(n, reader.frames_recorded),
+            time_span=None if span is None or not math.isfinite(span) else round(span, 6),
+            rate_hz=round((n - 1) / span, 3) if span is not None and math.isfinite(span) and span > 0 and n >= 2
+            else None,
+            **sequence.as_dict(),
+            **counts,
+            reconstruct_frames_per_s=round(n / t_rec, 1) if t_rec > 0 else None,
+            skipped_lines=len(reader.errors),
+            damage=tuple(reader.damage),
+            truth=truth_errors,
+            notes=tuple(notes),
+        )
