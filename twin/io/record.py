@@ -374,7 +374,7 @@ class RecordingReader:
     errors : list of str
         Lines of a log file that were skipped, with their line numbers.
     damage : list of str
-        What is damaged, each naming the place (empty for a sound file). Found when opening (a file cut
+        What is damaged in the file, each naming the place (dataset, rows, bytes; empty for a sound file). Found when opening (a file cut
         short, chunks past its end) and when reading (chunks failing their checksum); ``len`` then counts the
         frames before the first damage.
     frames_recorded : int
@@ -411,8 +411,8 @@ class RecordingReader:
             self.rate = None
             self._n = self.frames_recorded = len(self._mem)
             if last not in (b"\n", b"\r"):
-                self.damage.append(f"{self.path}: the last line has no line end: the file was cut (its last "
-                                   "record may be incomplete)")
+                self.damage.append("the last line has no line end: the file was cut (its last record may be "
+                                   "incomplete)")
 
     @property
     def complete(self) -> bool:
@@ -428,13 +428,14 @@ class RecordingReader:
         opened = open_hdf5(self.path)
         self._file, self._swmr = opened.file, opened.swmr
         if opened.truncated:
-            self.damage.append(f"{self.path}: the file is cut short: {opened.truncated[0]} of "
-                               f"{opened.truncated[1]} bytes")
+            self.damage.append(f"the file is cut short: {opened.truncated[0]} of {opened.truncated[1]} bytes")
         try:
             a = self._file.attrs
             fmt = a.get("format")
             if isinstance(fmt, bytes):
                 fmt = fmt.decode("utf-8", "replace")
+            if fmt is None and self.damage:
+                raise ValueError(f"{self.path}: not a readable twin recording ({self.damage[0]})")
             if fmt != FORMAT:
                 raise ValueError(f"{self.path}: HDF5 file is not a twin recording (format attribute {fmt!r})")
             self.kind = "twin-hdf5"
@@ -472,10 +473,10 @@ class RecordingReader:
         if self._file is None:
             return self._n
         f = self._file
-        names = self._names + [f"truth/{k}" for k in ("present", *self._truth_names)]
+        names = self._names + ([f"truth/{k}" for k in ("present", *self._truth_names)] if self.has_truth else [])
         if len(self._names) < len(_FRAME_FIELDS) or "frames/count" not in f:
             if self._names or "frames/count" in f:
-                self._damaged(0, f"{self.path}: datasets missing from /frames")
+                self._damaged(0, "datasets missing from /frames")
             self._n = 0
             return 0
         try:
@@ -490,7 +491,7 @@ class RecordingReader:
                 return self._n
             raise ValueError(f"{self.path}: not a readable twin recording ({_brief(exc)})") from None
         if count < 0 or (count > rows and self._closed_cleanly):
-            self._damaged(0, f"{self.path}: frames/count is {count} but the datasets hold {rows} rows")
+            self._damaged(0, f"frames/count is {count} but the datasets hold {rows} rows")
             count = max(0, min(count, rows))
         self.frames_recorded = count
         # rows every dataset has (a writer killed mid-flush may have resized some datasets but not others),
@@ -499,25 +500,36 @@ class RecordingReader:
         from twin.io.hdf5 import readable_rows
 
         size = _size(self.path)
+        truth_ok = n
         for name in names:
-            ok, why = readable_rows(f[name], n, size)
-            if ok < n and _size(self.path) > size:  # a writer's flush landed meanwhile
+            is_truth = name.startswith("truth/")
+            want = truth_ok if is_truth else n
+            ok, why = readable_rows(f[name], want, size)
+            if ok < want and _size(self.path) > size:  # a writer's flush landed meanwhile
                 size = _size(self.path)
-                ok, why = readable_rows(f[name], n, size)
-            if ok < n:
-                n = ok
-                self._damaged(n, f"{self.path}: {why}")
+                ok, why = readable_rows(f[name], want, size)
+            if ok < want:
+                self._damaged(ok, why, truth=is_truth)
+                if is_truth:
+                    truth_ok = ok
+                else:
+                    n = truth_ok = ok
         self._n = n if not self.damage else min(n, self._n_limit())
         return self._n
 
     def _n_limit(self) -> int:
         return getattr(self, "_first_bad", 1 << 62)
 
-    def _damaged(self, row: int, why: str) -> None:
-        self._first_bad = min(row, self._n_limit())
+    def _damaged(self, row: int, why: str, truth: bool = False) -> None:
+        """Note damage from ``row`` on: of the frames, or (``truth``) only of their truth, which is then absent
+        from that row on while the frames stay readable."""
+        if truth:
+            self._truth_ok = min(row, getattr(self, "_truth_ok", 1 << 62))
+        else:
+            self._first_bad = min(row, self._n_limit())
+            self._n = min(getattr(self, "_n", 0), self._first_bad)
         if why not in self.damage:
             self.damage.append(why)
-        self._n = min(getattr(self, "_n", 0), self._first_bad)
 
     def __len__(self) -> int:
         return self._n
@@ -539,7 +551,8 @@ class RecordingReader:
         stop = self._n if stop is None else min(stop, self._n)
         return max(0, min(start, stop)), stop
 
-    def _read(self, names: Sequence[str], start: int, stop: int) -> tuple[dict[str, np.ndarray], int]:
+    def _read(self, names: Sequence[str], start: int, stop: int, truth: bool = False
+              ) -> tuple[dict[str, np.ndarray], int]:
         """Rows start:stop of datasets; on a read error, the rows before the first bad chunk (damage noted)."""
         out: dict[str, np.ndarray] = {}
         end = stop
@@ -558,7 +571,7 @@ class RecordingReader:
                 try:
                     parts.append(ds[row:nxt])
                 except Exception as exc:
-                    self._damaged(row, f"{self.path}: {name} rows {row}–{nxt - 1} unreadable ({_brief(exc)})")
+                    self._damaged(row, f"{name} rows {row}–{nxt - 1} unreadable ({_brief(exc)})", truth)
                     break
                 row = nxt
             end = row
@@ -591,8 +604,18 @@ class RecordingReader:
         return self._truth(start, stop, names)[0]
 
     def _truth(self, start: int, stop: int, names: Sequence[str]) -> tuple[Truth, int]:
+        """Truth of rows start:stop; rows past damaged truth chunks come back absent (``present`` False)."""
         f = self._file
-        cols, stop = self._read(["truth/present", *(f"truth/{k}" for k in names)], start, stop)
+        fields = ["truth/present", *(f"truth/{k}" for k in names)]
+        end = max(start, min(stop, getattr(self, "_truth_ok", stop)))
+        cols, end = self._read(fields, start, end, truth=True)
+        m = stop - start
+        for name in fields:  # pad damaged rows: absent, NaN
+            ds, v = f[name], cols[name]
+            if len(v) < m:
+                pad = np.full((m - len(v), *ds.shape[1:]), False if name == "truth/present" else np.nan,
+                              dtype=ds.dtype)
+                cols[name] = np.concatenate([v, pad])
         kw = {k: cols[f"truth/{k}"] for k in names}
         if "frames" in kw:
             kw["frames"] = kw["frames"].astype(np.float64)
@@ -836,7 +859,6 @@ class ReplaySource(Source):
 def _damage_line(reader: RecordingReader) -> str:
     """One line: the file, how many frames are readable of how many, the first damage, what to do."""
     first = reader.damage[0]
-    first = first[len(str(reader.path)) + 2:] if first.startswith(f"{reader.path}: ") else first
     return (f"{reader.path}: damaged recording: {len(reader)} of {reader.frames_recorded} frames readable "
             f"({first}); --salvage (replay://FILE?salvage=1) uses the readable frames")
 

@@ -206,10 +206,7 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
                 notes.append(truth_note or "truth present but no complete frame to compare")
         if reader.errors:
             notes.append(f"{len(reader.errors)} line(s) skipped, first: {reader.errors[0]}")
-        if reader.damaged:
-            notes.append(f"damaged: {len(reader)} of {reader.frames_recorded} frames readable; "
-                         + "; ".join(reader.damage))
-        elif not reader.complete:
+        if not reader.complete and not reader.damaged:
             notes.append("the recording was not closed cleanly (killed writer, or still being written)")
         span = None if math.isnan(t_first) else float(t_last - t_first)
         return ReplaySummary(
