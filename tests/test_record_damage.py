@@ -111,7 +111,7 @@ def _flipped(src: Path, dst: Path, n: int, seed: int, start: int = 0) -> Path:
 
 
 def test_flipped_bytes_in_a_chunk_are_caught_by_its_checksum(recording, tmp_path):
-    path, frames = recording
+    path, _ = recording
     with open_recording(path) as r:  # the wavelengths chunk holding frame 600
         ds = r._file["frames/wavelengths"]
         info = ds.id.get_chunk_info_by_coord((600 // ds.chunks[0] * ds.chunks[0], 0, 0))

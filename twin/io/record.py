@@ -374,9 +374,10 @@ class RecordingReader:
     errors : list of str
         Lines of a log file that were skipped, with their line numbers.
     damage : list of str
-        What is damaged in the file, each naming the place (dataset, rows, bytes; empty for a sound file). Found when opening (a file cut
-        short, chunks past its end) and when reading (chunks failing their checksum); ``len`` then counts the
-        frames before the first damage.
+        What is damaged in the file, each naming the place (dataset, rows, bytes; empty for a sound file).
+        Found when opening (a file cut short, chunks past its end) and when reading (chunks failing their
+        checksum); ``len`` then counts the frames before the first damage of the frame data (truth rows past
+        damaged truth chunks come back absent, ``Truth.present`` False, their frames kept).
     frames_recorded : int
         Frames the file says were written (its committed count); more than ``len`` when damaged.
     """
