@@ -19,13 +19,15 @@ import numpy as np
 
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
+from twin.frames import Frame
 from twin.io.errors import RecordingDamaged
-from twin.io.record import _damage_line, open_recording
+from twin.io.record import open_recording
 from twin.io.sequence import SequenceCounter
+from twin.io.source import Source, SourceClosed, parse_url
 from twin.metrics import shape_error
 from twin.reconstruct import Reconstructor
 
-__all__ = ["ReplaySummary", "TruthErrors", "summarize"]
+__all__ = ["ReplaySource", "ReplaySummary", "TruthErrors", "open_replay", "summarize"]
 
 
 @dataclass(frozen=True)
@@ -133,7 +135,7 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
     path = Path(path)
     with open_recording(path, channels_as=channels_as, n_cores=n_cores) as reader:
         if reader.damaged and not salvage:
-            raise RecordingDamaged(_damage_line(reader))
+            raise RecordingDamaged(reader.damage_line())
         notes = []
         if fiber is None:
             fiber = reader.fiber
@@ -188,7 +190,7 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
                         for k in errors:
                             errors[k].append(np.atleast_1d(getattr(e, k)))
         if reader.damaged and not salvage:  # found while reading (a chunk failing its checksum)
-            raise RecordingDamaged(_damage_line(reader))
+            raise RecordingDamaged(reader.damage_line())
         truth_errors = None
         if reader.has_truth:
             if errors["mean"]:
@@ -229,3 +231,160 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
             truth=truth_errors,
             notes=tuple(notes),
         )
+
+
+# -------------------------------------------------------------------------------------------------- replay
+
+
+class ReplaySource(Source):
+    """``replay://FILE?speed=…``: a recording's frames, paced as recorded or as fast as read.
+
+    Parameters
+    ----------
+    path : str or Path
+        A twin HDF5 recording or an ILLumiSense log file.
+    speed : float or None
+        None: as fast as read. Otherwise the recorded time axis is replayed ``speed`` times faster (1 = as
+        recorded), paced by the frames' timestamps (their receive times when timestamps are missing).
+    follow : bool
+        At the end of a recording that is still being written, wait for more frames instead of ending.
+    chunk : int
+        Frames read from the file at a time.
+    salvage : bool
+        A damaged recording: replay the frames before the damage and end normally. Without it, a recording
+        found damaged when opened raises :class:`~twin.io.errors.RecordingDamaged` at once, and damage found
+        while reading raises it after the frames before it were delivered — a permanent error, which the live
+        loop does not retry.
+    """
+
+    def __init__(self, path: str | Path, *, speed: float | None = 1.0, follow: bool = False, chunk: int = 512,
+                 url: str = "", channels_as: str = "cores", n_cores: int | None = None, salvage: bool = False):
+        self.url = url or f"replay://{path}"
+        if speed is not None and not (np.isfinite(speed) and speed > 0):
+            raise ValueError(f"{self.url}: speed must be a positive factor, 'recorded' or 'max'; got {speed}")
+        self.reader = open_recording(path, channels_as=channels_as, n_cores=n_cores)
+        self.salvage = bool(salvage)
+        if self.reader.damaged and not self.salvage:
+            self.reader.close()
+            raise RecordingDamaged(self.reader.damage_line())
+        self.fiber = self.reader.fiber
+        self.calibration = self.reader.calibration
+        self.rate = self.reader.rate
+        self.speed = speed
+        self.follow = follow
+        self.chunk = chunk
+        self._batch: Frame | None = None
+        self._i = 0
+        self._times: np.ndarray = np.empty(0)
+        self._next = 0  # next file row to load
+        self._t_first: float | None = None  # recorded time of the first frame
+        self._wall0 = 0.0
+        self._delivered = 0
+
+    def _load(self) -> bool:
+        n = len(self.reader)
+        if self._next >= n and self.follow and not self.reader.damaged:
+            n = self.reader.refresh()
+        if self._next >= n:
+            return False
+        try:
+            batch = self.reader.frames(self._next, min(n, self._next + self.chunk))
+            received = self.reader.received(self._next, self._next + len(batch))
+        except Exception as exc:  # reopening would replay the same bytes: never transient
+            raise RecordingDamaged(f"{self.reader.path}: unreadable at frame {self._next} ({exc})") from None
+        if len(batch) == 0:
+            return False
+        m = min(len(batch), len(received))
+        self._batch, self._i = batch, 0
+        self._times = np.where(np.isfinite(batch.timestamp[:m]), batch.timestamp[:m], received[:m])
+        self._next += len(batch)
+        return True
+
+    def _pending(self) -> int:
+        return 0 if self._batch is None else len(self._batch) - self._i
+
+    def read(self, timeout: float | None = None) -> Frame | None:
+        if self.reader is None:
+            raise SourceClosed(f"{self.url}: closed")
+        if not self._pending() and not self._load():
+            if self.reader.damaged and not self.salvage:
+                raise RecordingDamaged(self.reader.damage_line())
+            if self.follow and not self.reader.complete and not self.reader.damaged:
+                time.sleep(min(0.05, timeout if timeout is not None else 0.05))
+                return None
+            raise SourceClosed(f"{self.url}: end of recording ({self._delivered} frames)")
+        if self.speed is not None and self._i < len(self._times):
+            t = float(self._times[self._i])
+            if np.isfinite(t):
+                if self._t_first is None:
+                    self._t_first, self._wall0 = t, time.monotonic()
+                wait = self._wall0 + (t - self._t_first) / self.speed - time.monotonic()
+                if wait > 0:
+                    if timeout is not None and timeout < wait:
+                        time.sleep(max(0.0, timeout))
+                        return None
+                    time.sleep(wait)
+        self._delivered += 1
+        self._i += 1
+        return self._batch[self._i - 1]
+
+    def read_many(self, max_frames: int = 1 << 30, timeout: float | None = None) -> list[Frame]:
+        """Frames that are due now, up to ``max_frames`` (waiting up to ``timeout`` s for the first)."""
+        first = self.read(timeout)
+        if first is None:
+            return []
+        out = [first]
+        while len(out) < max_frames:
+            try:
+                f = self.read(0.0)
+            except SourceClosed:
+                break
+            except RecordingDamaged as exc:  # deliver what was read; the error comes with the next call
+                self._twin_deferred = exc
+                break
+            if f is None:
+                break
+            out.append(f)
+        return out
+
+    def close(self) -> None:
+        if self.reader is not None:
+            self.reader.close()
+            self.reader = None
+
+    def stats(self) -> dict:
+        r = self.reader
+        return {"frames_replayed": self._delivered, "skipped_lines": len(r.errors) if r else 0,
+                "damaged": bool(r.damage) if r else False}
+
+
+def open_replay(url: str, **options) -> ReplaySource:
+    """Open ``replay://FILE?speed=recorded|max|FACTOR&follow=0|1&salvage=0|1``.
+
+    ``FILE`` is a path (``replay:///abs/path.h5`` or ``replay://relative.h5``). Default speed: as recorded.
+    """
+    _, rest, query = parse_url(url)
+    if not rest:
+        raise ValueError(f"{url!r}: expected replay://FILE")
+    known = {"speed", "follow", "cores", "channels", "salvage"}
+    unknown = sorted(set(query) - known)
+    if unknown:
+        raise ValueError(f"{url!r}: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+    sp = query.get("speed", "recorded")
+    if sp == "recorded":
+        speed: float | None = 1.0
+    elif sp == "max":
+        speed = None
+    else:
+        try:
+            speed = float(sp)
+        except ValueError:
+            raise ValueError(f"{url!r}: speed must be 'recorded', 'max' or a factor, got {sp!r}") from None
+    yes = ("1", "true", "yes")
+    kw: dict = {"speed": speed, "follow": query.get("follow", "0") in yes, "salvage": query.get("salvage", "0") in yes}
+    if query.get("channels") == "single":
+        kw["channels_as"] = "single"
+        kw["n_cores"] = int(query.get("cores", "0") or 0) or None
+    options.pop("fiber", None)  # a recording knows its fibre; the live loop takes --fiber separately
+    kw.update(options)
+    return ReplaySource(rest, url=url, **kw)
