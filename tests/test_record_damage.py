@@ -183,3 +183,26 @@ def test_a_4000_frame_recording_writes_and_replays(tmp_path):
     assert s.truth.max_error_mm < 0.02  # as test_record.test_twin_replay_reports_errors_against_truth
     src = open_source(f"replay://{path}?speed=max")
     assert sum(1 for _ in src) == 4000
+
+
+def test_bad_attributes_and_counts_name_the_file_and_field(tmp_path):
+    """Issue 11 item 10: `frames/count = -5` gave `__len__() should return >= 0`; a bad fiber_toml attribute gave
+    a TOML error without the file."""
+    import h5py
+
+    paths = {}
+    for case in ("count", "toml"):
+        paths[case] = tmp_path / f"{case}.h5"
+        with Recorder(paths[case], fiber=FiberModel.paper()) as rec:
+            rec.append(synthetic_frames(10))
+        with h5py.File(paths[case], "r+") as f:
+            if case == "count":
+                f["frames/count"][0] = -5
+            else:
+                f.attrs["fiber_toml"] = "name = = 3"
+    with open_recording(paths["count"]) as r:
+        assert r.damaged and len(r) == 0 and "frames/count is -5" in r.damage[0]
+    with pytest.raises(RecordingDamaged, match=r"count\.h5: damaged recording"):
+        summarize(paths["count"])
+    with pytest.raises(ValueError, match=r"toml\.h5: attribute fiber_toml: "):
+        open_recording(paths["toml"])

@@ -67,6 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from twin.calibration import Calibration
+from twin.extras import require
 from twin.fiber import FiberModel
 from twin.frames import Frame, Truth
 
@@ -139,7 +140,7 @@ def open_hdf5(path: str | Path) -> HDF5Open:
     ValueError
         The file cannot be opened at all; one line naming the file and HDF5's reason.
     """
-    import h5py
+    h5py = require("h5py", "reading HDF5 recordings")
 
     path = Path(path)
     size = path.stat().st_size
@@ -295,7 +296,7 @@ class Recorder:
         chunk: int | None = None,
         compression: int = 1,
     ):
-        import h5py
+        h5py = require("h5py", "HDF5 recording")
 
         self.path = Path(path)
         self.fiber, self.calibration, self.rate = fiber, calibration, rate
