@@ -206,3 +206,28 @@ def test_bad_attributes_and_counts_name_the_file_and_field(tmp_path):
         summarize(paths["count"])
     with pytest.raises(ValueError, match=r"toml\.h5: attribute fiber_toml: "):
         open_recording(paths["toml"])
+
+
+def test_live_loop_does_not_reopen_a_source_that_failed_for_good(recording, tmp_path):
+    """A damaged chunk found while replaying: the frames before it are processed, then the loop ends with
+    `source failed` (before: the factory reopened the file and replayed it again, forever)."""
+    from twin import Reconstructor
+    from twin.live import LiveLoop
+
+    path, _ = recording
+    with open_recording(path) as r:
+        ds = r._file["frames/wavelengths"]
+        info = ds.id.get_chunk_info_by_coord((ds.chunks[0], 0, 0))  # the second chunk
+    data = bytearray(path.read_bytes())
+    data[info.byte_offset + 7] ^= 0x01
+    bad = tmp_path / "second_chunk.h5"
+    bad.write_bytes(bytes(data))
+    opened = []
+
+    def factory():
+        opened.append(1)
+        return open_source(f"replay://{bad}?speed=max")
+
+    summary = LiveLoop(factory, Reconstructor(FiberModel.paper()), []).run(duration=20, handle_signals=False)
+    assert summary.reason == "source failed" and len(opened) == 1 and summary.status.reconnects == 0
+    assert summary.status.frames == info.chunk_offset[0]  # every frame before the damaged chunk
