@@ -304,10 +304,10 @@ class Frame:
             No frames, frames of different (n_gratings, n_cores), or (without ``truth_like``) truths of
             different layouts.
         """
-        if len(frames) == 0:
-            raise ValueError("Frame.stack: no frames given")
         if isinstance(frames, Frame):
             return frames
+        if len(frames) == 0:
+            raise ValueError("Frame.stack: no frames given")
         shapes = {f.wavelengths.shape[-2:] for f in frames}
         if len(shapes) != 1:
             raise ValueError(f"Frame.stack: frames disagree on (n_gratings, n_cores): {sorted(shapes)}")

@@ -84,6 +84,7 @@ class RecordingReader:
             raise IsADirectoryError(f"{self.path}: is a directory, not a recording") from None
         self.errors: list[str] = []
         self.damage: list[str] = []
+        self._first_bad = self._truth_ok = 1 << 62  # first damaged row of the frames / of their truth
         self._file = None
         self._mem: Frame | None = None
         self._truth_names: list[str] = []
@@ -197,19 +198,16 @@ class RecordingReader:
                     truth_ok = ok
                 else:
                     n = truth_ok = ok
-        self._n = n if not self.damage else min(n, self._n_limit())
+        self._n = min(n, self._first_bad)
         return self._n
-
-    def _n_limit(self) -> int:
-        return getattr(self, "_first_bad", 1 << 62)
 
     def _damaged(self, row: int, why: str, truth: bool = False) -> None:
         """Note damage from ``row`` on: of the frames, or (``truth``) only of their truth, which is then absent
         from that row on while the frames stay readable."""
         if truth:
-            self._truth_ok = min(row, getattr(self, "_truth_ok", 1 << 62))
+            self._truth_ok = min(row, self._truth_ok)
         else:
-            self._first_bad = min(row, self._n_limit())
+            self._first_bad = min(row, self._first_bad)
             self._n = min(getattr(self, "_n", 0), self._first_bad)
         if why not in self.damage:
             self.damage.append(why)
@@ -296,7 +294,7 @@ class RecordingReader:
         """Truth of rows start:stop; rows past damaged truth chunks come back absent (``present`` False)."""
         f = self._file
         fields = ["truth/present", *(f"truth/{k}" for k in names)]
-        end = max(start, min(stop, getattr(self, "_truth_ok", stop)))
+        end = max(start, min(stop, self._truth_ok))
         cols, end = self._read(fields, start, end, truth=True)
         m = stop - start
         for name in fields:  # pad damaged rows: absent, NaN
