@@ -195,8 +195,8 @@ def test_server_dying_mid_frame_live_loop_recovers_and_recorder_keeps_everything
     assert sink.sequences == [*range(25), *range(30, 60)]
     assert s.lost_samples == 5 and s.framing_errors == 1 and s.disconnects == 1 and s.reconnects == 1
     with open_recording(tmp_path / "live.h5") as r:
-        a = r.arrays()
-        assert r.complete and list(a.sequences) == sink.sequences
+        a = r.frames()
+        assert r.complete and list(a.sequence) == sink.sequences
         np.testing.assert_allclose(a.wavelengths, np.stack([frames[i].wavelengths for i in sink.sequences]),
                                    atol=5e-5 + 1e-9, rtol=0)
 

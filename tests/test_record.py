@@ -20,10 +20,10 @@ import pytest
 from io_helpers import synthetic_frames, wait_until
 
 from twin import Calibration, FiberModel, Reconstructor
-from twin.cli.replay import replay
 from twin.frames import Frame
 from twin.io import illumisense
 from twin.io.record import Recorder, open_recording
+from twin.io.replay import summarize
 from twin.io.source import SourceClosed, open_source
 from twin.io.synthetic import SyntheticSource
 from twin.live import LiveLoop
@@ -47,13 +47,14 @@ def test_round_trip_of_frames_truth_fibre_and_calibration(tmp_path):
         np.testing.assert_array_equal(r.fiber.lambda0, fiber.lambda0)
         np.testing.assert_array_equal(r.calibration.lambda0, cal.lambda0)
         np.testing.assert_array_equal(r.calibration.twist, cal.twist)
-        a = r.arrays()
+        a = r.frames()
         np.testing.assert_array_equal(a.wavelengths, np.stack([f.wavelengths for f in frames]))
-        np.testing.assert_array_equal(a.sequences, np.arange(700))
-        np.testing.assert_array_equal(a.timestamps, [f.timestamp for f in frames])
+        np.testing.assert_array_equal(a.sequence, np.arange(700))
+        np.testing.assert_array_equal(a.timestamp, [f.timestamp for f in frames])
         np.testing.assert_array_equal(a.status, np.stack([f.status for f in frames]))
         np.testing.assert_allclose(a.powers, np.stack([f.powers for f in frames]), rtol=1e-7)
-        assert a.received[0] == 1000.0 and a.received[-1] == 1000.0 + 693
+        received = r.received()
+        assert received[0] == 1000.0 and received[-1] == 1000.0 + 693
         t = r.truth(10, 20)
         assert t.present.all()
         np.testing.assert_array_equal(t.positions, np.stack([f.truth.positions for f in frames[10:20]]))
@@ -76,7 +77,7 @@ def test_flushes_are_visible_to_a_reader_while_recording(tmp_path):
         assert len(r) == 150 and not r.complete
         rec.append(frames[150:300])
         assert r.refresh() == 300
-        np.testing.assert_array_equal(r.arrays(290, 300).sequences, np.arange(290, 300))
+        np.testing.assert_array_equal(r.frames(290, 300).sequence, np.arange(290, 300))
     rec.close()
 
 
@@ -120,13 +121,13 @@ def test_a_killed_recorder_leaves_everything_up_to_its_last_flush(tmp_path, kill
     with open_recording(path) as r:
         n = len(r)
         assert not r.complete and n >= seen
-        a = r.arrays()
-        np.testing.assert_array_equal(a.sequences, np.arange(n))
+        a = r.frames()
+        np.testing.assert_array_equal(a.sequence, np.arange(n))
         assert np.isfinite(a.wavelengths).all()
         want = synthetic_frames(n, cores=7, rate=4000)
         np.testing.assert_array_equal(a.wavelengths, np.stack([f.wavelengths for f in want]))
         assert r.fiber.n_cores == 7
-    out = replay(path)
+    out = summarize(path).as_dict()
     assert out["frames"] == n and out["lost_samples"] == 0 and not out["complete"]
     assert any("not closed cleanly" in note for note in out["notes"])
 
@@ -149,12 +150,12 @@ def test_vendor_log_with_header_bad_line_and_decimal_comma(tmp_path):
     with open_recording(path) as r:
         assert r.kind == "illumisense-log" and len(r) == 5 and r.fiber is None
         assert len(r.errors) == 1 and r.errors[0].startswith("line 3:")
-        a = r.arrays()
-        np.testing.assert_array_equal(a.sequences, np.arange(5))
+        a = r.frames()
+        np.testing.assert_array_equal(a.sequence, np.arange(5))
         np.testing.assert_allclose(a.wavelengths, np.stack([f.wavelengths for f in frames]), atol=5e-5 + 1e-9,
                                    rtol=0)
         np.testing.assert_array_equal(np.isnan(a.wavelengths), np.stack([np.isnan(f.wavelengths) for f in frames]))
-    out = replay(path)
+    out = summarize(path).as_dict()
     assert out["frames"] == 5 and out["skipped_lines"] == 1 and out["kind"] == "illumisense-log"
 
 
@@ -162,8 +163,8 @@ def test_vendor_log_hand_written_example(tmp_path):
     path = tmp_path / "one.txt"
     path.write_text(LOG_HEADER + EXAMPLE_LINE)
     with open_recording(path) as r:
-        a = r.arrays()
-    assert a.wavelengths.shape == (1, 3, 1) and a.sequences.tolist() == [1042]
+        a = r.frames()
+    assert a.wavelengths.shape == (1, 3, 1) and a.sequence.tolist() == [1042]
     np.testing.assert_array_equal(a.wavelengths[0, :, 0], [1530.1234, 1535.5678, 1540.9012])
     np.testing.assert_array_equal(a.powers[0, :, 0], [-20.5, -21.0, -19.75])
     with pytest.raises(ValueError, match="neither a twin HDF5 recording nor an ILLumiSense log"):
@@ -203,7 +204,7 @@ def test_live_loop_over_replay_reproduces_the_recording(tmp_path):
     src = open_source(f"replay://{path}?speed=max")
     summary = LiveLoop(src, Reconstructor(src.fiber), []).run()
     assert summary.status.frames == 400 and summary.reason == "source ended"
-    out = replay(path)
+    out = summarize(path).as_dict()
     assert out["frames_partial"] == summary.status.frames_partial
     assert out["invalid_nodes"] == summary.status.invalid_nodes
 
@@ -229,7 +230,7 @@ def test_replay_with_the_wrong_fibre_is_a_clear_error(tmp_path):
     with Recorder(path) as rec:
         rec.append(synthetic_frames(5, cores=7))
     with pytest.raises(ValueError, match="7 cores but the fibre model has 18 × 4"):
-        replay(path)
+        summarize(path).as_dict()
 
 
 def test_synthetic_source_recording_keeps_truth_shape(tmp_path):

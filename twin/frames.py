@@ -1,17 +1,23 @@
-"""The data that flows: one interrogator sample (:class:`Frame`), one reconstruction (:class:`Shape`) and the
-simulator's ground truth (:class:`Truth`). All arrays SI (m, rad, 1/m, K, s) except wavelengths (nm)."""
+"""The data that flows: interrogator samples (:class:`Frame`), reconstructions (:class:`Shape`) and the
+simulator's ground truth (:class:`Truth`). All arrays SI (m, rad, 1/m, K, s) except wavelengths (nm).
+
+All three are batch-first: one object holds one sample or a batch with leading axes ``...`` (a recording, a
+burst read from a socket, the frames of a calibration step). A batch has ``len``, iterates over single items and
+is indexed along its batch axes only (``frames[3]``, ``frames[100:200]``, ``frames[mask]``);
+:meth:`Frame.stack` builds a batch from single frames (or concatenates batches).
+"""
 
 from __future__ import annotations
 
 import enum
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from twin._validate import frozen
 
-__all__ = ["Frame", "PeakStatus", "Shape", "Truth", "stack_frames"]
+__all__ = ["Frame", "PeakStatus", "Shape", "Truth"]
 
 
 class PeakStatus(enum.IntFlag):
@@ -24,26 +30,42 @@ class PeakStatus(enum.IntFlag):
     INVALID_VALUE = 8  #: a value was reported but could not be used (non-numeric, non-finite)
 
 
+#: Truth's per-sample fields and how many trailing (non-batch) axes each has
+_TRUTH_FIELDS = {"positions": 2, "frames": 3, "curvature": 2, "twist": 1, "temperature": 1}
+
+
+def _batch_index(index, batch_shape: tuple[int, ...], what: str) -> tuple:
+    if not batch_shape:
+        raise TypeError(f"a single {what} cannot be indexed; index a batch")
+    idx = index if isinstance(index, tuple) else (index,)
+    if len(idx) > len(batch_shape) or any(i is Ellipsis or i is None for i in idx):
+        raise IndexError(f"{what}: index the batch axes {batch_shape} only (no Ellipsis, no new axes)")
+    return idx
+
+
 @dataclass(frozen=True, eq=False)
 class Truth:
-    """What the simulator knows exactly about one sample.
+    """What the simulator knows exactly about one sample, or about a batch of samples (leading axes ``...``).
 
     Attributes
     ----------
     s : ndarray, shape (m,)
-        Arc length of each centreline sample from the fibre base, m.
-    positions : ndarray, shape (m, 3)
+        Arc length of each centreline sample from the fibre base, m (shared by a batch).
+    positions : ndarray, shape (..., m, 3)
         The fibre centreline in world coordinates, m.
-    frames : ndarray, shape (m, 3, 3) or None
+    frames : ndarray, shape (..., m, 3, 3) or None
         Material frames [d1 d2 d3] (columns in world coordinates) at the same samples.
-    curvature : ndarray, shape (n_gratings, 2) or None
+    curvature : ndarray, shape (..., n_gratings, 2) or None
         True curvature vector (k_x, k_y) at each grating in the fibre's material frame, 1/m.
-    twist : ndarray, shape (n_gratings,) or None
+    twist : ndarray, shape (..., n_gratings) or None
         Mechanical twist rate at each grating, rad/m.
-    temperature : ndarray, shape (n_gratings,) or None
+    temperature : ndarray, shape (..., n_gratings) or None
         Temperature change from the reference at each grating, K.
     fixture : ndarray, shape (k, 3) or None
-        Centreline of the fixture (tube, groove, sheath) that shapes the catheter, m, when there is one.
+        Centreline of the fixture (tube, groove, sheath) that shapes the catheter, m, when there is one (a
+        batch keeps its first sample's).
+    present : ndarray of bool, shape (...) or None
+        Batches only: which samples carry a truth (the arrays are NaN where not); None means all.
     """
 
     s: np.ndarray
@@ -53,40 +75,148 @@ class Truth:
     twist: np.ndarray | None = None
     temperature: np.ndarray | None = None
     fixture: np.ndarray | None = None
+    present: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        batch = self.batch_shape
+        for name, trailing in _TRUTH_FIELDS.items():
+            v = getattr(self, name)
+            if v is not None and np.shape(v)[: max(0, np.ndim(v) - trailing)] != batch:
+                raise ValueError(f"Truth.{name}: expected the batch shape {batch} of the positions, got "
+                                 f"{np.shape(v)}")
+        if self.present is not None:
+            p = np.asarray(self.present, dtype=bool)
+            if p.shape != batch:
+                raise ValueError(f"Truth.present: expected shape {batch}, got {p.shape}")
+            object.__setattr__(self, "present", None if not batch else p)
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return tuple(np.shape(self.positions)[:-2])
+
+    def __len__(self) -> int:
+        if not self.batch_shape:
+            raise TypeError("a single Truth has no length; index a batch")
+        return self.batch_shape[0]
+
+    def __getitem__(self, index) -> Truth:
+        """Index the batch axes: ``truth[3]``, ``truth[10:20]`` (a single item of an absent row is all NaN)."""
+        idx = _batch_index(index, self.batch_shape, "Truth")
+        kw = {name: None if getattr(self, name) is None else getattr(self, name)[idx] for name in _TRUTH_FIELDS}
+        present = None if self.present is None else self.present[idx]
+        return Truth(s=self.s, fixture=self.fixture, present=present if np.ndim(present) else None, **kw)
+
+    @property
+    def all_present(self) -> np.ndarray | bool:
+        """Whether each sample carries a truth, shape (...) (True for a single truth)."""
+        if self.present is None:
+            return np.ones(self.batch_shape, bool) if self.batch_shape else True
+        return self.present
+
+    def same_layout(self, other: Truth) -> bool:
+        """Same arc lengths and the same fields with the same per-sample shapes (batch axes aside)."""
+        if other is self:
+            return True
+        if np.shape(self.s) != np.shape(other.s) or not np.array_equal(self.s, other.s):
+            return False
+        for name, trailing in _TRUTH_FIELDS.items():
+            a, b = getattr(self, name), getattr(other, name)
+            if (a is None) != (b is None):
+                return False
+            if a is not None and np.shape(a)[np.ndim(a) - trailing:] != np.shape(b)[np.ndim(b) - trailing:]:
+                return False
+        return True
+
+    @classmethod
+    def stack(cls, truths: Sequence[Truth | None], counts: Sequence[int] | None = None, *,
+              like: Truth | None = None) -> Truth | None:
+        """Concatenate truths (single ones, or 1-D batches) into one 1-D batch; None entries become absent rows.
+
+        Parameters
+        ----------
+        truths : sequence of Truth or None
+        counts : sequence of int, optional
+            Rows each entry stands for (needed for None entries that stand for batches; default 1 or the
+            entry's length).
+        like : Truth, optional
+            The layout to keep (:meth:`same_layout`): entries of another layout become absent rows instead of
+            raising. Default: the first entry's, and another layout is an error.
+
+        Returns
+        -------
+        Truth or None
+            None when no entry carries a truth.
+        """
+        ref = like if like is not None else next((t for t in truths if t is not None), None)
+        if ref is None:
+            return None
+        if counts is None:
+            counts = [1 if t is None or not t.batch_shape else len(t) for t in truths]
+        n = int(sum(counts))
+        present = np.zeros(n, bool)
+        out = {}
+        for name, trailing in _TRUTH_FIELDS.items():
+            v = getattr(ref, name)
+            if v is not None:
+                tail = np.shape(v)[np.ndim(v) - trailing:]
+                out[name] = np.full((n, *tail), np.nan, dtype=np.result_type(np.asarray(v).dtype, np.float32))
+        row = 0
+        for i, (t, k) in enumerate(zip(truths, counts, strict=True)):
+            if t is not None:
+                if not t.same_layout(ref):
+                    if like is None:
+                        raise ValueError(f"Truth.stack: truth {i} has another layout (arc lengths or fields) than "
+                                         "the first")
+                else:
+                    sl = slice(row, row + k) if t.batch_shape else row
+                    for name in out:
+                        out[name][sl] = getattr(t, name)
+                    present[sl] = t.all_present
+            row += k
+        return cls(s=ref.s, fixture=ref.fixture, present=present, **out)
 
 
 @dataclass(frozen=True, eq=False)
 class Frame:
-    """One interrogator sample.
+    """One interrogator sample, or a batch of samples (leading axes ``...``, like :class:`Shape`).
 
     Attributes
     ----------
-    wavelengths : ndarray, shape (n_gratings, n_cores)
+    wavelengths : ndarray, shape (..., n_gratings, n_cores)
         Peak wavelengths, nm; NaN where a peak is missing.
-    timestamp : float
+    timestamp : float, or ndarray shape (...)
         Acquisition time, s (the source's clock; NaN when unknown).
-    sequence : int
+    sequence : int, or ndarray of int64 shape (...)
         Sample number from the source; a gap means lost samples (−1 when unknown).
-    powers : ndarray, shape (n_gratings, n_cores) or None
+    powers : ndarray, shape (..., n_gratings, n_cores) or None
         Peak powers as the interrogator reports them (dBm or arbitrary units).
-    status : ndarray of uint8, shape (n_gratings, n_cores) or None
+    status : ndarray of uint8, shape (..., n_gratings, n_cores) or None
         :class:`PeakStatus` bits per peak.
     truth : Truth or None
-        Ground truth, when the source is the simulator.
+        Ground truth, when the source is the simulator (a batched :class:`Truth` for a batch).
     """
 
     wavelengths: np.ndarray
-    timestamp: float = float("nan")
-    sequence: int = -1
+    timestamp: float | np.ndarray = float("nan")
+    sequence: int | np.ndarray = -1
     powers: np.ndarray | None = None
     status: np.ndarray | None = None
     truth: Truth | None = None
 
     def __post_init__(self) -> None:
         w = np.asarray(self.wavelengths, dtype=np.float64)
-        if w.ndim != 2:
-            raise ValueError(f"Frame.wavelengths: expected shape (n_gratings, n_cores), got {w.shape}")
+        if w.ndim < 2:
+            raise ValueError(f"Frame.wavelengths: expected shape (..., n_gratings, n_cores), got {w.shape}")
         object.__setattr__(self, "wavelengths", w)
+        batch = w.shape[:-2]
+        if batch:
+            t = np.broadcast_to(np.asarray(self.timestamp, dtype=np.float64), batch)
+            q = np.broadcast_to(np.asarray(self.sequence, dtype=np.int64), batch)
+            object.__setattr__(self, "timestamp", t)
+            object.__setattr__(self, "sequence", q)
+        else:
+            object.__setattr__(self, "timestamp", float(self.timestamp))
+            object.__setattr__(self, "sequence", int(self.sequence))
         for name in ("powers", "status"):
             v = getattr(self, name)
             if v is not None:
@@ -94,24 +224,112 @@ class Frame:
                 if v.shape != w.shape:
                     raise ValueError(f"Frame.{name}: expected shape {w.shape} like the wavelengths, got {v.shape}")
                 object.__setattr__(self, name, v)
+        if self.truth is not None and self.truth.batch_shape != batch:
+            raise ValueError(f"Frame.truth: expected the batch shape {batch} of the wavelengths, got "
+                             f"{self.truth.batch_shape}")
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return self.wavelengths.shape[:-2]
 
     @property
     def missing(self) -> np.ndarray:
-        """Boolean (n_gratings, n_cores): peaks that are absent."""
+        """Boolean (..., n_gratings, n_cores): peaks that are absent."""
         return np.isnan(self.wavelengths)
 
+    @property
+    def status_or_missing(self) -> np.ndarray:
+        """:attr:`status`, or (without one) :attr:`PeakStatus.MISSING` where a peak is NaN; uint8 like the
+        wavelengths."""
+        if self.status is not None:
+            return self.status
+        return np.where(self.missing, np.uint8(PeakStatus.MISSING), np.uint8(0))
 
-def stack_frames(frames: Sequence[Frame]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stack frames into batch arrays: (timestamps (n,), sequences (n,), wavelengths (n, n_gratings, n_cores))."""
-    if len(frames) == 0:
-        raise ValueError("stack_frames: no frames given")
-    shapes = {f.wavelengths.shape for f in frames}
-    if len(shapes) != 1:
-        raise ValueError(f"stack_frames: frames disagree on (n_gratings, n_cores): {sorted(shapes)}")
-    t = np.array([f.timestamp for f in frames], dtype=np.float64)
-    seq = np.array([f.sequence for f in frames], dtype=np.int64)
-    w = np.stack([f.wavelengths for f in frames])
-    return t, seq, w
+    def __len__(self) -> int:
+        if not self.batch_shape:
+            raise TypeError("a single Frame has no length; index a batch")
+        return self.batch_shape[0]
+
+    def __bool__(self) -> bool:
+        # a single frame is something; a batch is something when it is not empty
+        return not self.batch_shape or self.batch_shape[0] > 0
+
+    def __iter__(self) -> Iterator[Frame]:
+        """The single frames of a 1-D batch, in order."""
+        if len(self.batch_shape) != 1:
+            raise TypeError(f"iterate a 1-D batch of frames (batch shape {self.batch_shape})")
+        return (self[i] for i in range(len(self)))
+
+    def __getitem__(self, index) -> Frame:
+        """Index the batch axes (never gratings or cores): ``frames[3]``, ``frames[::10]``, ``frames[mask]``.
+
+        A single frame of a batch whose truth is absent there (:attr:`Truth.present`) has ``truth`` None.
+        """
+        idx = _batch_index(index, self.batch_shape, "Frame")
+        truth = None
+        if self.truth is not None:
+            truth = self.truth[idx]
+            if not truth.batch_shape and self.truth.present is not None and not self.truth.present[idx]:
+                truth = None
+        return Frame(
+            wavelengths=self.wavelengths[idx],
+            timestamp=self.timestamp[idx],
+            sequence=self.sequence[idx],
+            powers=None if self.powers is None else self.powers[idx],
+            status=None if self.status is None else self.status[idx],
+            truth=truth,
+        )
+
+    @classmethod
+    def stack(cls, frames: Sequence[Frame], *, truth_like: Truth | None = None) -> Frame:
+        """One 1-D batch from single frames (or from 1-D batches, concatenated in order).
+
+        Parameters
+        ----------
+        frames : sequence of Frame
+            All with the same (n_gratings, n_cores).
+        truth_like : Truth, optional
+            Keep truths of this layout and leave the others out (their rows absent in ``truth.present``);
+            default: all truths must share the first one's layout.
+
+        Returns
+        -------
+        Frame
+            Batch shape (n,). Powers are NaN and status :attr:`status_or_missing` for frames given without;
+            ``truth`` is None when no frame carries one.
+
+        Raises
+        ------
+        ValueError
+            No frames, frames of different (n_gratings, n_cores), or (without ``truth_like``) truths of
+            different layouts.
+        """
+        if isinstance(frames, Frame):
+            return frames
+        if len(frames) == 0:
+            raise ValueError("Frame.stack: no frames given")
+        shapes = {f.wavelengths.shape[-2:] for f in frames}
+        if len(shapes) != 1:
+            raise ValueError(f"Frame.stack: frames disagree on (n_gratings, n_cores): {sorted(shapes)}")
+        if any(len(f.batch_shape) > 1 for f in frames):
+            raise ValueError("Frame.stack: frames must be single frames or 1-D batches")
+
+        def rows(get):
+            return [get(f) if f.batch_shape else get(f)[None] for f in frames]
+
+        w = np.concatenate(rows(lambda f: f.wavelengths))
+        t = np.concatenate([np.atleast_1d(f.timestamp) for f in frames])
+        q = np.concatenate([np.atleast_1d(f.sequence) for f in frames])
+        powers = status = truth = None
+        if any(f.powers is not None for f in frames):
+            powers = np.concatenate(rows(lambda f: f.powers if f.powers is not None
+                                         else np.full(f.wavelengths.shape, np.nan)))
+        if any(f.status is not None for f in frames):
+            status = np.concatenate(rows(lambda f: f.status_or_missing))
+        if any(f.truth is not None for f in frames):
+            counts = [len(f) if f.batch_shape else 1 for f in frames]
+            truth = Truth.stack([f.truth for f in frames], counts, like=truth_like)
+        return cls(w, t, q, powers, status, truth)
 
 
 @dataclass(frozen=True, eq=False)

@@ -14,7 +14,8 @@ that it keeps the books a live instrument needs:
   sinks keep receiving status updates (``heartbeat``) so a display can mark its last shape as old;
 - **dropped connections**: drivers reconnect by themselves (:mod:`twin.io.drivers`); a source that raises
   instead (an I/O error out of ``read``) is closed and reopened through the factory given to the loop, with
-  exponential backoff (0.1 s doubling to 5 s);
+  exponential backoff (0.1 s doubling to 5 s) — except :class:`~twin.io.errors.SourceFailed` (a damaged
+  recording), which no reopening cures: it ends the loop (reason ``source failed``);
 - **counters** from the source (framing errors, reconnects, …) are merged into the status;
 - **clean stop**: Ctrl-C (SIGINT) or SIGTERM ends the loop at the next iteration; sinks are closed (the
   recorder flushes) and the source is closed, whatever happened. A second Ctrl-C interrupts at once.
@@ -44,6 +45,7 @@ from typing import Protocol, TextIO
 import numpy as np
 
 from twin.frames import Frame, Shape
+from twin.io.errors import SourceFailed
 from twin.io.sequence import SequenceCounter
 from twin.io.source import Source, SourceClosed
 from twin.io.transport import Backoff
@@ -166,7 +168,8 @@ class LiveSummary:
     duration : float
         s.
     reason : str
-        Why the loop ended: ``duration``, ``frames``, ``source ended``, ``interrupted``, ``stopped``.
+        Why the loop ended: ``duration``, ``frames``, ``source ended``, ``source failed``, ``interrupted``,
+        ``stopped``.
     sink_errors : tuple of str
         Sinks that raised (and were dropped), with the error.
     """
@@ -465,6 +468,12 @@ class LiveLoop:
                         frames = read_batch(self.source, limit, wait)
                     except SourceClosed:
                         reason = "source ended"
+                        break
+                    except SourceFailed as exc:  # reopening cannot cure it (a damaged recording)
+                        self.c["source_errors"] += 1
+                        self._source_stats = {**self._source_stats, "last_error": str(exc)}
+                        print(f"twin live: source failed: {exc}", file=sys.stderr)
+                        reason = "source failed"
                         break
                     except _SOURCE_ERRORS as exc:
                         self.c["source_errors"] += 1

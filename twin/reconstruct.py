@@ -14,7 +14,7 @@ import numpy as np
 from twin import curve
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
-from twin.frames import Frame, Shape, stack_frames
+from twin.frames import Frame, Shape
 from twin.strain import CurvatureSolver
 
 __all__ = ["METHODS", "Reconstructor"]
@@ -164,7 +164,7 @@ class Reconstructor:
         if isinstance(data, Frame):
             w = data.wavelengths
         elif isinstance(data, Sequence) and len(data) and isinstance(data[0], Frame):
-            w = stack_frames(data)[2]
+            w = Frame.stack(data).wavelengths
         else:
             w = np.asarray(data, dtype=np.float64)
         n_g, n_c = self.fiber.n_gratings, self.fiber.n_cores

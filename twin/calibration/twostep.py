@@ -25,7 +25,7 @@ import numpy as np
 
 from twin._validate import frozen, real_array
 from twin.fiber import FiberModel
-from twin.frames import Frame, stack_frames
+from twin.frames import Frame
 from twin.strain import CurvatureSolver, design_matrix, optical_strain
 
 __all__ = ["Calibration", "CalibrationError", "CalibrationReport", "scaled_core_angles", "two_step"]
@@ -227,10 +227,10 @@ class CalibrationReport:
 
 
 def _as_stack(frames, fiber: FiberModel, step: str) -> np.ndarray:
-    if isinstance(frames, Frame):
-        w = frames.wavelengths[None]
+    if isinstance(frames, Frame):  # one frame or a batch
+        w = frames.wavelengths.reshape(-1, *frames.wavelengths.shape[-2:])
     elif isinstance(frames, list | tuple) and frames and isinstance(frames[0], Frame):
-        w = stack_frames(frames)[2]
+        w = Frame.stack(frames).wavelengths
     else:
         w = np.asarray(frames, dtype=np.float64)
         if w.ndim == 2:
@@ -273,7 +273,7 @@ def two_step(
     Parameters
     ----------
     fiber : FiberModel
-    straight, bend : Frame, list of Frame, or array (n_frames, n_gratings, n_cores)
+    straight, bend : Frame (one or a batch), list of Frame, or array (n_frames, n_gratings, n_cores)
         Wavelengths (nm) recorded in each pose; many frames are averaged.
     base : Calibration, optional
         Identified Δθ and g to keep (and use while measuring the twist).

@@ -45,7 +45,9 @@ def run(args: argparse.Namespace) -> int:
     observations, fiber, base = [], None, None
     for frames_path, truth_path in zip(args.frames, args.truth, strict=True):
         with open_recording(frames_path) as rec:
-            w = rec.arrays().wavelengths
+            if rec.damaged:
+                raise ValueError(rec.damage_line())
+            w = rec.frames(truth=False).wavelengths
             fiber = fiber or rec.fiber
             base = base or rec.calibration
         if len(w) == 0:

@@ -7,7 +7,8 @@ Prints a status line about once a second (state, frame rate, lost samples, frami
 partial/unusable frames, tip position in mm; on stderr with ``--json``) and a summary at the end; ``--json``
 prints the summary as one JSON object on stdout. Ctrl-C ends the run cleanly: the recording is flushed and
 marked complete, and the summary is printed. Exit status 0, or 1 when a sink failed (e.g. the recording could
-not be written).
+not be written) or the source failed for good (a damaged recording: ``replay://FILE?salvage=1`` replays the
+frames before the damage instead).
 
 ``--viewer`` shows the shapes live in a browser (meshcat, :mod:`twin.viewer`; the URL to open is printed on
 stderr): the latest shape at most ``--viewer-rate`` times a second (30), the truth beside it when the source
@@ -122,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(out))
     else:
         print(format_summary(summary, out))
-    return 1 if summary.sink_errors else 0
+    return 1 if summary.sink_errors or summary.reason == "source failed" else 0
 
 
 def format_summary(summary: LiveSummary, out: dict) -> str:

@@ -4,11 +4,14 @@ Every decoder (ILLumiSense, FiSpec, Hyperion) reports malformed, truncated or ov
 :class:`FramingError` — never as ``IndexError``, ``struct.error``, ``UnicodeDecodeError`` or a bare
 ``ValueError`` — so a live loop needs exactly one ``except`` clause to count the error and resynchronise or
 reconnect. The message names the protocol, the byte offset and what was expected there.
+
+:class:`SourceFailed` (and :class:`RecordingDamaged`) mark the other kind of error: one that reopening the source
+cannot cure, so the live loop ends on it.
 """
 
 from __future__ import annotations
 
-__all__ = ["FramingError", "OversizeFrameError", "TruncatedFrameError"]
+__all__ = ["FramingError", "OversizeFrameError", "RecordingDamaged", "SourceFailed", "TruncatedFrameError"]
 
 
 class FramingError(ValueError):
@@ -57,6 +60,16 @@ class TruncatedFrameError(FramingError):
 
 class OversizeFrameError(FramingError):
     """A length field announces more bytes than the configured bound; refused before anything is allocated."""
+
+
+class SourceFailed(OSError):
+    """A source that can never deliver (more) frames, such as a damaged recording: the live loop ends with this
+    error instead of reopening the source, which would fail the same way again."""
+
+
+class RecordingDamaged(SourceFailed):
+    """A recording whose file is damaged (truncated, or with chunks that fail their checksum): the frames before
+    the damage can be read (``twin replay --salvage``, ``replay://FILE?salvage=1``), the rest are lost."""
 
 
 def _rebuild(

@@ -1,0 +1,141 @@
+"""Corruption fuzz of recordings (issue 11): twin HDF5 recordings and ILLumiSense text logs, truncated at random
+points and with random bytes flipped. For every case:
+
+- nothing hangs: opening and reading all frames takes under 5 s (measured; the test's timeout also bounds it);
+- nothing is "complete" that is damaged: an HDF5 recording read back as complete must equal the original
+  exactly (a flip can land in bytes HDF5 never reads, e.g. free space; then nothing was damaged), and a cut one
+  is never complete; a log cut inside a line is never complete (a log has no checksum: a flipped digit that
+  leaves a valid number cannot be detected, so flipped logs are checked for consistent accounting only);
+- nothing raises but one line: the only errors are ValueError/OSError whose message is one line naming the
+  file; the CLI gives exit status 2 with one line, or 0 with ``--salvage``.
+
+The fast suite runs a few dozen seeded cases; ``-m slow`` runs a few hundred.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from io_helpers import synthetic_frames
+
+from twin import FiberModel
+from twin.io import illumisense
+from twin.io.record import Recorder, open_recording
+
+TWIN = [sys.executable, "-m", "twin.cli"]
+ENV = {**os.environ, "MPLBACKEND": "Agg"}
+LIMIT_S = 5.0
+
+
+@pytest.fixture(scope="module")
+def originals(tmp_path_factory):
+    d = tmp_path_factory.mktemp("orig")
+    frames = synthetic_frames(300, rate=100, drop=0.02)
+    h5 = d / "r.h5"
+    with Recorder(h5, fiber=FiberModel.paper(), rate=100) as rec:
+        for i in range(0, 300, 40):
+            rec.append(frames[i : i + 40])
+    log = d / "r.txt"
+    log.write_bytes(b"Date\tTime\tSample\tChannels\r\n" + b"".join(illumisense.encode_payload(f) for f in frames[:60]))
+    with open_recording(h5) as r:
+        full = r.frames()
+    return {"h5": h5, "log": log, "frames": full}
+
+
+def _damage(src: Path, dst: Path, rng: random.Random, how: str) -> tuple[Path, dict]:
+    data = bytearray(src.read_bytes())
+    info: dict = {"how": how}
+    if how == "cut":
+        k = rng.randrange(0, len(data))
+        data = data[:k]
+        info["cut_at"] = k
+    else:
+        for _ in range(rng.choice([1, 3, 20, 200])):
+            i = rng.randrange(len(data))
+            data[i] ^= rng.randrange(1, 256)
+    dst.write_bytes(bytes(data))
+    info["ends_in_newline"] = bytes(data[-1:]) in (b"\n", b"\r")
+    return dst, info
+
+
+def _check_error(exc: BaseException, path: Path) -> None:
+    assert isinstance(exc, ValueError | OSError), f"{type(exc).__name__}: {exc}"
+    msg = str(exc)
+    assert "\n" not in msg and str(path) in msg, msg
+
+
+def _read_all(path: Path):
+    with open_recording(path) as r:
+        frames = r.frames()
+        return r, frames
+
+
+def _case(originals, tmp_path: Path, kind: str, how: str, seed: int) -> None:
+    rng = random.Random(seed)
+    src = originals[kind]
+    path, info = _damage(src, tmp_path / f"case{seed}{src.suffix}", rng, how)
+    t0 = time.monotonic()
+    try:
+        r, frames = _read_all(path)
+    except Exception as exc:  # checked to be a one-line user error
+        assert time.monotonic() - t0 < LIMIT_S
+        _check_error(exc, path)
+        return
+    assert time.monotonic() - t0 < LIMIT_S, info
+    if kind == "h5":
+        if how == "cut":
+            assert not r.complete, info
+        if r.complete:
+            orig = originals["frames"]
+            assert len(frames) == len(orig), info
+            np.testing.assert_array_equal(frames.wavelengths, orig.wavelengths)
+            np.testing.assert_array_equal(frames.sequence, orig.sequence)
+            np.testing.assert_array_equal(frames.timestamp, orig.timestamp)
+            np.testing.assert_array_equal(frames.status, orig.status)
+        else:
+            assert r.damaged or not r._closed_cleanly, info
+    else:
+        if how == "cut" and not info["ends_in_newline"]:
+            assert not r.complete and r.damaged, info
+        assert len(frames) == len(r)
+
+
+FAST = [(kind, how, seed) for kind in ("h5", "log") for how in ("cut", "flip") for seed in range(8)]
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize(("kind", "how", "seed"), FAST)
+def test_damaged_recordings_fail_fast_and_say_so(originals, tmp_path, kind, how, seed):
+    _case(originals, tmp_path, kind, how, seed)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1200)
+@pytest.mark.parametrize(("kind", "how"), [(k, h) for k in ("h5", "log") for h in ("cut", "flip")])
+def test_damaged_recordings_many(originals, tmp_path, kind, how):
+    for seed in range(100, 250):
+        _case(originals, tmp_path, kind, how, seed)
+
+
+@pytest.mark.parametrize("seed", [1])
+def test_cli_on_damaged_files_one_line_or_salvage(originals, tmp_path, seed):
+    rng = random.Random(seed)
+    for kind, how in (("h5", "cut"), ("h5", "flip"), ("log", "cut")):
+        path, info = _damage(originals[kind], tmp_path / f"c{kind}{how}{originals[kind].suffix}", rng, how)
+        for extra in ([], ["--salvage"]):
+            proc = subprocess.run([*TWIN, "replay", str(path), "--json", *extra], capture_output=True, text=True,
+                                  env=ENV, timeout=60)
+            assert "Traceback" not in proc.stderr, proc.stderr
+            if proc.returncode == 2:
+                assert proc.stderr.count("\n") == 1 and path.name in proc.stderr, proc.stderr
+            else:
+                assert proc.returncode == 0, (info, proc.stderr)
+                if not extra:  # without --salvage only a sound file passes
+                    assert '"damaged": false' in proc.stdout
