@@ -6,10 +6,14 @@ from __future__ import annotations
 import enum
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from twin._validate import frozen
+
+if TYPE_CHECKING:
+    from twin.io.illumisense import VendorSensor
 
 __all__ = ["Frame", "PeakStatus", "Shape", "Truth", "stack_frames"]
 
@@ -73,6 +77,9 @@ class Frame:
         :class:`PeakStatus` bits per peak.
     truth : Truth or None
         Ground truth, when the source is the simulator.
+    vendor : tuple of VendorSensor or None
+        The interrogator software's own reconstruction, when it sends one (ILLumiSense sensor blocks:
+        curvature 1/m, angle rad, shape m; :class:`twin.io.illumisense.VendorSensor`).
     """
 
     wavelengths: np.ndarray
@@ -81,6 +88,7 @@ class Frame:
     powers: np.ndarray | None = None
     status: np.ndarray | None = None
     truth: Truth | None = None
+    vendor: tuple[VendorSensor, ...] | None = None
 
     def __post_init__(self) -> None:
         w = np.asarray(self.wavelengths, dtype=np.float64)
