@@ -221,8 +221,11 @@ def format_timestamp(timestamp: float, *, time_digits: int = 6, date_sep: str = 
 
 
 def _fmt(values, spec: str) -> list[str]:
+    a = np.asarray(values, dtype=np.float64).ravel()
     f = ("{:" + spec + "}").format
-    return [f(x) if math.isfinite(x) else "nan" for x in np.asarray(values, dtype=np.float64).ravel().tolist()]
+    if np.isfinite(a).all():
+        return list(map(f, a.tolist()))
+    return [f(x) if math.isfinite(x) else "nan" for x in a.tolist()]
 
 
 def encode_payload(
@@ -394,7 +397,7 @@ class _Tokens:
         self.n = kind.size
 
     def raw(self, j: int) -> bytes:
-        return self.data[self.ts[j] - self.off : self.te[j] - self.off]
+        return self.data[self.ts[j] : self.te[j]]
 
     def at(self, j: int) -> int:
         return int(self.ts[j] - self.off) if j < self.n else int(self.te[-1] - self.off) if self.n else 0
@@ -482,7 +485,10 @@ def _walk(t: _Tokens, channels_as: str, n_cores: int | None, max_cells: int) -> 
                 la = _label(t.raw(p)) if p < n and t.kind[p] == _scan.TEXT else None
                 if la is None or la[0] != axis:
                     t.fail(p, f"sensor block without its shape {axis} label", f"'Shape {axis} [cm]'")
-                m = t.int(p + 1, f"shape {axis} point count N", 0, n - p - 2)
+                m = t.int(p + 1, f"shape {axis} point count N", 0, 1 << 40)
+                if p + 2 + m > n:
+                    t.fail(n, f"record ends inside shape {axis} ({m} points announced)", "more fields",
+                           TruncatedFrameError)
                 if n_pts is not None and m != n_pts:
                     t.fail(p + 1, f"shape {axis} has {m} points, shape x has {n_pts}", f"{n_pts}")
                 n_pts = m
@@ -731,12 +737,14 @@ class LayoutConsensus:
     Parameters
     ----------
     quorum, window : int
+    relearn : bool
+        Re-learn a persistent new layout (a stream); False keeps the first decision (a log file).
     """
 
-    def __init__(self, quorum: int = 3, window: int = 5):
+    def __init__(self, quorum: int = 3, window: int = 5, relearn: bool = True):
         if quorum < 0 or window < max(1, quorum):
             raise ValueError(f"LayoutConsensus: need 0 <= quorum <= window, window >= 1; got {quorum}, {window}")
-        self.quorum, self.window = quorum, window
+        self.quorum, self.window, self.relearn = quorum, window, relearn
         self.layout: tuple | None = None
         self.odd = 0
         self.changes = 0
@@ -765,6 +773,9 @@ class LayoutConsensus:
             self.odd += len(self._run)
             self._run = []
             return [rec]
+        if not self.relearn:
+            self.odd += 1
+            return []
         if self._run and self._run[0].layout != key:
             self.odd += len(self._run)
             self._run = []
