@@ -8,7 +8,9 @@ process) or an ILLumiSense log file (columns assumed: :mod:`twin.io.record`), re
 batches, and reports frames, time span, lost samples, partial and unusable frames, invalid nodes and the
 reconstruction speed. When the recording holds the simulator's truth, it also reports the shape error against
 it (:func:`twin.metrics.shape_error`, after ``--register``; on at most ``--max-compare`` frames spread evenly
-over the recording, in mm).
+over the recording, in mm). When an ILLumiSense log carries the interrogator's own shape (sensor blocks), it
+reports the distance between that shape and ours after a rigid registration (``vendor_distance_*_mm``,
+:mod:`twin.io.illumisense_vendor`).
 
 The fibre model and calibration are the ones stored in the recording unless ``--fiber`` / ``--calibration``
 are given; a vendor log stores none, so ``--fiber`` is needed unless the sensor is the reference fibre.
@@ -27,6 +29,7 @@ import numpy as np
 
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
+from twin.io.illumisense_vendor import VendorDistance
 from twin.io.record import open_recording
 from twin.metrics import REGISTRATIONS, shape_error
 from twin.reconstruct import Reconstructor
@@ -80,6 +83,7 @@ def replay(path: Path, *, fiber: FiberModel | None = None, calibration: Calibrat
         seqs, t_first, t_last = [], math.nan, math.nan
         errors: dict[str, list[np.ndarray]] = {"mean": [], "max": [], "rms": [], "tip": []}
         truth_note = None
+        vendor = VendorDistance(rate=None)
         t_rec = 0.0
         for start, a in reader.chunks(batch):
             m = len(a)
@@ -98,6 +102,8 @@ def replay(path: Path, *, fiber: FiberModel | None = None, calibration: Calibrat
             if ts.size:
                 t_first = ts[0] if math.isnan(t_first) else t_first
                 t_last = ts[-1]
+            vendor.add_chunk(getattr(reader, "vendor", None), start, shapes,
+                             (np.arange(start, start + m) % stride == 0) & (n_valid == g))
             truth = reader.truth(start, start + m)
             if truth is not None and truth_note is None:
                 idx = np.arange(start, start + m)
@@ -130,6 +136,7 @@ def replay(path: Path, *, fiber: FiberModel | None = None, calibration: Calibrat
             **counts,
             "reconstruct_frames_per_s": round(n / t_rec, 1) if t_rec > 0 else None,
             "skipped_lines": len(reader.errors),
+            **vendor.as_dict(),
         }
         if reader.has_truth:
             if errors["mean"]:
@@ -172,6 +179,9 @@ def run(args: argparse.Namespace) -> int:
           f"{out['invalid_nodes']}")
     if out["reconstruct_frames_per_s"]:
         print(f"  reconstructed at {out['reconstruct_frames_per_s']:.0f} frames/s")
+    if "vendor_distance_max_mm" in out:
+        print(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): max "
+              f"{out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
     if "truth" in out:
         t = out["truth"]
         print(f"  vs truth ({t['frames_compared']} frames, {t['register']}): mean {t['mean_error_mm']:.3f} mm, "

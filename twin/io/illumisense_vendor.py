@@ -115,6 +115,17 @@ class VendorDistance:
         self._max.append(np.atleast_1d(e.max))
         self._mean.append(np.atleast_1d(e.mean))
 
+    def add_chunk(self, vendor, start: int, shapes: Shape, select: np.ndarray) -> None:
+        """Compare frames ``start:start + len(shapes)`` of a recording whose vendor shapes are ``vendor``
+        (:class:`twin.io.illumisense_log.VendorArrays`, or None: nothing to do); ``select`` (bool per frame)
+        picks the frames to compare."""
+        if vendor is None:
+            return
+        m = len(shapes)
+        sel = np.flatnonzero(select & vendor.present[start : start + m])
+        if sel.size:
+            self.add(shapes.positions[sel], shapes.s, vendor.positions[start + sel], vendor.s)
+
     def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status) -> None:
         if shapes is None or not frames:
             return
