@@ -286,9 +286,11 @@ def encode_payload(
             raise ValueError(f"channel_status: expected shape ({n_ch}, 4), got {cs.shape}")
     date, time = format_timestamp(frame.timestamp, time_digits=time_digits)
     parts = [date, time, str(int(frame.sequence)), str(n_ch)]
-    ok = present.ravel().tolist()
-    lam_txt = [f"{x:.4f}" if k else "0" for x, k in zip(lam.ravel().tolist(), ok, strict=True)]
-    pw_txt = [f"{x:.2f}" if k else "0" for x, k in zip(pw.ravel().tolist(), ok, strict=True)]
+    lost = np.flatnonzero(~present.ravel()).tolist()
+    lam_txt = list(map("{:.4f}".format, np.where(present, lam, 0.0).ravel().tolist()))
+    pw_txt = list(map("{:.2f}".format, pw.ravel().tolist()))
+    for i in lost:
+        lam_txt[i] = pw_txt[i] = "0"
     for k in range(n_ch):
         parts.append(f"{k + 1}\t{g}\t" + "\t".join(map(str, cs[k].tolist())))
         parts.extend(lam_txt[k * g : (k + 1) * g])
@@ -299,6 +301,8 @@ def encode_payload(
             raise ValueError(f"strain: expected shape {(n_g, n_c)} like the wavelengths, got {eps.shape}")
         parts.append(str(eps.size))
         parts.extend(_fmt(eps.T, ".1f"))
+    text = "\t".join(parts).encode("ascii")
+    blocks = []
     for sensor in sensors or ():
         p = np.asarray(sensor.positions, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3:
@@ -307,15 +311,15 @@ def encode_payload(
         a_ = np.asarray(sensor.angle, dtype=np.float64).ravel()
         if k_.size != a_.size:
             raise ValueError(f"sensor: {k_.size} curvatures but {a_.size} angles")
-        parts.append(CURVATURE_LABEL)
-        parts.extend(_fmt(k_ / 100.0, ".6f"))
-        parts.append(ANGLE_LABEL)
-        parts.extend(_fmt(a_, ".5f"))
-        for axis, label in enumerate(SHAPE_LABELS):
-            parts.append(label)
-            parts.append(str(p.shape[0]))
-            parts.extend(_fmt(p[:, axis] * 100.0, ".5f"))
-    return ("\t".join(parts)).encode("ascii") + line_ending
+        n_pts = str(p.shape[0]).encode()
+        for label, body in ((CURVATURE_LABEL, _scan.format_fixed(k_ / 100.0, 6)),
+                            (ANGLE_LABEL, _scan.format_fixed(a_, 5)),
+                            *((SHAPE_LABELS[i], n_pts + (b"\t" if p.shape[0] else b"") +
+                               _scan.format_fixed(p[:, i] * 100.0, 5)) for i in range(3))):
+            blocks.append(label.encode() + (b"\t" + body if body else b""))
+    if blocks:
+        text += b"\t" + b"\t".join(blocks)
+    return text + line_ending
 
 
 def encode_record(frame: Frame, **kw) -> bytes:

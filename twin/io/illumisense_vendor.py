@@ -152,11 +152,3 @@ class VendorDistance:
         mx, mean = np.concatenate(self._max), np.concatenate(self._mean)
         return {"vendor_frames_compared": int(mx.size), "vendor_distance_max_mm": round(float(mx.max()) * 1e3, 4),
                 "vendor_distance_mean_mm": round(float(mean.mean()) * 1e3, 4)}
-
-    def line(self) -> str:
-        """One line for a human summary ('' when nothing was compared)."""
-        d = self.as_dict()
-        if not d:
-            return ""
-        return (f"  vs the interrogator's own shape ({d['vendor_frames_compared']} frames, Kabsch): max "
-                f"{d['vendor_distance_max_mm']:.3f} mm, mean {d['vendor_distance_mean_mm']:.3f} mm")
