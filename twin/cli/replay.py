@@ -4,7 +4,7 @@
     twin replay illumisense_log.txt --fiber sensor.toml
 
 Reads a twin HDF5 recording (``twin live --record``; also one still being written or left by a killed
-process) or an ILLumiSense log file (columns assumed: :mod:`twin.io.record`), reconstructs every frame in
+process) or an ILLumiSense log file (:mod:`twin.io.illumisense_log`), reconstructs every frame in
 batches, and reports frames, time span, lost samples, partial and unusable frames, invalid nodes and the
 reconstruction speed. When the recording holds the simulator's truth, it also reports the shape error against
 it (:func:`twin.metrics.shape_error`, after ``--register``; on at most ``--max-compare`` frames spread evenly
