@@ -572,15 +572,13 @@ def _extract(lay: _Layout, V: np.ndarray, seq: np.ndarray, stamps: np.ndarray, d
     eng = V[:, lay.eng] if lay.eng is not None else None
     numbers = np.array(lay.key[0], dtype=np.int64)
     gcounts = np.array(lay.key[1], dtype=np.int64)
-    empty = np.zeros(0)
-    out = []
-    stamps, seq = stamps.tolist(), seq.tolist()
-    for r in range(m):
-        vendor = tuple([VendorSensor(k[r], a[r], p[r]) for k, a, p in sens]) if sens else ()
-        frame = Frame(lam[r], stamps[r], seq[r], pw[r], st[r], vendor=vendor or None)
-        out.append(Record(frame, numbers, gcounts, status4[r], vendor, empty if eng is None else eng[r],
-                          dates[r], times[r], lay.extra, lay.key))
-    return out
+    engs = [np.zeros(0)] * m if eng is None else list(eng)
+    vendors = ([tuple(VendorSensor(k[r], a[r], p[r]) for k, a, p in sens) for r in range(m)] if sens
+               else [()] * m)
+    extra, key = lay.extra, lay.key
+    return [Record(Frame(w, t, q, p, s, vendor=v or None), numbers, gcounts, s4, v, e, d, tm, extra, key)
+            for w, t, q, p, s, v, s4, e, d, tm in zip(list(lam), stamps.tolist(), seq.tolist(), list(pw), list(st),
+                                                     vendors, list(status4), engs, dates, times, strict=True)]
 
 
 def decode_many(
