@@ -162,3 +162,16 @@ def test_replay_of_a_log_with_and_without_sensor_blocks(tmp_path):
     assert "vendor_distance_max_mm" not in b
     with open_recording(with_blocks) as r:
         assert r.vendor is not None and r.vendor.positions.shape == (40, 171, 3) and r.vendor.present.all()
+
+
+def test_log_line_endings_header_and_decimal_comma(tmp_path):
+    lines = [payload(k).rstrip(b"\r\n") for k in range(1, 6)]
+    lines[2] = lines[2].replace(b".", b",")  # a European-locale export
+    for sep in (b"\r\n", b"\n", b"\r"):
+        path = tmp_path / "log.txt"
+        path.write_bytes(b"Date\tTime\tSample\t(export)" + sep + sep.join(lines[:3]) + sep + b"garbage\tline" + sep
+                         + sep.join(lines[3:]) + sep)
+        with open_recording(path) as r:
+            np.testing.assert_array_equal(r.arrays().sequences, np.arange(1, 6))
+            assert r.arrays().wavelengths[2, 1, 1] == 1515.01  # grating 1 of channel 2, read with its comma
+            assert len(r.errors) == 1 and r.errors[0].startswith("line 5:")

@@ -71,7 +71,8 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
     path = Path(path)
     data = path.read_bytes()
     ends, starts, pos = [], [], 0
-    for line in data.split(b"\n"):
+    sep = b"\n" if b"\n" in data or b"\r" not in data else b"\r"  # LF or CR LF lines; CR alone from old tools
+    for line in data.split(sep):
         starts.append(pos)
         ends.append(pos + len(line))
         pos += len(line) + 1
