@@ -12,10 +12,14 @@ from __future__ import annotations
 import enum
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from twin._validate import frozen
+
+if TYPE_CHECKING:
+    from twin.io.illumisense import VendorSensor
 
 __all__ = ["Frame", "PeakStatus", "Shape", "Truth"]
 
@@ -194,6 +198,10 @@ class Frame:
         :class:`PeakStatus` bits per peak.
     truth : Truth or None
         Ground truth, when the source is the simulator (a batched :class:`Truth` for a batch).
+    vendor : tuple of VendorSensor or None
+        The interrogator software's own reconstruction, when it sends one (ILLumiSense sensor blocks:
+        curvature 1/m, angle rad, shape m; :class:`twin.io.illumisense.VendorSensor`). One frame only: a batch
+        made by :meth:`Frame.stack` does not carry it.
     """
 
     wavelengths: np.ndarray
@@ -202,6 +210,7 @@ class Frame:
     powers: np.ndarray | None = None
     status: np.ndarray | None = None
     truth: Truth | None = None
+    vendor: tuple[VendorSensor, ...] | None = None
 
     def __post_init__(self) -> None:
         w = np.asarray(self.wavelengths, dtype=np.float64)

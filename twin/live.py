@@ -348,9 +348,7 @@ class LiveLoop:
     def _count_sequence(self, seq: list[int], flags: np.ndarray) -> None:
         """Count gaps and resets of the sequence numbers; flag the frames that follow a gap."""
         counter = self._sequence
-        for i, s in enumerate(seq):  # a plain loop: batches are small and this is cheaper than numpy here
-            if counter.count(s):
-                flags[i] |= _GAP
+        flags[counter.count_many(seq) > 0] |= _GAP  # one batch call (a call per frame cost ~10 µs each)
         self.c["sequence_gaps"] = counter.sequence_gaps
         self.c["lost_samples"] = counter.lost_samples
         self.c["sequence_resets"] = counter.sequence_resets

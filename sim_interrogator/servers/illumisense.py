@@ -1,19 +1,31 @@
-"""ILLumiSense TCP stream server: pushes one record per frame of a Source to every client (docs/protocols.md §1).
+"""ILLumiSense TCP stream server: pushes one record per frame of a Source to every client
+(docs/protocols-illumisense.md).
 
-The records are :func:`twin.io.illumisense.encode_record` of each frame (wavelengths with 4 decimals, i.e. the
-protocol's 0.1 pm), with the optical strain of every grating in µε as the engineering values when the source
-knows its fibre model. The client sends nothing; clients may connect and disconnect at any time, and each
-one gets the records from the moment it connected (a client that falls ~4 s behind is dropped).
+By default the records have the layout ILLumiSense sends with its shape output on: the channel blocks, then
+one sensor block filled from a reconstruction of the frame's own wavelengths — the project's default
+:class:`~twin.reconstruct.Reconstructor` with the source's fibre model (for the twin, its datasheet fibre: no
+calibration, as a vendor box set up from the datasheet would be), curvature |κ| and bending angle at the
+gratings, shape points every 1 mm in the vendor frame (x along the fibre axis,
+:data:`twin.io.illumisense_vendor.VENDOR_FROM_BASE`). ``blocks="engineering"`` sends the older layout instead
+(E = every grating's optical strain in µε), ``blocks="none"`` the channel blocks alone. The client sends
+nothing; clients may connect and disconnect at any time, and each one gets the records from the moment it
+connected (a client that falls ~4 s behind is dropped).
 """
 
 from __future__ import annotations
+
+import sys
+
+import numpy as np
 
 from sim_interrogator.servers.common import FramePump, TcpBroadcaster
 from twin.frames import Frame
 from twin.io import illumisense
 from twin.io.source import Source
 
-__all__ = ["IllumisenseServer"]
+__all__ = ["BLOCKS", "IllumisenseServer"]
+
+BLOCKS = ("sensors", "engineering", "none")
 
 
 class IllumisenseServer:
@@ -29,22 +41,31 @@ class IllumisenseServer:
         Extra pacing for sources that are not real-time, Hz (see :class:`FramePump`).
     channels_as : {"cores", "single"}
         One channel per core (default) or all cores spliced onto one channel.
-    strain : bool
-        Send the optical strain (µε) as engineering values (needs ``source.fiber``); else E = 0.
+    blocks : {"sensors", "engineering", "none"}
+        What follows the channel blocks (module docstring). "sensors" and "engineering" need ``source.fiber``;
+        without it nothing follows.
     log : bool
         Print client connects and disconnects on stderr.
     """
 
     def __init__(self, source: Source, host: str = "127.0.0.1", port: int = illumisense.DEFAULT_PORT, *,
-                 rate: float | None = None, channels_as: str = "cores", strain: bool = True, log: bool = False):
+                 rate: float | None = None, channels_as: str = "cores", blocks: str = "sensors", log: bool = False):
+        if blocks not in BLOCKS:
+            raise ValueError(f"blocks: expected one of {', '.join(BLOCKS)}, got {blocks!r}")
         self.source = source
         self.channels_as = channels_as
-        fiber = getattr(source, "fiber", None)
-        self._lambda0 = fiber.lambda0 if (strain and fiber is not None) else None
+        self.blocks = blocks
+        self.fiber = getattr(source, "fiber", None)
+        self._rec = None
+        if blocks == "sensors" and self.fiber is not None:
+            from twin.reconstruct import Reconstructor
+
+            self._rec = Reconstructor(self.fiber)
         self.broadcaster = TcpBroadcaster(host, port, name="illumisense", log=log)
         self.pump = FramePump(source, rate=rate)
         self.pump.subscribe(self._publish)
         self.records_sent = 0
+        self.encode_errors = 0
 
     @property
     def address(self) -> tuple[str, int]:
@@ -52,15 +73,31 @@ class IllumisenseServer:
 
     def encode(self, frame: Frame) -> bytes:
         """The wire record of one frame."""
-        eps = None
-        if self._lambda0 is not None and frame.wavelengths.shape == self._lambda0.shape:
-            eps = (frame.wavelengths - self._lambda0) / self._lambda0 * 1e6
-        return illumisense.encode_record(frame, strain=eps, channels_as=self.channels_as)
+        f = self.fiber
+        fits = f is not None and frame.wavelengths.shape == (f.n_gratings, f.n_cores)
+        if self.blocks == "engineering" and fits:
+            eps = (frame.wavelengths - f.lambda0) / f.lambda0 * 1e6
+            return illumisense.encode_record(frame, strain=eps, channels_as=self.channels_as)
+        sensors = None
+        if self._rec is not None and fits:
+            from twin.io.illumisense_vendor import vendor_sensors
+
+            shape = self._rec(frame.wavelengths[None])
+            if np.isfinite(shape.positions).all():
+                sensors = vendor_sensors(shape)
+        return illumisense.encode_record(frame, sensors=sensors, channels_as=self.channels_as)
 
     def _publish(self, frame: Frame) -> None:
         if self.broadcaster.clients == 0:
             return  # nobody listens: save the encoding
-        self.broadcaster.publish(self.encode(frame))
+        try:
+            data = self.encode(frame)
+        except (ValueError, FloatingPointError) as exc:  # a frame the codec cannot write must not stop the pump
+            self.encode_errors += 1
+            if self.encode_errors == 1:
+                print(f"twin serve: illumisense: a frame could not be encoded: {exc}", file=sys.stderr)
+            return
+        self.broadcaster.publish(data)
         self.records_sent += 1
 
     def start(self) -> IllumisenseServer:
@@ -76,12 +113,11 @@ class IllumisenseServer:
     def stats(self) -> dict:
         b = self.broadcaster
         return {"frames": self.pump.frames, "records_sent": self.records_sent, "clients": b.clients,
-                "connections": b.connections, "disconnects": b.disconnects, "dropped_slow": b.dropped_slow}
+                "connections": b.connections, "disconnects": b.disconnects, "dropped_slow": b.dropped_slow,
+                "encode_errors": self.encode_errors}
 
     def __enter__(self) -> IllumisenseServer:
         return self.start()
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-

@@ -98,6 +98,10 @@ def run(args: argparse.Namespace) -> int:
             recorder = Recorder(args.record, fiber=fiber, calibration=calibration, source_url=args.url,
                                 rate=first.rate)
             sinks.append(recorder)
+        from twin.io.illumisense_vendor import VendorDistance
+
+        vendor = VendorDistance()  # ILLumiSense sends its own shape: compare ours with it (a few frames/s)
+        sinks.append(vendor)
         if args.viewer:
             from twin.viewer import Viewer, ViewerConfig, ViewerSink
 
@@ -111,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
     loop = LiveLoop(factory, rec, sinks, stale_after=args.stale)
     summary = loop.run(duration=args.duration, max_frames=args.frames)
     out = summary.as_dict()
+    out.update(vendor.as_dict())
     if recorder is not None:
         out["record_file"] = str(args.record)
         out["recorded_frames"] = recorder.frames_written
@@ -140,6 +145,9 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
     ]
     if s.tip is not None:
         lines.append("  last tip (" + ", ".join(f"{1e3 * x:.2f}" for x in s.tip) + ") mm")
+    if "vendor_distance_max_mm" in out:
+        lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): max "
+                     f"{out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
     if "record_file" in out:
         lines.append(f"  recorded {out['recorded_frames']} frames to {out['record_file']}")
     for err in summary.sink_errors:

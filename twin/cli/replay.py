@@ -5,10 +5,12 @@
     twin replay cut.h5 --salvage
 
 Reads a twin HDF5 recording (``twin live --record``; also one still being written or left by a killed
-process) or an ILLumiSense log file (columns assumed: :mod:`twin.io.record`), reconstructs every frame in
+process) or an ILLumiSense log file (:mod:`twin.io.illumisense_log`), reconstructs every frame in
 batches, and reports frames, time span, lost samples, partial and unusable frames, invalid nodes and the
 reconstruction speed. When the recording holds the simulator's truth, it also reports the shape error against
-it (after ``--register``; on at most ``--max-compare`` frames spread evenly over the recording, in mm).
+it (after ``--register``; on at most ``--max-compare`` frames spread evenly over the recording, in mm). When
+an ILLumiSense log carries the interrogator's own shape (sensor blocks), it reports the distance between that
+shape and ours after a rigid registration (``vendor_distance_*_mm``, :mod:`twin.io.illumisense_vendor`).
 
 A damaged recording (cut short, or with chunks that fail their checksum) is an error (one line: how many frames
 are readable, what is damaged; exit status 2) unless ``--salvage`` is given: then the frames before the damage
@@ -88,6 +90,10 @@ def format_summary(s: ReplaySummary) -> str:
         lines.append(f"  vs truth ({t.frames_compared} frames, {t.register}): mean {t.mean_error_mm:.3f} mm, "
                      f"max {t.max_error_mm:.3f} mm, tip mean {t.tip_error_mm_mean:.3f} mm, "
                      f"max {t.tip_error_mm_max:.3f} mm")
+    if s.vendor:
+        v = s.vendor
+        lines.append(f"  vs the interrogator's own shape ({v['vendor_frames_compared']} frames, Kabsch): max "
+                     f"{v['vendor_distance_max_mm']:.3f} mm, mean {v['vendor_distance_mean_mm']:.3f} mm")
     for d in s.damage:
         lines.append(f"  damage: {d}")
     return "\n".join(lines)

@@ -20,8 +20,10 @@ Protocol specifics
 ------------------
 ``illumisense://HOST[:PORT]`` (port 2055): the ILLumiSense TCP stream (docs/protocols.md §1). The stream decoder
 resynchronises by itself after bad bytes; the driver reconnects only when the peer closes, or when the stream
-stays out of sync for ``resync_timeout`` s (default 2). Options: ``channels=cores|single`` with ``cores=N`` for
-a fibre whose cores are spliced onto one channel, ``max_payload`` (bytes).
+stays out of sync for ``resync_timeout`` s (default 2). The channel layout is decided by a consensus of the
+first records (records of another layout are counted in ``odd_records``; held records are released after
+``layout_wait`` s at the latest). Options: ``channels=cores|single`` with ``cores=N`` for a fibre whose cores
+are spliced onto one channel, ``max_payload`` (bytes), ``layout_wait`` (s, default 0.25).
 
 ``hyperion://HOST[:PORT]`` (command port 51971, peak stream on PORT + 1 = 51972 unless ``stream_port=``):
 start-up queries on the command port (``#isready``, channel count, peaks per channel, serial number,
@@ -252,10 +254,13 @@ class IllumisenseSource(Driver):
 
     def __init__(self, host: str, port: int = illumisense.DEFAULT_PORT, *, channels_as: str = "cores",
                  n_cores: int | None = None, max_payload: int = illumisense.DEFAULT_MAX_PAYLOAD,
-                 connect_timeout: float = 3.0, resync_timeout: float = 2.0, url: str = "", **kw):
+                 connect_timeout: float = 3.0, resync_timeout: float = 2.0, layout_wait: float = 0.25,
+                 url: str = "", **kw):
         self.host, self.port = host, int(port)
         self.connect_timeout = connect_timeout
         self.resync_timeout = resync_timeout
+        self.layout_wait = layout_wait
+        self._held_since: float | None = None
         self.decoder = illumisense.StreamDecoder(max_payload=max_payload, channels_as=channels_as, n_cores=n_cores)
         self._client: TcpClient | None = None
         self._out_of_sync_since: float | None = None
@@ -272,13 +277,21 @@ class IllumisenseSource(Driver):
             # a connection that dropped inside a record is a framing error (what came before is kept); closing
             # the source ourselves mid-record is not
             if not self._closed:
-                self.decoder.finish()
+                self._push(self.decoder.finish())
 
     def _pump(self, timeout: float) -> None:
         data = self._client.recv(timeout)
+        if data:
+            self._push(self.decoder.feed(data))
+        if self.decoder.holding:  # records wait for the layout decision: not for long
+            now = time.monotonic()
+            self._held_since = self._held_since or now
+            if now - self._held_since > self.layout_wait:
+                self._push(self.decoder.settle())
+        else:
+            self._held_since = None
         if not data:
             return
-        self._push(self.decoder.feed(data))
         if self.decoder.in_sync:
             self._out_of_sync_since = None
         else:
@@ -296,6 +309,8 @@ class IllumisenseSource(Driver):
             sequence_gaps=d.sequence.sequence_gaps,
             sequence_resets=d.sequence.sequence_resets,
             bytes_discarded=d.bytes_discarded,
+            odd_records=d.odd_records,
+            layout_changes=d.layout_changes,
         )
         if d.last_error is not None:
             out["last_framing_error"] = str(d.last_error)
@@ -712,7 +727,7 @@ def open_illumisense(url: str, **options) -> IllumisenseSource:
     _, rest, query = parse_url(url)
     host, port = parse_host_port(rest, illumisense.DEFAULT_PORT, what=url)
     opts = _options(url, query, {**_COMMON, "channels": str, "cores": int, "max_payload": int,
-                                 "resync_timeout": float})
+                                 "resync_timeout": float, "layout_wait": float})
     if opts.get("channels", "cores") not in ("cores", "single"):
         raise ValueError(f"{url!r}: channels must be 'cores' or 'single'")
     kw = _split_common(opts)

@@ -1,76 +1,83 @@
-"""FBGS ILLumiSense TCP data stream: record codec and incremental stream decoder (docs/protocols.md §1).
+"""FBGS ILLumiSense TCP data stream: record codec, batch decoder and stream decoder (docs/protocols-illumisense.md).
 
-Wire format (what ILLumiSense pushes on TCP port 2055, one record per sample, the client sends nothing)::
+Wire format (ILLumiSense pushes one record per sample on TCP; the client sends nothing)::
 
     LEN (4 bytes, big-endian unsigned payload length) PAYLOAD
-    PAYLOAD = date TAB time TAB sample TAB C { TAB ch TAB G TAB s1 TAB s2 TAB s3 TAB s4
-              {TAB λ}×G {TAB power}×G }×C TAB E {TAB value}×E CR LF
+    PAYLOAD = date TAB time TAB sample TAB C
+              { TAB ch TAB G TAB s1 TAB s2 TAB s3 TAB s4 {TAB λ}×G {TAB power}×G }×C       channel blocks
+              { TAB "Curvature [1/cm]" {TAB κ}×G TAB "Curvature angle [rad]" {TAB φ}×G
+                TAB "Shape x [cm]" TAB N {TAB x}×N TAB "Shape y [cm]" TAB N {TAB y}×N
+                TAB "Shape z [cm]" TAB N {TAB z}×N }×S                                      sensor blocks
+              [line ending: CR LF, LF or none]
 
-This module holds both directions: :func:`encode_record` for the simulator's server and
-:func:`decode_record` / :func:`decode_payload` / :class:`StreamDecoder` for the driver. All of them are pure
-functions over bytes; sockets live elsewhere.
+This one module holds both directions — :func:`encode_record` for the simulator's server, :func:`decode_record`,
+:func:`decode_many` and :class:`StreamDecoder` for the driver — because they share the layout and its
+decisions (the tokenizer lives in :mod:`twin.io.illumisense_scan`, the stream decoder in
+:mod:`twin.io.illumisense_stream`, the log reader in :mod:`twin.io.illumisense_log`, the comparison with the
+vendor's shape in :mod:`twin.io.illumisense_vendor`).
 
-Decisions where docs/protocols.md is silent (the simulator makes one documented choice, the driver is
-tolerant):
+Decoding (what is known and what is assumed: docs/protocols-illumisense.md):
 
-- **Channel = core**, in the order the channels appear in the record (not sorted by channel number; the
-  numbers are kept in :attr:`Record.channel_numbers` for a driver that must remap). With
-  ``channels_as="single"`` the record carries one channel whose G = n_gratings·n_cores gratings are ordered
-  core-major (core 0's gratings first), as when the cores are spliced in series on one WDM channel.
-- **Ragged channels** (channels with different G) are NaN-padded to the largest G, the padding flagged
-  :attr:`PeakStatus.MISSING`; a layout so ragged that padding would exceed ``max_cells`` values is a
-  :class:`FramingError` (it would otherwise let 1 MiB of text allocate gigabytes).
-- **Missing peak**: wavelength 0 (any precision) → NaN + MISSING, its power NaN. A wavelength that parses but
-  is negative or not finite (``nan``, ``inf``, ``1e999``) → NaN + INVALID_VALUE. A field that does not parse
-  as a number is a :class:`FramingError` naming its byte offset; numeric fields may only contain
-  ``0-9 . + - e E`` and the letters of ``nan``/``inf``/``infinity`` (Python's ``float`` would also take
-  ``_`` and blanks, which a corrupted byte could turn into a silently different number).
-- **Channel status**: any of the four status integers non-zero → CHANNEL_ERROR on all of the channel's peaks.
-- **Timestamp**: date and time are opaque text. When they read as ``YYYY-MM-DD`` and ``HH:MM:SS[.f…]`` they
-  are taken as **UTC** and converted to epoch seconds, otherwise the frame's timestamp is NaN (never an
-  error). The simulator writes UTC; a NaN timestamp is written as ``0000-00-00`` ``00:00:00.000000``, which
-  decodes back to NaN.
-- **Engineering values** (E of them) are parsed and returned in :attr:`Record.engineering`; the simulator
-  sends the optical strain of each grating in µε with one decimal, channel-major, ``nan`` where the peak is
-  missing (both public clients parse that with ``std::stod`` / ``float``), or E = 0 when no strain is given.
-- **Fields after the engineering values** are ignored (counted in :attr:`Record.extra_fields`): the vendor
-  software can append further data, and both public clients stop reading after the engineering values.
-- **Formatting** (simulator): wavelengths 4 decimals (0.1 pm), powers 2 decimals, engineering values 1
-  decimal, a missing peak as the literal ``0`` for both wavelength and power, channels numbered from 1,
-  status ``1 0 0 0`` for a core whose peaks carry CHANNEL_ERROR, else ``0 0 0 0``.
+- **Channel = core**, in record order (channel numbers, from 1, kept in :attr:`Record.channel_numbers`). With
+  ``channels_as="single"`` one channel carries all gratings, core-major. Ragged channels are NaN-padded to the
+  largest G and flagged MISSING; a padding beyond ``max_cells`` values is a :class:`FramingError`.
+- **Missing peak**: wavelength 0 → NaN + MISSING, its power NaN (assumed: no public source shows a lost peak).
+  Negative or non-finite wavelength → NaN + INVALID_VALUE. Any non-zero channel status → CHANNEL_ERROR.
+- **Sensor blocks** follow the channel blocks, zero or more. The label text is the delimiter: a block starts at
+  a field whose text begins ``Curvature`` (not ``Curvature angle``); its curvatures run to the next text field
+  (so G needs no channel grouping), which must be the ``Curvature angle`` label, followed by as many angles;
+  then ``Shape x``, N and N values, ``Shape y`` and ``Shape z`` with the same N. Units are read from the
+  brackets (``1/cm``, ``1/m``, ``1/mm``; ``rad``, ``deg``; ``cm``, ``mm``, ``m``; the vendor's when absent)
+  and converted to SI: :class:`VendorSensor` holds curvature in 1/m, angle in rad, positions in m (shape
+  points 1 mm apart from the sensor's start, the vendor's frame: x along the fibre axis).
+- **Engineering values**: a count E and E numbers after the channel blocks (an older ILLumiSense output that
+  public clients also read) are kept in :attr:`Record.engineering`.
+- Anything after that the decoder does not recognise is ignored and counted in :attr:`Record.extra_fields`.
+- **Timestamp**: ``YYYY/MM/DD`` or ``YYYY-MM-DD`` and ``HH:MM:SS`` with or without a fraction, read as UTC; NaN
+  when they are not a time (never an error).
+- Integers are a sign and digits; except the sample number they have at most 15 digits.
 
-Stream resynchronisation (:class:`StreamDecoder`): TCP delivers the bytes in order, so framing is only lost
-through a sender bug or a corrupted length. The payload is printable text that never contains a NUL byte or
-an LF before its end, and the length prefix of any payload under 16 MiB starts with a NUL byte. After an error
-the decoder therefore hunts: it skips to the next NUL byte, reads a candidate length, rejects it at once if
-the length is out of bounds or if the bytes already received for that payload hold a NUL or an early LF, and
-accepts it only when the whole payload ends in LF and decodes. Every error that takes the decoder out of sync
-counts once in :attr:`StreamDecoder.framing_errors` (the candidates rejected while hunting do not), and the
-skipped bytes are counted in :attr:`StreamDecoder.bytes_discarded`. A payload that has a sane length and ends
-in LF but does not parse is skipped the same way (hunting resumes one byte after its prefix and lands on the
-next prefix, since the payload holds no NUL). Reconnecting is therefore never required by the decoder; a
-driver may still reconnect when errors persist.
+Encoding (the simulator's choices): date ``YYYY/MM/DD``, time ``HH:MM:SS.ffffff`` UTC, wavelengths 4 decimals
+(0.1 pm), powers 2 decimals, a lost peak as ``0`` ``0``, channels from 1, status ``1 0 0 0`` for a channel
+with a CHANNEL_ERROR peak, sensor blocks with curvature 6 decimals (1/cm), angle 5 decimals (rad), shape 5
+decimals (cm), line ending CR LF.
+
+Speed: payloads are tokenized in one compiled pass (:func:`twin.io.illumisense_scan.scan`); records whose
+layout matches a known layout (same token count, counts, labels) are checked and extracted as one numpy batch;
+only the others are walked field by field, which also builds the layout for the next ones.
+
+Stream (:class:`StreamDecoder`): the payload is printable text with no NUL and no LF before its end, and the
+length prefix of any payload under 16 MiB starts with a NUL byte. After an error the decoder hunts: it skips
+to the next NUL byte, reads a candidate length, rejects it at once when it is out of bounds or when the bytes
+already received for it hold a NUL or an early LF, and accepts it only when the payload decodes. Every loss
+of sync counts once in :attr:`StreamDecoder.framing_errors`; skipped bytes in ``bytes_discarded``. The channel
+layout is learned from a consensus (:class:`LayoutConsensus`), not from the first record alone: records of
+another layout are counted in ``odd_records`` and dropped, and a new layout that persists is re-learned.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import math
-from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
 from twin.frames import Frame, PeakStatus
-from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
-from twin.io.sequence import SequenceCounter
+from twin.io import illumisense_scan as _scan
+from twin.io.errors import FramingError, TruncatedFrameError
 
 __all__ = [
+    "ANGLE_LABEL",
+    "CURVATURE_LABEL",
     "DEFAULT_MAX_PAYLOAD",
     "DEFAULT_PORT",
+    "SHAPE_LABELS",
     "Record",
-    "StreamDecoder",
+    "VendorSensor",
+    "decode_many",
     "decode_payload",
     "decode_record",
     "encode_payload",
@@ -81,23 +88,56 @@ __all__ = [
 
 PROTOCOL = "illumisense"
 DEFAULT_PORT = 2055
-DEFAULT_MAX_PAYLOAD = 1 << 20  #: 1 MiB: ~250× a 7-core × 18-grating record
-#: Shortest conceivable payload: ``d TAB t TAB 0 TAB 0 TAB 0 LF`` (no channels, no engineering values).
-MIN_PAYLOAD = 10
+DEFAULT_MAX_PAYLOAD = 1 << 20  #: 1 MiB: ~100× a 7-core × 18-grating record with its sensor block
+MIN_PAYLOAD = 7  #: ``d TAB t TAB 0 TAB 0``: no channel, no line ending
 _PREFIX_LIMIT = 1 << 24  # resync relies on the first prefix byte being NUL
 _INT64 = 1 << 63
+CURVATURE_LABEL = "Curvature [1/cm]"
+ANGLE_LABEL = "Curvature angle [rad]"
+SHAPE_LABELS = ("Shape x [cm]", "Shape y [cm]", "Shape z [cm]")
+SHAPE_SPACING = 1e-3  #: m between the vendor's shape points (the public client's assumption)
 
 ChannelsAs = Literal["cores", "single"]
 
-# bytes a numeric field may contain (decimal numbers, exponent, nan/inf/infinity in any case)
-_NUMERIC = b"0123456789.+-eEnNaAiIfFtTyY\t"
 _EPOCH_ORDINAL = _dt.date(1970, 1, 1).toordinal()
-_DAY_CACHE: dict[bytes, float] = {}
-_NAN_DATE, _NAN_TIME = "0000-00-00", "00:00:00"
-# numpy sees IntFlag members as int64; uint8 constants keep the in-place ORs on uint8 arrays legal
+_NAN_DATE, _NAN_TIME = "0000/00/00", "00:00:00"
 _MISSING = np.uint8(PeakStatus.MISSING)
 _CHANNEL_ERROR = np.uint8(PeakStatus.CHANNEL_ERROR)
 _INVALID = np.uint8(PeakStatus.INVALID_VALUE)
+_NUMBER_KINDS = (_scan.INT, _scan.DEC)
+_UNITS = {
+    "curvature": ({"1/cm": 100.0, "1/m": 1.0, "1/mm": 1000.0}, "1/cm"),
+    "angle": ({"rad": 1.0, "deg": math.pi / 180.0}, "rad"),
+    "shape": ({"cm": 0.01, "mm": 1e-3, "m": 1.0}, "cm"),
+}
+
+
+@dataclass(frozen=True, eq=False)
+class VendorSensor:
+    """One sensor block of a record: ILLumiSense's own reconstruction, in SI.
+
+    Attributes
+    ----------
+    curvature : ndarray, shape (G,)
+        Curvature magnitude at the sensor's gratings, 1/m.
+    angle : ndarray, shape (G,)
+        Bending direction at the gratings, rad.
+    positions : ndarray, shape (N, 3)
+        Shape points in the vendor's frame (x along the fibre axis), m, ``spacing`` apart in arc length from
+        the sensor's start.
+    spacing : float
+        Arc length between shape points, m (1 mm, as the public client assumes).
+    """
+
+    curvature: np.ndarray
+    angle: np.ndarray
+    positions: np.ndarray
+    spacing: float = SHAPE_SPACING
+
+    @property
+    def s(self) -> np.ndarray:
+        """Arc length of each shape point, m, shape (N,)."""
+        return self.spacing * np.arange(self.positions.shape[0])
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,55 +147,62 @@ class Record:
     Attributes
     ----------
     frame : Frame
-        Wavelengths (n_gratings, n_cores) nm with NaN where missing, powers, status, sequence = sample number,
-        timestamp s (UTC epoch, NaN when the date/time fields are not ``YYYY-MM-DD`` / ``HH:MM:SS.f``).
-    channel_numbers : ndarray of int64, shape (n_channels,)
-        Channel numbers as sent, in record order (core ``k`` is the ``k``-th channel of the record).
-    grating_counts : ndarray of int64, shape (n_channels,)
-        G of each channel.
+        Wavelengths (n_gratings, n_cores) nm (NaN where missing), powers, status, sequence = sample number,
+        timestamp s (UTC epoch or NaN), ``vendor`` = :attr:`sensors` (None when the record has none).
+    channel_numbers, grating_counts : ndarray of int64, shape (n_channels,)
+        As sent, in record order.
     channel_status : ndarray of int64, shape (n_channels, 4)
         The four status integers of each channel (0 = OK).
+    sensors : tuple of VendorSensor
+        The sensor blocks, in record order.
     engineering : ndarray of float64, shape (E,)
-        The engineering values (strain in µε in the vendor software and in the simulator).
+        Engineering values when the record has an E block (empty otherwise).
     date, time : str
-        The opaque date and time fields (decoded as Latin-1, so any byte survives).
+        The date and time fields as sent (Latin-1).
     extra_fields : int
-        Number of fields after the engineering values (ignored).
+        Fields after the last recognised block (ignored).
+    layout : tuple
+        The channel layout (channel numbers, grating counts): what :class:`LayoutConsensus` votes on.
     """
 
     frame: Frame
     channel_numbers: np.ndarray
     grating_counts: np.ndarray
     channel_status: np.ndarray
+    sensors: tuple[VendorSensor, ...]
     engineering: np.ndarray
     date: str
     time: str
     extra_fields: int = 0
+    layout: tuple = ()
 
 
 # --------------------------------------------------------------------------------------------------- encode
 
 
-def format_timestamp(timestamp: float, *, time_digits: int = 6) -> tuple[str, str]:
+def format_timestamp(timestamp: float, *, time_digits: int = 6, date_sep: str = "/") -> tuple[str, str]:
     """UTC date and time fields for an epoch timestamp.
 
     Parameters
     ----------
     timestamp : float
-        Seconds since 1970-01-01 UTC; NaN or ±inf gives the placeholder ``0000-00-00`` / ``00:00:00.000000``.
+        Seconds since 1970-01-01 UTC; NaN or ±inf gives the placeholder ``0000/00/00`` ``00:00:00[.000000]``.
     time_digits : int
-        Decimals of the seconds, 0–6 (the simulator writes 6, ``HH:MM:SS.ffffff``).
+        Decimals of the seconds, 0–6 (0 writes ``HH:MM:SS`` as real streams may).
+    date_sep : str
+        ``"/"`` (the vendor's, default) or ``"-"``.
 
     Returns
     -------
     (date, time) : tuple of str
-        ``YYYY-MM-DD`` and ``HH:MM:SS.f…``, the time rounded to ``10**-time_digits`` s.
     """
     if not 0 <= time_digits <= 6:
         raise ValueError(f"time_digits: expected 0 to 6, got {time_digits}")
+    if date_sep not in ("/", "-"):
+        raise ValueError(f"date_sep: expected '/' or '-', got {date_sep!r}")
     frac_fmt = f".{{:0{time_digits}d}}" if time_digits else ""
     if not np.isfinite(timestamp):
-        return _NAN_DATE, _NAN_TIME + (frac_fmt.format(0) if time_digits else "")
+        return _NAN_DATE.replace("/", date_sep), _NAN_TIME + (frac_fmt.format(0) if time_digits else "")
     scale = 10**time_digits
     units = round(float(timestamp) * scale)
     days, rem = divmod(units, 86400 * scale)
@@ -167,109 +214,114 @@ def format_timestamp(timestamp: float, *, time_digits: int = 6) -> tuple[str, st
     h, rem = divmod(secs, 3600)
     m, s = divmod(rem, 60)
     time = f"{h:02d}:{m:02d}:{s:02d}" + (frac_fmt.format(frac) if time_digits else "")
-    return date.isoformat(), time
+    return f"{date.year:04d}{date_sep}{date.month:02d}{date_sep}{date.day:02d}", time
+
+
+def _fmt(values, spec: str) -> list[str]:
+    a = np.asarray(values, dtype=np.float64).ravel()
+    f = ("{:" + spec + "}").format
+    if np.isfinite(a).all():
+        return list(map(f, a.tolist()))
+    return [f(x) if math.isfinite(x) else "nan" for x in a.tolist()]
 
 
 def encode_payload(
     frame: Frame,
     *,
+    sensors: Sequence[VendorSensor] | None = None,
     strain: np.ndarray | None = None,
     channels_as: ChannelsAs = "cores",
     channel_status: np.ndarray | None = None,
     time_digits: int = 6,
+    line_ending: bytes = b"\r\n",
 ) -> bytes:
-    """The ASCII payload of one record (without the 4-byte length prefix), ending in CR LF.
+    """The ASCII payload of one record (without the 4-byte length prefix).
 
     Parameters
     ----------
     frame : Frame
-        Wavelengths nm (NaN, zero, negative or non-finite → sent as a missing peak ``0``), powers (None → 0),
-        sequence → sample number, timestamp s → UTC date/time (see :func:`format_timestamp`).
+        Wavelengths nm (NaN, zero, negative or non-finite → a lost peak ``0``), powers (None → 0), sequence →
+        sample number, timestamp s → UTC date/time.
+    sensors : sequence of VendorSensor, optional
+        Sensor blocks to append (curvature 1/m, angle rad, positions m; written in 1/cm, rad, cm).
     strain : ndarray, shape (n_gratings, n_cores), optional
-        Engineering values, optical strain in µε (1 decimal, ``nan`` where not finite). None sends E = 0.
+        An engineering-value block (E = every grating, channel-major, µε with 1 decimal) — the older output;
+        written before the sensor blocks. None (default) writes none.
     channels_as : {"cores", "single"}
-        "cores": one channel per core (channel k+1 = core k). "single": one channel carrying all gratings,
-        core-major.
     channel_status : ndarray of int, shape (n_channels, 4), optional
-        Status integers to send; by default ``1 0 0 0`` for a channel with any CHANNEL_ERROR peak, else zeros.
+        By default ``1 0 0 0`` for a channel with any CHANNEL_ERROR peak, else zeros.
     time_digits : int
-        Decimals of the time field (6 by default; 3 reproduces the example in docs/protocols.md).
+        Decimals of the time field (6 by default, 0 for ``HH:MM:SS``).
+    line_ending : bytes
+        ``b"\\r\\n"`` (default), ``b"\\n"`` or ``b""``.
 
     Returns
     -------
     bytes
-        The payload; ASCII only.
     """
+    if line_ending not in (b"\r\n", b"\n", b""):
+        raise ValueError(f"line_ending: expected CR LF, LF or nothing, got {line_ending!r}")
     w = frame.wavelengths
     n_g, n_c = w.shape
     if channels_as == "cores":
-        lam = w.T  # (channels, gratings)
+        lam = w.T
     elif channels_as == "single":
         lam = w.T.reshape(1, n_g * n_c)
     else:
         raise ValueError(f"channels_as: expected 'cores' or 'single', got {channels_as!r}")
     n_ch, g = lam.shape
     present = np.isfinite(lam) & (lam > 0)
-    if frame.powers is not None:
-        pw = frame.powers.T.reshape(n_ch, g)
-    else:
-        pw = np.zeros((n_ch, g))
+    pw = frame.powers.T.reshape(n_ch, g) if frame.powers is not None else np.zeros((n_ch, g))
     pw = np.where(np.isfinite(pw), pw, 0.0)
     if channel_status is None:
         cs = np.zeros((n_ch, 4), dtype=np.int64)
         if frame.status is not None:
-            bad = (frame.status.T.reshape(n_ch, g) & _CHANNEL_ERROR) != 0
-            cs[:, 0] = bad.any(axis=1)
+            cs[:, 0] = ((frame.status.T.reshape(n_ch, g) & _CHANNEL_ERROR) != 0).any(axis=1)
     else:
         cs = np.asarray(channel_status, dtype=np.int64)
         if cs.shape != (n_ch, 4):
             raise ValueError(f"channel_status: expected shape ({n_ch}, 4), got {cs.shape}")
-
     date, time = format_timestamp(frame.timestamp, time_digits=time_digits)
     parts = [date, time, str(int(frame.sequence)), str(n_ch)]
-    lam_txt = [
-        f"{x:.4f}" if ok else "0"
-        for x, ok in zip(lam.ravel().tolist(), present.ravel().tolist(), strict=True)
-    ]
-    pw_txt = [
-        f"{x:.2f}" if ok else "0" for x, ok in zip(pw.ravel().tolist(), present.ravel().tolist(), strict=True)
-    ]
+    lost = np.flatnonzero(~present.ravel()).tolist()
+    lam_txt = list(map("{:.4f}".format, np.where(present, lam, 0.0).ravel().tolist()))
+    pw_txt = list(map("{:.2f}".format, pw.ravel().tolist()))
+    for i in lost:
+        lam_txt[i] = pw_txt[i] = "0"
     for k in range(n_ch):
         parts.append(f"{k + 1}\t{g}\t" + "\t".join(map(str, cs[k].tolist())))
         parts.extend(lam_txt[k * g : (k + 1) * g])
         parts.extend(pw_txt[k * g : (k + 1) * g])
-    if strain is None:
-        parts.append("0")
-    else:
+    if strain is not None:
         eps = np.asarray(strain, dtype=np.float64)
         if eps.shape != (n_g, n_c):
             raise ValueError(f"strain: expected shape {(n_g, n_c)} like the wavelengths, got {eps.shape}")
-        vals = eps.T.ravel().tolist()
-        parts.append(str(len(vals)))
-        parts.extend(f"{x:.1f}" if math.isfinite(x) else "nan" for x in vals)
-    return ("\t".join(parts) + "\r\n").encode("ascii")
+        parts.append(str(eps.size))
+        parts.extend(_fmt(eps.T, ".1f"))
+    text = "\t".join(parts).encode("ascii")
+    blocks = []
+    for sensor in sensors or ():
+        p = np.asarray(sensor.positions, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ValueError(f"sensor positions: expected shape (N, 3), got {p.shape}")
+        k_ = np.asarray(sensor.curvature, dtype=np.float64).ravel()
+        a_ = np.asarray(sensor.angle, dtype=np.float64).ravel()
+        if k_.size != a_.size:
+            raise ValueError(f"sensor: {k_.size} curvatures but {a_.size} angles")
+        n_pts = str(p.shape[0]).encode()
+        for label, body in ((CURVATURE_LABEL, _scan.format_fixed(k_ / 100.0, 6)),
+                            (ANGLE_LABEL, _scan.format_fixed(a_, 5)),
+                            *((SHAPE_LABELS[i], n_pts + (b"\t" if p.shape[0] else b"") +
+                               _scan.format_fixed(p[:, i] * 100.0, 5)) for i in range(3))):
+            blocks.append(label.encode() + (b"\t" + body if body else b""))
+    if blocks:
+        text += b"\t" + b"\t".join(blocks)
+    return text + line_ending
 
 
-def encode_record(
-    frame: Frame,
-    *,
-    strain: np.ndarray | None = None,
-    channels_as: ChannelsAs = "cores",
-    channel_status: np.ndarray | None = None,
-    time_digits: int = 6,
-) -> bytes:
-    """One complete wire record: 4-byte big-endian payload length, then :func:`encode_payload`'s payload.
-
-    Parameters are those of :func:`encode_payload`.
-
-    Returns
-    -------
-    bytes
-        ``len(payload).to_bytes(4, "big") + payload``.
-    """
-    payload = encode_payload(
-        frame, strain=strain, channels_as=channels_as, channel_status=channel_status, time_digits=time_digits
-    )
+def encode_record(frame: Frame, **kw) -> bytes:
+    """One complete wire record: 4-byte big-endian payload length, then :func:`encode_payload` (same keywords)."""
+    payload = encode_payload(frame, **kw)
     return len(payload).to_bytes(4, "big") + payload
 
 
@@ -277,33 +329,15 @@ def encode_record(
 
 
 def parse_timestamp(date: bytes, time: bytes) -> float:
-    """Epoch seconds (UTC) from the opaque date and time fields, NaN when they do not read as a time.
-
-    Parameters
-    ----------
-    date : bytes
-        ``YYYY-MM-DD``.
-    time : bytes
-        ``HH:MM:SS`` with any number of decimals.
-
-    Returns
-    -------
-    float
-        Seconds since 1970-01-01 UTC, or NaN. Never raises for any input.
-    """
-    day = _DAY_CACHE.get(date)
-    if day is None:
-        try:
-            y, mo, d = date.split(b"-")
-            if len(y) != 4 or len(mo) != 2 or len(d) != 2 or not (y + mo + d).isdigit():
-                return float("nan")
-            day = float((_dt.date(int(y), int(mo), int(d)).toordinal() - _EPOCH_ORDINAL) * 86400)
-        except ValueError:
-            return float("nan")
-        if len(_DAY_CACHE) > 256:  # a long run crosses few dates; garbage must not grow the cache forever
-            _DAY_CACHE.clear()
-        _DAY_CACHE[date] = day
+    """Epoch seconds (UTC) from the date (``YYYY/MM/DD`` or ``YYYY-MM-DD``) and time (``HH:MM:SS[.f…]``)
+    fields; NaN when they do not read as a time. Never raises."""
     try:
+        if len(date) != 10 or date[4:5] not in (b"-", b"/") or date[7:8] != date[4:5]:
+            return float("nan")
+        y, mo, d = date[:4], date[5:7], date[8:10]
+        if not (y + mo + d).isdigit():
+            return float("nan")
+        day = float((_dt.date(int(y), int(mo), int(d)).toordinal() - _EPOCH_ORDINAL) * 86400)
         h, m, s = time.split(b":")
         if len(h) != 2 or len(m) != 2 or not (h + m).isdigit() or len(s) < 2 or not s[:2].isdigit():
             return float("nan")
@@ -317,414 +351,380 @@ def parse_timestamp(date: bytes, time: bytes) -> float:
     return day + (hh * 3600 + mm * 60) + ss
 
 
-def _offset(fields: list[bytes], k: int, base: int = 0) -> int:
-    """Byte offset of field ``k`` in the TAB-joined ``fields`` (error path only)."""
-    return base + sum(len(f) for f in fields[:k]) + k
-
-
-def _int_field(fields: list[bytes], k: int, name: str, lo: int = -_INT64, hi: int = _INT64 - 1) -> int:
-    tok = fields[k]
+def _label(text: bytes) -> tuple[str, float] | None:
+    """(kind, scale to SI) of a block label, None when it is not one of the vendor's labels."""
     try:
-        v = int(tok)
-    except ValueError:
-        v = None
-    if v is None or not tok.lstrip(b"+-").isdigit():
-        raise FramingError(
-            f"{name} {tok[:20]!r} is not an integer",
-            offset=_offset(fields, k),
-            expected="a decimal integer",
-            protocol=PROTOCOL,
-        )
-    if not lo <= v <= hi:
-        raise FramingError(
-            f"{name} {v} is out of range",
-            offset=_offset(fields, k),
-            expected=f"{lo} to {hi}",
-            protocol=PROTOCOL,
-        )
-    return v
+        t = text.decode("ascii").strip()
+    except UnicodeDecodeError:
+        return None
+    name, _, unit = t.partition("[")
+    name = name.strip()
+    kind = {"Curvature": "curvature", "Curvature angle": "angle", "Shape x": "x", "Shape y": "y",
+            "Shape z": "z"}.get(name)
+    if kind is None:
+        return None
+    table, default = _UNITS["shape" if kind in ("x", "y", "z") else kind]
+    unit = unit.rstrip("]").strip() if unit else default
+    scale = table.get(unit)
+    return None if scale is None else (kind, scale)
 
 
-def _numbers(fields: list[bytes], start: int, stop: int) -> np.ndarray:
-    """Fields ``start:stop`` as float64 in one conversion; FramingError naming the first bad field."""
-    chunk = fields[start:stop]
-    joined = b"\t".join(chunk)
-    if joined.translate(None, _NUMERIC) or b"\t\t" in joined:
-        bad = next(i for i, f in enumerate(chunk) if not f or f.translate(None, _NUMERIC))
-        tok = chunk[bad]
-        raise FramingError(
-            f"field {start + bad} {tok[:20]!r} is not a number",
-            offset=_offset(fields, start + bad),
-            expected="a decimal number",
-            protocol=PROTOCOL,
-        )
-    try:
-        return np.array(chunk, dtype=np.float64)
-    except ValueError:
-        for i, f in enumerate(chunk):
-            try:
-                float(f)
-            except ValueError:
-                raise FramingError(
-                    f"field {start + i} {f[:20]!r} is not a number",
-                    offset=_offset(fields, start + i),
-                    expected="a decimal number",
-                    protocol=PROTOCOL,
-                ) from None
-        raise  # unreachable: numpy and float() agree on what parses
+@dataclass(frozen=True, eq=False)
+class _Layout:
+    """Where everything sits in the tokens of records of one layout (token indices; ``n`` = NaN padding)."""
+
+    n: int
+    key: tuple
+    wl: np.ndarray  # (c, g_max)
+    pw: np.ndarray
+    status: np.ndarray  # (c, 4)
+    ints: np.ndarray  # must be INT tokens
+    fixed: np.ndarray  # must hold fixed_val
+    fixed_val: np.ndarray
+    numbers: np.ndarray  # must be numbers
+    labels: np.ndarray  # must be these labels
+    label_hash: np.ndarray
+    sensors: tuple  # (curv (G,), angle (G,), xyz (N, 3), (k_scale, a_scale, p_scale))
+    eng: np.ndarray | None
+    extra: int
+    single: int  # n_cores for channels_as="single", else 0
 
 
-def decode_record(
-    payload: bytes,
+class _Tokens:
+    """The tokens of one payload (views into a :func:`scan` result), for the field-by-field walk."""
+
+    def __init__(self, data: bytes, off: int, kind, value, ts, te):
+        self.data, self.off, self.kind, self.value, self.ts, self.te = data, off, kind, value, ts, te
+        self.n = kind.size
+
+    def raw(self, j: int) -> bytes:
+        return self.data[self.ts[j] : self.te[j]]
+
+    def at(self, j: int) -> int:
+        return int(self.ts[j] - self.off) if j < self.n else int(self.te[-1] - self.off) if self.n else 0
+
+    def fail(self, j: int, what: str, expected: str, cls=FramingError):
+        raise cls(what, offset=self.at(j), expected=expected, protocol=PROTOCOL)
+
+    def int(self, j: int, name: str, lo: int = -_INT64, hi: int = _INT64 - 1) -> int:
+        if j >= self.n:
+            self.fail(j, f"record ends before {name}", "more fields", TruncatedFrameError)
+        if self.kind[j] == _scan.INT:
+            v = int(self.value[j])
+        else:
+            tok = self.raw(j)
+            body = tok[1:] if tok[:1] in (b"+", b"-") else tok
+            if not (body.isdigit() and body.isascii()) or j != 2:  # only the sample number may exceed 15 digits
+                self.fail(j, f"{name} {tok[:20]!r} is not an integer", "a decimal integer")
+            v = int(tok)
+        if not lo <= v <= hi:
+            self.fail(j, f"{name} {v} is out of range", f"{lo} to {hi}")
+        return v
+
+    def numbers(self, a: int, b: int) -> None:
+        if b > self.n:
+            self.fail(self.n, "record ends inside a block of numbers", "more fields", TruncatedFrameError)
+        k = self.kind[a:b]
+        bad = np.flatnonzero((k != _scan.INT) & (k != _scan.DEC))
+        if bad.size:
+            j = a + int(bad[0])
+            self.fail(j, f"field {j} {self.raw(j)[:20]!r} is not a number", "a decimal number")
+
+
+def _walk(t: _Tokens, channels_as: str, n_cores: int | None, max_cells: int) -> _Layout:
+    """Read one record's structure field by field (FramingError naming the offset when it is not a record)."""
+    n = t.n
+    if n < 4:
+        t.fail(n, f"record has {n} fields", "at least date, time, sample and C", TruncatedFrameError)
+    t.int(2, "sample number")
+    c = t.int(3, "channel count C", 0, (n - 4) // 6)
+    pos, ints, fixed, fixed_val, nums = 4, [2, 3], [3], [c], []
+    wl_at, gs, numbers_, status = [], [], [], []
+    for k in range(c):
+        numbers_.append(t.int(pos, f"channel {k} number"))
+        g = t.int(pos + 1, f"channel {k} grating count G", 0, (n - pos - 6 - 6 * (c - k - 1)) // 2)
+        for j in range(4):
+            t.int(pos + 2 + j, f"channel {k} status {j + 1}")
+        ints += list(range(pos, pos + 6))
+        fixed += [pos, pos + 1]
+        fixed_val += [numbers_[-1], g]
+        status.append(list(range(pos + 2, pos + 6)))
+        t.numbers(pos + 6, pos + 6 + 2 * g)
+        nums += range(pos + 6, pos + 6 + 2 * g)
+        wl_at.append(pos + 6)
+        gs.append(g)
+        pos += 6 + 2 * g
+    g_max = max(gs, default=0)
+    if channels_as == "single":
+        if n_cores is None or n_cores < 1:
+            raise ValueError("decode: channels_as='single' needs n_cores >= 1")
+        if c != 1 or gs[0] % n_cores:
+            t.fail(3, f"record has {c} channel(s) with G = {gs}", f"one channel with a multiple of {n_cores} gratings")
+    if g_max * c > max_cells:
+        t.fail(3, f"channel layout {c} channels × up to {g_max} gratings exceeds {max_cells} values",
+               "fewer or less ragged channels")
+    sensors, labels, label_hash, eng = [], [], [], None
+    text = np.flatnonzero(t.kind == _scan.TEXT)
+    while pos < n:
+        if t.kind[pos] == _scan.TEXT:
+            lab = _label(t.raw(pos))
+            if lab is None or lab[0] != "curvature":
+                break
+            nxt = text[text > pos]
+            q = int(nxt[0]) if nxt.size else n
+            g_s = q - pos - 1
+            t.numbers(pos + 1, q)
+            lab2 = _label(t.raw(q)) if q < n else None
+            if lab2 is None or lab2[0] != "angle":
+                t.fail(q, "sensor block without its curvature angle label", f"{ANGLE_LABEL!r}")
+            t.numbers(q + 1, q + 1 + g_s)
+            blk = {"curv": np.arange(pos + 1, q), "angle": np.arange(q + 1, q + 1 + g_s)}
+            labels += [pos, q]
+            scales = [lab[1], lab2[1]]
+            p, n_pts, xyz = q + 1 + g_s, None, []
+            for axis in ("x", "y", "z"):
+                la = _label(t.raw(p)) if p < n and t.kind[p] == _scan.TEXT else None
+                if la is None or la[0] != axis:
+                    t.fail(p, f"sensor block without its shape {axis} label", f"'Shape {axis} [cm]'")
+                m = t.int(p + 1, f"shape {axis} point count N", 0, 1 << 40)
+                if p + 2 + m > n:
+                    t.fail(n, f"record ends inside shape {axis} ({m} points announced)", "more fields",
+                           TruncatedFrameError)
+                if n_pts is not None and m != n_pts:
+                    t.fail(p + 1, f"shape {axis} has {m} points, shape x has {n_pts}", f"{n_pts}")
+                n_pts = m
+                t.numbers(p + 2, p + 2 + m)
+                labels.append(p)
+                ints.append(p + 1)
+                fixed.append(p + 1)
+                fixed_val.append(m)
+                xyz.append(np.arange(p + 2, p + 2 + m))
+                scales.append(la[1])
+                p += 2 + m
+            if len(set(scales[2:])) != 1:
+                t.fail(p, "shape axes in different units", "one unit for x, y and z")
+            nums += [*blk["curv"], *blk["angle"], *np.concatenate(xyz)]
+            sensors.append((blk["curv"], blk["angle"], np.stack(xyz, axis=1), tuple(scales[:3])))
+            pos = p
+        elif t.kind[pos] == _scan.INT and eng is None and not sensors:
+            e = int(t.value[pos])
+            stop = pos + 1 + e
+            if e < 0 or stop > n or not np.isin(t.kind[pos + 1 : stop], _NUMBER_KINDS).all():
+                break
+            ints.append(pos)
+            fixed.append(pos)
+            fixed_val.append(e)
+            nums += range(pos + 1, stop)
+            eng = np.arange(pos + 1, stop)
+            pos = stop
+        else:
+            break
+    for j in labels:
+        label_hash.append(float(t.value[j]))
+    wl = np.full((c, g_max), n, dtype=np.int64)
+    pw = np.full((c, g_max), n, dtype=np.int64)
+    for k, (a, g) in enumerate(zip(wl_at, gs, strict=True)):
+        wl[k, :g] = np.arange(a, a + g)
+        pw[k, :g] = np.arange(a + g, a + 2 * g)
+    i64 = lambda v: np.asarray(v, dtype=np.int64)  # noqa: E731
+    return _Layout(
+        n=n, key=(tuple(numbers_), tuple(gs)), wl=wl, pw=pw, status=i64(status).reshape(c, 4), ints=i64(ints),
+        fixed=i64(fixed), fixed_val=np.asarray(fixed_val, np.float64), numbers=i64(nums), labels=i64(labels),
+        label_hash=np.asarray(label_hash, np.float64), sensors=tuple(sensors), eng=eng, extra=n - pos,
+        single=n_cores if channels_as == "single" else 0,
+    )
+
+
+def _matches(lay: _Layout, K: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """Rows of (K, V) (tokens of records with ``lay.n`` tokens) that are records of this layout."""
+    ok = (K[:, lay.ints] == _scan.INT).all(axis=1)
+    ok &= (V[:, lay.fixed] == lay.fixed_val).all(axis=1)
+    kn = K[:, lay.numbers]
+    ok &= ((kn == _scan.INT) | (kn == _scan.DEC)).all(axis=1)
+    if lay.labels.size:
+        ok &= (K[:, lay.labels] == _scan.TEXT).all(axis=1) & (V[:, lay.labels] == lay.label_hash).all(axis=1)
+    return ok
+
+
+def _extract(lay: _Layout, V: np.ndarray, seq: np.ndarray, stamps: np.ndarray, dates: list, times: list
+             ) -> list[Record]:
+    """Records of layout ``lay`` from their token values V (n, lay.n)."""
+    m = V.shape[0]
+    Vx = np.concatenate([V, np.full((m, 1), np.nan)], axis=1)
+    lam, pw = Vx[:, lay.wl], Vx[:, lay.pw]  # (m, c, g)
+    pad = lay.wl == lay.n
+    status4 = V[:, lay.status].astype(np.int64)  # (m, c, 4)
+    st = np.zeros(lam.shape, np.uint8)
+    st[:, pad] = _MISSING
+    st[(status4 != 0).any(axis=2)] |= _CHANNEL_ERROR
+    zero = lam == 0.0
+    invalid = ~(np.isfinite(lam) & (lam > 0)) & ~zero & ~pad
+    st[zero] |= _MISSING
+    st[invalid] |= _INVALID
+    lam[zero | invalid] = np.nan
+    pw[zero] = np.nan
+    if lay.single:
+        lam, pw, st = (a.reshape(m, lay.single, -1) for a in (lam, pw, st))
+    lam, pw, st = (np.ascontiguousarray(a.transpose(0, 2, 1)) for a in (lam, pw, st))
+    sens = []
+    for curv, ang, xyz, (ks, as_, ps) in lay.sensors:
+        sens.append((V[:, curv] * ks, V[:, ang] * as_, V[:, xyz] * ps))
+    eng = V[:, lay.eng] if lay.eng is not None else None
+    numbers = np.array(lay.key[0], dtype=np.int64)
+    gcounts = np.array(lay.key[1], dtype=np.int64)
+    engs = [np.zeros(0)] * m if eng is None else list(eng)
+    vendors = ([tuple(VendorSensor(k[r], a[r], p[r]) for k, a, p in sens) for r in range(m)] if sens
+               else [()] * m)
+    extra, key = lay.extra, lay.key
+    return [Record(Frame(w, t, q, p, s, vendor=v or None), numbers, gcounts, s4, v, e, d, tm, extra, key)
+            for w, t, q, p, s, v, s4, e, d, tm in zip(list(lam), stamps.tolist(), seq.tolist(), list(pw), list(st),
+                                                     vendors, list(status4), engs, dates, times, strict=True)]
+
+
+def decode_many(
+    data: bytes,
+    starts: Sequence[int] | np.ndarray,
+    ends: Sequence[int] | np.ndarray,
     *,
     channels_as: ChannelsAs = "cores",
     n_cores: int | None = None,
     max_cells: int = 1 << 20,
-) -> Record:
-    """Decode one record payload (the bytes after the length prefix).
+    layouts: list | None = None,
+) -> list[Record | FramingError]:
+    """Decode many payloads ``data[starts[i]:ends[i]]`` at once.
+
+    Parameters
+    ----------
+    data : bytes
+    starts, ends : sequences of int
+        Payload bounds (without the 4-byte length prefix).
+    channels_as, n_cores, max_cells
+        See :func:`decode_record`.
+    layouts : list, optional
+        A cache of layouts, kept between calls by the stream decoder (most recent first).
+
+    Returns
+    -------
+    list of Record or FramingError
+        One per payload, in order: the record, or the error that payload raised (offsets within the payload).
+    """
+    if channels_as not in ("cores", "single"):
+        raise ValueError(f"channels_as: expected 'cores' or 'single', got {channels_as!r}")
+    starts = np.asarray(starts, dtype=np.int64)
+    ends = np.asarray(ends, dtype=np.int64)
+    n_rec = starts.size
+    if n_rec == 0:
+        return []
+    buf = np.frombuffer(data, np.uint8)
+    counts, kind, value, ts, te, stamp, bad, _ = _scan.scan(buf, starts, ends)
+    for j in np.flatnonzero(kind == _scan.SLOW).tolist():
+        try:
+            value[j] = float(data[ts[j] : te[j]])
+            kind[j] = _scan.DEC
+        except ValueError:
+            kind[j] = _scan.TEXT
+            value[j] = 0.0
+    for r in np.flatnonzero(stamp == _scan.TIME_SLOW).tolist():
+        c0 = counts[r]
+        stamp[r] = parse_timestamp(data[ts[c0] : te[c0]], data[ts[c0 + 1] : te[c0 + 1]])
+    layouts = [] if layouts is None else layouts
+    out: list = [None] * n_rec
+    ntok = np.diff(counts)
+    todo = np.flatnonzero(bad < 0)
+    for r in np.flatnonzero(bad >= 0).tolist():
+        out[r] = FramingError("NUL, CR or LF inside the record", offset=int(bad[r]),
+                              expected="one line of text", protocol=PROTOCOL)
+
+    def strings(rows):
+        c0 = counts[rows]
+        a, b = ts[c0].tolist(), te[c0].tolist()
+        a2, b2 = ts[c0 + 1].tolist(), te[c0 + 1].tolist()
+        return ([data[i:j].decode("latin-1") for i, j in zip(a, b, strict=True)],
+                [data[i:j].decode("latin-1") for i, j in zip(a2, b2, strict=True)])
+
+    while todo.size:
+        done = np.zeros(todo.size, bool)
+        for lay in layouts:
+            if lay.extra or lay.single != (n_cores if channels_as == "single" else 0):
+                continue
+            sel = np.flatnonzero(~done & (ntok[todo] == lay.n))
+            if not sel.size:
+                continue
+            rows = todo[sel]
+            first = counts[rows[0]]
+            if rows[-1] - rows[0] == rows.size - 1 and counts[rows[-1] + 1] - first == rows.size * lay.n:
+                K = kind[first : first + rows.size * lay.n].reshape(rows.size, lay.n)  # consecutive: a view
+                V = value[first : first + rows.size * lay.n].reshape(rows.size, lay.n)
+            else:
+                idx = counts[rows][:, None] + np.arange(lay.n)
+                K, V = kind[idx], value[idx]
+            ok = _matches(lay, K, V)
+            if not ok.any():
+                continue
+            rows, V = rows[ok], V[ok]
+            d, t = strings(rows)
+            for r, rec in zip(rows.tolist(), _extract(lay, V, V[:, 2].astype(np.int64), stamp[rows], d, t),
+                              strict=True):
+                out[r] = rec
+            done[sel[ok]] = True
+        rest = todo[~done]
+        if not rest.size:
+            break
+        r = int(rest[0])
+        a, b = counts[r], counts[r + 1]
+        tok = _Tokens(data, int(starts[r]), kind[a:b], value[a:b], ts[a:b], te[a:b])
+        try:
+            lay = _walk(tok, channels_as, n_cores, max_cells)
+        except FramingError as exc:
+            out[r] = exc
+            todo = rest[1:]
+            continue
+        if not lay.extra and not any(x.n == lay.n and x.key == lay.key and np.array_equal(x.labels, lay.labels)
+                                     for x in layouts):
+            layouts.insert(0, lay)
+            del layouts[8:]
+        d, t = strings(np.array([r]))
+        seq = np.array([tok.int(2, "sample number")], dtype=np.int64)
+        out[r] = _extract(lay, value[a:b][None], seq, stamp[r : r + 1], d, t)[0]
+        todo = rest[1:]
+    return out
+
+
+def decode_record(payload: bytes, *, channels_as: ChannelsAs = "cores", n_cores: int | None = None,
+                  max_cells: int = 1 << 20) -> Record:
+    """Decode one record payload (the bytes after the length prefix; any line ending or none).
 
     Parameters
     ----------
     payload : bytes
-        ASCII fields separated by TAB, ending in CR LF or a bare LF, optionally with one TAB before it.
     channels_as : {"cores", "single"}
-        "cores": channel k is core k (ragged channels NaN-padded to the largest G). "single": exactly one
-        channel whose gratings are core-major; ``n_cores`` must then be given and divide G.
+        "cores": channel k is core k. "single": one channel whose gratings are core-major (``n_cores`` needed).
     n_cores : int, optional
-        Number of cores for ``channels_as="single"``.
     max_cells : int
-        Upper bound on n_gratings × n_cores of the decoded frame (guards the NaN padding of ragged layouts).
-
-    Returns
-    -------
-    Record
+        Upper bound on n_gratings × n_cores (guards the NaN padding of ragged layouts).
 
     Raises
     ------
     FramingError
         For anything that is not a well-formed record, with the byte offset within ``payload``.
     """
-    if channels_as not in ("cores", "single"):
-        raise ValueError(f"channels_as: expected 'cores' or 'single', got {channels_as!r}")
-    body = bytes(payload)
-    if not body.endswith(b"\n"):
-        raise TruncatedFrameError(
-            "record does not end with LF", offset=len(body), expected="CR LF", protocol=PROTOCOL
-        )
-    body = body[:-2] if body.endswith(b"\r\n") else body[:-1]
-    if body.endswith(b"\t"):
-        body = body[:-1]
-    if b"\n" in body or b"\x00" in body:
-        k = min(i for i in (body.find(b"\n"), body.find(b"\x00")) if i >= 0)
-        raise FramingError(
-            "LF or NUL byte inside the record",
-            offset=k,
-            expected="one record ending in LF",
-            protocol=PROTOCOL,
-        )
-    fields = body.split(b"\t")
-    n = len(fields)
-    if n < 5:
-        raise TruncatedFrameError(
-            f"record has {n} fields",
-            offset=len(body),
-            expected="at least date, time, sample, C and E",
-            protocol=PROTOCOL,
-        )
-    seq = _int_field(fields, 2, "sample number")
-    c = _int_field(fields, 3, "channel count C", 0, (n - 5) // 6)
-    pos = 4
-    wl_at: list[int] = []
-    gs: list[int] = []
-    numbers: list[int] = []
-    status: list[list[int]] = []
-    for k in range(c):
-        # each channel needs its 6 header fields, its 2G values, and room for E after the last channel;
-        # c <= (n - 5) // 6 and this bound on G keep every index below in range
-        numbers.append(_int_field(fields, pos, f"channel {k} number"))
-        room = (n - pos - 6 - 1 - 6 * (c - k - 1)) // 2
-        gk = _int_field(fields, pos + 1, f"channel {k} grating count G", 0, room)
-        status.append([_int_field(fields, pos + 2 + j, f"channel {k} status {j + 1}") for j in range(4)])
-        wl_at.append(pos + 6)
-        gs.append(gk)
-        pos += 6 + 2 * gk
-    e = _int_field(fields, pos, "engineering value count E", 0, n - pos - 1)
-    end = pos + 1 + e
-    nums = _numbers(fields, 4, end)  # index i of fields is nums[i - 4]
-
-    status4 = np.array(status, dtype=np.int64).reshape(c, 4)
-    g_max = max(gs, default=0)
-    if channels_as == "single":
-        if n_cores is None or n_cores < 1:
-            raise ValueError("decode_record: channels_as='single' needs n_cores >= 1")
-        if c != 1 or gs[0] % n_cores:
-            raise FramingError(
-                f"record has {c} channel(s) with G = {gs}",
-                offset=_offset(fields, 3),
-                expected=f"one channel with a multiple of {n_cores} gratings",
-                protocol=PROTOCOL,
-            )
-    if g_max * c > max_cells:
-        raise FramingError(
-            f"channel layout {c} channels × up to {g_max} gratings exceeds {max_cells} values",
-            offset=_offset(fields, 3),
-            expected="fewer or less ragged channels",
-            protocol=PROTOCOL,
-        )
-
-    lam = np.full((c, g_max), np.nan)
-    pw = np.full((c, g_max), np.nan)
-    st = np.zeros((c, g_max), dtype=np.uint8)
-    for k, (a, gk) in enumerate(zip(wl_at, gs, strict=True)):
-        i = a - 4
-        lam[k, :gk] = nums[i : i + gk]
-        pw[k, :gk] = nums[i + gk : i + 2 * gk]
-        st[k, gk:] = _MISSING  # NaN padding of a channel shorter than the longest
-    padded = st != 0
-    st[np.any(status4 != 0, axis=1)] |= _CHANNEL_ERROR
-    zero = lam == 0.0
-    invalid = ~(np.isfinite(lam) & (lam > 0)) & ~zero & ~padded
-    st[zero] |= _MISSING
-    st[invalid] |= _INVALID
-    lam[zero | invalid] = np.nan
-    pw[zero] = np.nan
-
-    if channels_as == "single":
-        lam = lam.reshape(n_cores, -1)
-        pw = pw.reshape(n_cores, -1)
-        st = st.reshape(n_cores, -1)
-    frame = Frame(
-        wavelengths=np.ascontiguousarray(lam.T),
-        timestamp=parse_timestamp(fields[0], fields[1]),
-        sequence=seq,
-        powers=np.ascontiguousarray(pw.T),
-        status=np.ascontiguousarray(st.T),
-    )
-    return Record(
-        frame=frame,
-        channel_numbers=np.array(numbers, dtype=np.int64),
-        grating_counts=np.array(gs, dtype=np.int64),
-        channel_status=status4,
-        engineering=nums[end - 4 - e : end - 4].copy(),
-        date=fields[0].decode("latin-1"),
-        time=fields[1].decode("latin-1"),
-        extra_fields=n - end,
-    )
+    payload = bytes(payload)
+    (res,) = decode_many(payload, [0], [len(payload)], channels_as=channels_as, n_cores=n_cores,
+                         max_cells=max_cells)
+    if isinstance(res, FramingError):
+        raise res
+    return res
 
 
-def decode_payload(
-    payload: bytes,
-    *,
-    channels_as: ChannelsAs = "cores",
-    n_cores: int | None = None,
-    max_cells: int = 1 << 20,
-) -> Frame:
-    """Decode one record payload to a :class:`~twin.frames.Frame` (see :func:`decode_record`).
-
-    Raises
-    ------
-    FramingError
-        For anything that is not a well-formed record.
-    """
-    return decode_record(payload, channels_as=channels_as, n_cores=n_cores, max_cells=max_cells).frame
+def decode_payload(payload: bytes, **kw) -> Frame:
+    """Decode one record payload to a :class:`~twin.frames.Frame` (keywords of :func:`decode_record`)."""
+    return decode_record(payload, **kw).frame
 
 
-# --------------------------------------------------------------------------------------------------- stream
+def __getattr__(name: str):
+    # the stream decoder lives in its own module, which imports this one: re-exported here lazily
+    if name in ("LayoutConsensus", "StreamDecoder"):
+        from twin.io import illumisense_stream
 
-
-class StreamDecoder:
-    """Incremental decoder of the ILLumiSense TCP byte stream: feed it whatever ``recv`` returned.
-
-    Handles arbitrary chunking (a record split anywhere, many records per chunk), refuses a length prefix
-    above ``max_payload`` as soon as the 4 prefix bytes are in (nothing is allocated from a length), never
-    raises for bad bytes, counts framing errors and resynchronises (strategy in the module docstring).
-
-    Parameters
-    ----------
-    max_payload : int
-        Largest accepted payload, bytes (default 1 MiB; at most 16 MiB − 1 so every prefix starts with NUL).
-    channels_as, n_cores, max_cells
-        Passed to :func:`decode_record`.
-    keep_errors : int
-        How many of the most recent errors :attr:`errors` keeps.
-
-    Attributes
-    ----------
-    records : int
-        Records decoded.
-    framing_errors : int
-        Times the stream was found out of framing (a bad prefix, a payload that does not end in LF or does
-        not decode, bytes left over at :meth:`finish`).
-    bytes_discarded : int
-        Bytes skipped while resynchronising.
-    sequence : SequenceCounter
-        Gaps, lost samples and resets of the records' sample numbers.
-    last_error : FramingError or None
-        The most recent error (offsets count bytes since the decoder was created).
-    errors : collections.deque of FramingError
-        The most recent ``keep_errors`` errors.
-    """
-
-    def __init__(
-        self,
-        *,
-        max_payload: int = DEFAULT_MAX_PAYLOAD,
-        channels_as: ChannelsAs = "cores",
-        n_cores: int | None = None,
-        max_cells: int = 1 << 20,
-        keep_errors: int = 16,
-    ) -> None:
-        if not MIN_PAYLOAD <= max_payload < _PREFIX_LIMIT:
-            raise ValueError(
-                f"max_payload: expected {MIN_PAYLOAD} to {_PREFIX_LIMIT - 1} bytes, got {max_payload}"
-            )
-        if channels_as not in ("cores", "single"):
-            raise ValueError(f"channels_as: expected 'cores' or 'single', got {channels_as!r}")
-        if channels_as == "single" and (n_cores is None or n_cores < 1):
-            raise ValueError("StreamDecoder: channels_as='single' needs n_cores >= 1")
-        self.max_payload = max_payload
-        self._decode_kw = {"channels_as": channels_as, "n_cores": n_cores, "max_cells": max_cells}
-        self._buf = bytearray()
-        self._pos = 0  # start of the current candidate record in _buf
-        self._base = 0  # stream offset of _buf[0]
-        self._hunting = False
-        self._scanned = 0  # payload bytes of the current candidate already checked for NUL / early LF
-        self.sequence = SequenceCounter()
-        self.records = 0
-        self.framing_errors = 0
-        self.bytes_discarded = 0
-        self.last_error: FramingError | None = None
-        self.errors: deque[FramingError] = deque(maxlen=keep_errors)
-
-    @property
-    def pending(self) -> int:
-        """Bytes received but not yet consumed (part of a record, or bytes being hunted through)."""
-        return len(self._buf) - self._pos
-
-    @property
-    def in_sync(self) -> bool:
-        """False between a framing error and the next good record."""
-        return not self._hunting
-
-    def feed(self, data: bytes) -> list[Frame]:
-        """Consume bytes; return the frames of every record completed by them, in order."""
-        return [r.frame for r in self.feed_records(data)]
-
-    def feed_records(self, data: bytes) -> list[Record]:
-        """Like :meth:`feed`, returning the full :class:`Record` of each completed record."""
-        buf = self._buf
-        buf += data
-        out: list[Record] = []
-        while True:
-            p = self._pos
-            if self._hunting:
-                q = buf.find(b"\x00", p)
-                if q < 0:
-                    self.bytes_discarded += len(buf) - p
-                    self._pos = len(buf)
-                    break
-                self.bytes_discarded += q - p
-                self._pos = p = q
-            if len(buf) - p < 4:
-                break
-            length = int.from_bytes(buf[p : p + 4], "big")
-            if length > self.max_payload:
-                self._fail(
-                    p,
-                    OversizeFrameError(
-                        f"length prefix {length} exceeds the {self.max_payload}-byte bound",
-                        offset=self._base + p,
-                        expected=f"at most {self.max_payload}",
-                        protocol=PROTOCOL,
-                    ),
-                )
-                continue
-            if length < MIN_PAYLOAD:
-                self._fail(
-                    p,
-                    FramingError(
-                        f"length prefix {length} is shorter than any record",
-                        offset=self._base + p,
-                        expected=f"at least {MIN_PAYLOAD}",
-                        protocol=PROTOCOL,
-                    ),
-                )
-                continue
-            end = p + 4 + length
-            lo = p + 4 + self._scanned
-            hi = min(end - 1, len(buf))  # the last payload byte is the LF
-            if hi > lo:
-                bad = [i for i in (buf.find(b"\x00", lo, hi), buf.find(b"\n", lo, hi)) if i >= 0]
-                if bad:
-                    self._fail(
-                        p,
-                        FramingError(
-                            "NUL or LF inside a payload",
-                            offset=self._base + min(bad),
-                            expected=f"a {length}-byte payload ending in LF",
-                            protocol=PROTOCOL,
-                        ),
-                    )
-                    continue
-                self._scanned = hi - p - 4
-            if len(buf) < end:
-                break
-            if buf[end - 1] != 0x0A:
-                self._fail(
-                    p,
-                    FramingError(
-                        "payload does not end with LF",
-                        offset=self._base + end - 1,
-                        expected="CR LF at the length the prefix gives",
-                        protocol=PROTOCOL,
-                    ),
-                )
-                continue
-            try:
-                rec = decode_record(bytes(buf[p + 4 : end]), **self._decode_kw)
-            except FramingError as exc:
-                off = None if exc.offset is None else self._base + p + 4 + exc.offset
-                self._fail(p, type(exc)(exc.what, offset=off, expected=exc.expected, protocol=PROTOCOL))
-                continue
-            self._pos = end
-            self._scanned = 0
-            self._hunting = False
-            self.sequence.count(rec.frame.sequence)
-            self.records += 1
-            out.append(rec)
-        if self._pos > 65536 and self._pos * 2 > len(buf):  # amortised O(n): drop consumed bytes now and then
-            del buf[: self._pos]
-            self._base += self._pos
-            self._pos = 0
-        return out
-
-    def finish(self) -> None:
-        """Declare the end of the stream (connection closed): an incomplete record left over is an error."""
-        left = self.pending
-        if left and not self._hunting:
-            self._fail(
-                self._pos,
-                TruncatedFrameError(
-                    f"stream ended inside a record ({left} bytes pending)",
-                    offset=self._base + len(self._buf),
-                    expected="a complete record",
-                    protocol=PROTOCOL,
-                ),
-            )
-        self.bytes_discarded += self.pending
-        self._base += len(self._buf)
-        self._buf.clear()
-        self._pos = 0
-        self._scanned = 0
-        self._hunting = False
-
-    def _fail(self, p: int, err: FramingError) -> None:
-        if not self._hunting:
-            self.framing_errors += 1
-            self.last_error = err
-            self.errors.append(err)
-            self._hunting = True
-        self._pos = p + 1
-        self._scanned = 0
-        self.bytes_discarded += 1
-
+        return getattr(illumisense_stream, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -8,17 +8,10 @@ Damage: a recording cut short, or with damaged bytes, is opened without waiting 
 frames readable before the first damage, :attr:`RecordingReader.frames_recorded` how many the file claims. A
 damaged recording is never ``complete``.
 
-ILLumiSense log files (``*.txt`` written by the vendor software) are read too: :func:`open_recording` detects
-them by content. **Assumed columns** — nobody publishes the log format, so the reader assumes what the TCP
-stream carries, one record per line, TAB-separated: date, time, sample number, channel count C, then per
-channel its number, grating count G, four status integers, G peak wavelengths (nm) and G peak powers, then the
-engineering-value count E and E values (docs/protocols.md §1). Lines end in CR LF or LF, a trailing TAB is
-allowed, wavelength 0 is a missing peak. Lines before the first record that parses (column names, comments,
-settings) are skipped as a header; a later line that does not parse, or whose channel layout differs from the
-first record's, is skipped and reported with its line number. A decimal comma is accepted on a line that has
-no decimal point elsewhere. Channel k is core k (``channels_as="single"`` with ``n_cores`` for a fibre whose
-cores are spliced onto one channel). A log whose last line has no line end was cut: it is reported as damaged
-(its last record may be incomplete).
+ILLumiSense log files (``*.txt``, one record per line as lab loggers save the stream) are read too:
+:func:`open_recording` detects them by content and :mod:`twin.io.illumisense_log` reads them (layout, header
+lines, skipped lines, the vendor's own shapes in :attr:`RecordingReader.vendor`). A log whose last line has no
+line end was cut: it is reported as damaged (its last record may be incomplete).
 """
 
 from __future__ import annotations
@@ -31,7 +24,6 @@ import numpy as np
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.frames import Frame, Truth
-from twin.io.errors import FramingError
 from twin.io.hdf5 import FORMAT, FRAME_FIELDS, TRUTH_FIELDS, Recorder, chunk_rows, open_hdf5, readable_rows
 
 __all__ = ["FORMAT", "Recorder", "RecordingReader", "chunk_rows", "open_recording"]
@@ -87,11 +79,12 @@ class RecordingReader:
         self._first_bad = self._truth_ok = 1 << 62  # first damaged row of the frames / of their truth
         self._file = None
         self._mem: Frame | None = None
+        self.vendor = None  # the interrogator's own shapes (twin.io.illumisense_log.VendorArrays), logs only
         self._truth_names: list[str] = []
         if head == _HDF5_SIGNATURE:
             self._open_hdf5()
         else:
-            self._mem = _read_log(self.path, self.errors, channels_as=channels_as, n_cores=n_cores)
+            self._mem = _read_log(self, channels_as=channels_as, n_cores=n_cores)
             self.kind = "illumisense-log"
             self.fiber = self.calibration = None
             self.source_url = f"file://{self.path}"
@@ -373,49 +366,14 @@ def _load_toml(text) -> dict:
     return tomllib.loads(str(text))
 
 
-def _read_log(path: Path, errors: list[str], *, channels_as: str, n_cores: int | None,
-              max_header_lines: int = 1000) -> Frame:
-    """Decode an ILLumiSense log file (module docstring for the assumed columns)."""
-    from twin.io.illumisense import decode_record
+def _read_log(reader: RecordingReader, *, channels_as: str, n_cores: int | None) -> Frame:
+    """Decode an ILLumiSense log file (:mod:`twin.io.illumisense_log`) into one batch of frames."""
+    from twin.io.illumisense_log import read_log
 
-    data = path.read_bytes()
-    lines = data.splitlines()
-    frames: list[Frame] = []
-    shape = None
-    header_lines = 0
-    for no, raw in enumerate(lines, start=1):
-        line = raw.rstrip(b"\r")
-        if not line.strip():
-            continue
-        frame = None
-        err: FramingError | None = None
-        for candidate in (line, line.replace(b",", b".") if b"," in line else None):
-            if candidate is None:
-                continue
-            try:
-                frame = decode_record(candidate + b"\r\n", channels_as=channels_as, n_cores=n_cores).frame
-                break
-            except FramingError as exc:
-                err = err or exc
-        if frame is None:
-            if shape is None:
-                header_lines += 1
-                if header_lines > max_header_lines:
-                    break
-                continue
-            errors.append(f"line {no}: {err}")
-            continue
-        if shape is None:
-            shape = frame.wavelengths.shape
-        elif frame.wavelengths.shape != shape:
-            errors.append(f"line {no}: {frame.wavelengths.shape[0]} gratings × {frame.wavelengths.shape[1]} "
-                          f"channels, the first record has {shape[0]} × {shape[1]}")
-            continue
-        frames.append(frame)
-    if not frames:
-        raise ValueError(f"{path}: neither a twin HDF5 recording nor an ILLumiSense log (no line is a "
-                         "TAB-separated record: date, time, sample, C, channels…, E, values…)")
-    return Frame.stack(frames)
+    log = read_log(reader.path, channels_as=channels_as, n_cores=n_cores)
+    reader.errors.extend(log.errors)
+    reader.vendor = log.vendor
+    return Frame(log.wavelengths, log.timestamps, log.sequences, powers=log.powers, status=log.status)
 
 
 def __getattr__(name: str):

@@ -21,6 +21,7 @@ from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.frames import Frame
 from twin.io.errors import RecordingDamaged
+from twin.io.illumisense_vendor import VendorDistance
 from twin.io.record import open_recording
 from twin.io.sequence import SequenceCounter
 from twin.io.source import Source, SourceClosed, parse_url
@@ -69,6 +70,10 @@ class ReplaySummary:
     skipped_lines : int
         Log lines that did not parse.
     truth : TruthErrors or None
+    vendor : dict
+        When a log carries the interrogator's own shape: ``vendor_frames_compared``, ``vendor_distance_max_mm``,
+        ``vendor_distance_mean_mm`` (ours against it after a rigid registration,
+        :class:`twin.io.illumisense_vendor.VendorDistance`); empty otherwise.
     notes : tuple of str
     """
 
@@ -94,11 +99,13 @@ class ReplaySummary:
     skipped_lines: int
     damage: tuple[str, ...] = ()
     truth: TruthErrors | None = None
+    vendor: dict = field(default_factory=dict)
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def as_dict(self) -> dict:
         out = asdict(self)
         out["damage"], out["notes"] = list(self.damage), list(self.notes)
+        out.update(out.pop("vendor"))
         if self.truth is None:
             del out["truth"]
         return out
@@ -158,6 +165,7 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
         t_first = t_last = math.nan
         errors: dict[str, list[np.ndarray]] = {"mean": [], "max": [], "rms": [], "tip": []}
         truth_note = None
+        vendor = VendorDistance(rate=None)
         t_rec = 0.0
         for start, frames in reader.chunks(batch, truth=False):
             m = len(frames)
@@ -176,6 +184,7 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
             if ts.size:
                 t_first = ts[0] if math.isnan(t_first) else t_first
                 t_last = ts[-1]
+            vendor.add_chunk(reader.vendor, start, shapes, (np.arange(start, start + m) % stride == 0) & (n_valid == g))
             if reader.has_truth and truth_note is None:
                 truth = reader.truth(start, start + m, fields=("positions",))
                 idx = np.arange(start, start + len(truth))
@@ -229,6 +238,7 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
             skipped_lines=len(reader.errors),
             damage=tuple(reader.damage),
             truth=truth_errors,
+            vendor=vendor.as_dict(),
             notes=tuple(notes),
         )
 

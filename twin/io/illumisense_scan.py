@@ -1,0 +1,345 @@
+"""The ILLumiSense record tokenizer: one compiled pass over many payloads (docs/protocols-illumisense.md).
+
+A record is ASCII text: fields separated by TAB. Converting ~300 decimal fields per record with Python's
+``float`` (or numpy's string conversion, which calls it) costs ≈ 0.2 µs a field, most of the decoder's time.
+:func:`scan` does it in one numba pass over a buffer holding many payloads, without copying them:
+
+- it strips each payload's line ending (CR LF, LF, CR or none) and one trailing TAB, and reports the offset of
+  any NUL, CR or LF left inside (a payload is one line of printable text);
+- it splits the rest at TAB and classifies every token (:data:`INT`, :data:`DEC`, :data:`SLOW`, :data:`TEXT`,
+  :data:`EMPTY`);
+- it converts numbers on the exact fast path (Clinger's): a mantissa of at most 15 significant digits and a
+  decimal exponent of magnitude at most 22 are exact in float64, so one multiplication or division by an exact
+  power of ten is correctly rounded — bit-identical to Python's ``float``. Anything else made of number
+  characters is :data:`SLOW` and left to ``float`` by the caller; text tokens (the labels) get a 52-bit hash in
+  place of a value, so labels can be compared as numbers in batch;
+- it reads the date (``YYYY-MM-DD`` or ``YYYY/MM/DD``) and time (``HH:MM:SS`` with or without a fraction)
+  fields as UTC epoch seconds (NaN when they are not a time; :data:`TIME_SLOW` when the fraction is too long
+  for the fast path).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["DEC", "EMPTY", "INT", "SLOW", "TEXT", "TIME_SLOW", "scan"]
+
+INT = 0  #: optional sign and 1–15 digits: value exact
+DEC = 1  #: decimal number on the exact fast path
+SLOW = 2  #: only number characters, but not on the fast path (nan, inf, 16+ digits, 1e99, "1.", …)
+TEXT = 3  #: any other byte: a label (or garbage); value holds a hash of the bytes
+EMPTY = 4  #: nothing between two TABs
+TIME_SLOW = -1.0  #: marker in the time output: the fields look like a time, let Python read them
+
+_POW10 = np.array([10.0**k for k in range(23)])
+
+
+# bytes a number field may hold: digits . + - e E and the letters of nan / inf / infinity (any case)
+_NUMCHAR = np.zeros(256, np.bool_)
+_NUMCHAR[np.frombuffer(b"0123456789.+-eEnNaAiIfFtTyY", np.uint8)] = True
+
+
+@njit(cache=True)
+def _other(buf, a, b):
+    """Kind and value of a token that left the fast grammar: SLOW if made of number bytes, else TEXT + hash."""
+    for i in range(a, b):
+        if not _NUMCHAR[buf[i]]:
+            h = np.uint64(1469598103934665603)
+            for j in range(a, b):
+                h = (h ^ np.uint64(buf[j])) * np.uint64(1099511628211)
+            return TEXT, float(h >> np.uint64(12))
+    return SLOW, 0.0
+
+
+@njit(cache=True)
+def _token(buf, a, b, pow10):
+    """(kind, value) of buf[a:b], in one pass on the fast path."""
+    if a >= b:
+        return EMPTY, 0.0
+    i = a
+    neg = False
+    c = buf[i]
+    if c == 45 or c == 43:
+        neg = c == 45
+        i += 1
+    mant = 0
+    sig = 0  # significant digits taken (leading zeros skipped)
+    n_int = 0
+    n_frac = 0
+    exp10 = 0
+    while i < b:
+        c = buf[i]
+        if c < 48 or c > 57:
+            break
+        if sig > 0 or c != 48:
+            sig += 1
+            mant = mant * 10 + (c - 48)
+        n_int += 1
+        i += 1
+    if i == b:
+        if n_int == 0 or sig > 15:
+            return _other(buf, a, b)
+        v = float(mant)
+        return INT, -v if neg else v
+    if c != 46 or n_int == 0:
+        return _other(buf, a, b)
+    i += 1
+    while i < b:
+        c = buf[i]
+        if c < 48 or c > 57:
+            break
+        if sig > 0 or c != 48:
+            sig += 1
+            mant = mant * 10 + (c - 48)
+        n_frac += 1
+        i += 1
+    if n_frac == 0 or sig > 15:  # "5." parses in Python but never comes from a sender: leave it to Python
+        return _other(buf, a, b)
+    exp10 = -n_frac
+    if i < b:
+        if c != 101 and c != 69:
+            return _other(buf, a, b)
+        i += 1
+        eneg = False
+        if i < b and (buf[i] == 45 or buf[i] == 43):
+            eneg = buf[i] == 45
+            i += 1
+        if i == b:
+            return _other(buf, a, b)
+        e = 0
+        while i < b:
+            c = buf[i]
+            if c < 48 or c > 57 or e > 1000:
+                return _other(buf, a, b)
+            e = e * 10 + (c - 48)
+            i += 1
+        exp10 += -e if eneg else e
+    if exp10 > 22 or exp10 < -22:
+        if mant == 0:
+            return DEC, -0.0 if neg else 0.0
+        return SLOW, 0.0
+    v = float(mant)
+    if exp10 >= 0:
+        v = v * pow10[exp10]
+    else:
+        v = v / pow10[-exp10]
+    return DEC, -v if neg else v
+
+
+@njit(cache=True)
+def _digits(buf, a, n):
+    v = 0
+    for i in range(a, a + n):
+        c = buf[i]
+        if c < 48 or c > 57:
+            return -1
+        v = v * 10 + (c - 48)
+    return v
+
+
+@njit(cache=True)
+def _days_from_civil(y, m, d):
+    y -= m <= 2
+    era = (y if y >= 0 else y - 399) // 400
+    yoe = y - era * 400
+    mp = m + 9 if m <= 2 else m - 3
+    doy = (153 * mp + 2) // 5 + d - 1
+    doe = yoe * 365 + yoe // 4 - yoe // 100 + doy
+    return era * 146097 + doe - 719468
+
+
+@njit(cache=True)
+def _timestamp(buf, da, db, ta, tb, pow10):
+    """Epoch seconds of date buf[da:db] and time buf[ta:tb]; NaN if not a time; TIME_SLOW for long fractions."""
+    if db - da != 10 or tb - ta < 8:
+        return np.nan
+    sep = buf[da + 4]
+    if (sep != 45 and sep != 47) or buf[da + 7] != sep:
+        return np.nan
+    y = _digits(buf, da, 4)
+    mo = _digits(buf, da + 5, 2)
+    d = _digits(buf, da + 8, 2)
+    if y < 1 or mo < 1 or mo > 12 or d < 1:
+        return np.nan
+    leap = (y % 4 == 0 and y % 100 != 0) or y % 400 == 0
+    dim = (31, 29 if leap else 28, 31, 30, 31, 30, 31, 31, 30, 31, 30, 31)
+    if d > dim[mo - 1]:
+        return np.nan
+    if buf[ta + 2] != 58 or buf[ta + 5] != 58:
+        return np.nan
+    hh = _digits(buf, ta, 2)
+    mm = _digits(buf, ta + 3, 2)
+    s_int = _digits(buf, ta + 6, 2)
+    if hh < 0 or mm < 0 or s_int < 0 or hh > 23 or mm > 59 or s_int > 60:
+        return np.nan
+    n = tb - ta - 8
+    if n == 0:
+        ss = float(s_int)
+    else:
+        if buf[ta + 8] != 46:
+            return np.nan
+        f = _digits(buf, ta + 9, n - 1)
+        if f < 0:
+            return np.nan
+        if n - 1 + 2 > 15:
+            return TIME_SLOW
+        ss = float(s_int * _ipow10(n - 1) + f) / pow10[n - 1]
+    day = float((_days_from_civil(y, mo, d)) * 86400)
+    return day + float(hh * 3600 + mm * 60) + ss
+
+
+@njit(cache=True)
+def _ipow10(k):
+    v = 1
+    for _ in range(k):
+        v *= 10
+    return v
+
+
+@njit(cache=True)
+def _scan(buf, starts, ends, pow10):
+    n = starts.size
+    body_end = np.empty(n, np.int64)
+    bad = np.full(n, -1, np.int64)
+    counts = np.empty(n + 1, np.int64)
+    counts[0] = 0
+    for r in range(n):
+        a, e = starts[r], ends[r]
+        if e > a and buf[e - 1] == 10:
+            e -= 1
+        if e > a and buf[e - 1] == 13:
+            e -= 1
+        if e > a and buf[e - 1] == 9:
+            e -= 1
+        body_end[r] = e
+        k = 1
+        for i in range(a, e):
+            c = buf[i]
+            if c == 9:
+                k += 1
+            elif c == 0 or c == 10 or c == 13:
+                if bad[r] < 0:
+                    bad[r] = i - a
+        counts[r + 1] = counts[r] + k
+    m = counts[n]
+    kind = np.empty(m, np.int8)
+    value = np.empty(m, np.float64)
+    tstart = np.empty(m, np.int64)
+    tend = np.empty(m, np.int64)
+    stamp = np.full(n, np.nan)
+    for r in range(n):
+        a, e = starts[r], body_end[r]
+        t = counts[r]
+        p = a
+        for i in range(a, e + 1):
+            if i == e or buf[i] == 9:
+                tstart[t] = p
+                tend[t] = i
+                k, v = _token(buf, p, i, pow10)
+                kind[t] = k
+                value[t] = v
+                t += 1
+                p = i + 1
+        if counts[r + 1] - counts[r] >= 2:
+            c0 = counts[r]
+            stamp[r] = _timestamp(buf, tstart[c0], tend[c0], tstart[c0 + 1], tend[c0 + 1], pow10)
+    return counts, kind, value, tstart, tend, stamp, bad, body_end
+
+
+def scan(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray):
+    """Tokenize payloads ``buf[starts[i]:ends[i]]``.
+
+    Parameters
+    ----------
+    buf : ndarray of uint8
+        The bytes (e.g. ``np.frombuffer(data, np.uint8)``).
+    starts, ends : ndarray of int64, shape (n,)
+        Payload bounds in ``buf``.
+
+    Returns
+    -------
+    counts : ndarray of int64 (n + 1,)
+        Tokens of payload i are ``counts[i]:counts[i + 1]`` of the arrays below.
+    kind : ndarray of int8 (m,)
+        :data:`INT`, :data:`DEC`, :data:`SLOW`, :data:`TEXT` or :data:`EMPTY`.
+    value : ndarray of float64 (m,)
+        The number (INT, DEC), a hash (TEXT), 0 otherwise.
+    tstart, tend : ndarray of int64 (m,)
+        Token bounds in ``buf``.
+    stamp : ndarray of float64 (n,)
+        UTC epoch seconds from the first two tokens, NaN when they are not a date and time, :data:`TIME_SLOW`
+        when Python must read them.
+    bad : ndarray of int64 (n,)
+        Offset (within the payload) of the first NUL, CR or LF before the line ending, or −1.
+    body_end : ndarray of int64 (n,)
+        End of each payload's fields in ``buf`` (line ending and trailing TAB stripped).
+    """
+    return _scan(buf, np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(ends, np.int64), _POW10)
+
+
+def text_hash(text: bytes) -> float:
+    """The hash :func:`scan` gives a TEXT token of these bytes (for comparing labels in batch)."""
+    arr = np.frombuffer(bytes(text) + b"\n", np.uint8)
+    _, kind, value, *_ = scan(arr, np.zeros(1, np.int64), np.array([len(arr)], np.int64))
+    if kind[0] != TEXT:
+        raise ValueError(f"{text!r} is not a text token")
+    return float(value[0])
+
+
+@njit(cache=True)
+def _format_fixed(values, decimals, out):
+    scale = 10.0**decimals
+    n = 0
+    for k in range(values.size):
+        x = values[k]
+        if k:
+            out[n] = 9
+            n += 1
+        if not np.isfinite(x):
+            out[n] = 110
+            out[n + 1] = 97
+            out[n + 2] = 110
+            n += 3
+            continue
+        q = np.rint(x * scale)
+        neg = q < 0 or (q == 0 and x < 0)
+        q = abs(q)
+        ip = int(q // scale)
+        fp = int(q - ip * scale)
+        if neg:
+            out[n] = 45
+            n += 1
+        # integer part
+        digits = 1
+        t = ip
+        while t >= 10:
+            t //= 10
+            digits += 1
+        for j in range(digits - 1, -1, -1):
+            out[n + j] = 48 + ip % 10
+            ip //= 10
+        n += digits
+        if decimals:
+            out[n] = 46
+            n += 1
+            for j in range(decimals - 1, -1, -1):
+                out[n + j] = 48 + fp % 10
+                fp //= 10
+            n += decimals
+    return n
+
+
+def format_fixed(values: np.ndarray, decimals: int) -> bytes:
+    """TAB-separated fixed-point text of ``values`` (``nan`` where not finite), compiled.
+
+    Each value is rounded to ``round(x·10^decimals)`` (half to even) before printing, which differs from
+    Python's correctly rounded ``f"{x:.{decimals}f}"`` only when x·10^decimals lies within one rounding of a
+    half: the printed value is then off by one unit of the last decimal at most. Used for the sensor blocks,
+    whose readers tolerate their quantisation; wavelengths keep Python's formatting. |x| < 1e12 / 10^decimals.
+    """
+    a = np.ascontiguousarray(values, dtype=np.float64).ravel()
+    if a.size and np.nanmax(np.abs(np.where(np.isfinite(a), a, 0.0))) * 10.0**decimals >= 1e15:
+        raise ValueError("format_fixed: values too large for fixed-point text")
+    out = np.empty(a.size * (18 + decimals) + 1, np.uint8)
+    return out[: _format_fixed(a, int(decimals), out)].tobytes()
