@@ -91,7 +91,7 @@ def test_log_whose_first_line_is_odd_keeps_the_good_lines(tmp_path):
     path.write_bytes(payload(0, channels=3) + b"".join(payload(k) for k in range(1, 21)))
     with open_recording(path) as r:
         assert len(r) == 20 and r.shape == (3, 4)
-        np.testing.assert_array_equal(r.arrays().sequences, np.arange(1, 21))
+        np.testing.assert_array_equal(r.frames().sequence, np.arange(1, 21))
         assert len(r.errors) == 1 and r.errors[0].startswith("line 1: channel layout 3 channel(s)")
         assert r.vendor is None
 
@@ -172,6 +172,6 @@ def test_log_line_endings_header_and_decimal_comma(tmp_path):
         path.write_bytes(b"Date\tTime\tSample\t(export)" + sep + sep.join(lines[:3]) + sep + b"garbage\tline" + sep
                          + sep.join(lines[3:]) + sep)
         with open_recording(path) as r:
-            np.testing.assert_array_equal(r.arrays().sequences, np.arange(1, 6))
-            assert r.arrays().wavelengths[2, 1, 1] == 1515.01  # grating 1 of channel 2, read with its comma
+            np.testing.assert_array_equal(r.frames().sequence, np.arange(1, 6))
+            assert r.frames().wavelengths[2, 1, 1] == 1515.01  # grating 1 of channel 2, read with its comma
             assert len(r.errors) == 1 and r.errors[0].startswith("line 5:")
