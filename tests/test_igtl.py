@@ -140,12 +140,13 @@ def test_a_frame_arrives_as_shape_polyline_tip_transform_and_truth():
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90° about z
     p = np.array([0.01, 0.02, 0.03])
     world = shape.positions @ R.T + p
-    truth = Truth(s=shape.s, positions=world + [0.0, 0.0, 1e-4], frames=R @ shape.frames)
+    truth = Truth(s=shape.s, positions=world + np.array([0.0, 0.0, 1e-4]), frames=R @ shape.frames)
     with IgtlServer(port=0) as server:
         assert server.address[0] == "127.0.0.1"
         sock = connect(server)
         sink = IgtlSink(server, rate=1000.0, close_server=False)
-        sink([Frame(np.zeros((18, 4)), truth=truth)], batch(shape), LiveStatus(state="live", flags=np.zeros(1, np.uint8)))
+        status = LiveStatus(state="live", flags=np.zeros(1, np.uint8))
+        sink([Frame(np.zeros((18, 4)), truth=truth)], batch(shape), status)
         t0 = time.time()
         got = {m["device"]: m for m in (receive(sock) for _ in range(3))}
         sock.close()
