@@ -11,7 +11,7 @@
 - the **gratings** as black dots; the **fixture** (tube, groove, sheath) as a faint translucent tube;
 - a **scale bar** (black, a round length) under the catheter, and an overlay: the figures (max / mean / tip
   error when there is a truth, rate, lost frames, the calibration in use, the stream's state) and a legend with
-  the colour bar. A stale stream turns the catheter grey.
+  the colour bar. A stale stream turns the catheter opaque grey.
 
 Placement: a Shape lives in the fibre's base frame; ``base_pose`` puts it in the world, else the truth's base
 pose, else a Kabsch registration onto the truth (:func:`twin.viewer.geometry.placement`). The errors shown
@@ -175,6 +175,7 @@ class Viewer:
         self._bar_length = 0.0
         self._hud_text: str | None = None
         self._hud_at = -float("inf")
+        self._queue: list[cmd.Command] | None = None
         self._proc, zmq_url, self.url = self._start_server()
         try:
             self._client = SceneClient(zmq_url, self.config.timeout)
@@ -192,7 +193,11 @@ class Viewer:
 
         from twin.extras import EXTRAS, MissingExtra
 
-        if importlib.util.find_spec("meshcat") is None:  # its viewer page and dependencies (zmq, tornado)
+        try:  # meshcat brings its viewer page and the server's packages (zmq, tornado, umsgpack)
+            found = all(importlib.util.find_spec(m) is not None for m in ("meshcat", "zmq", "tornado", "umsgpack"))
+        except (ValueError, AttributeError):  # a module set to None in sys.modules: blocked
+            found = False
+        if not found:
             raise MissingExtra("meshcat", EXTRAS["meshcat"], "the browser viewer")
         args = [sys.executable, "-m", "twin.viewer.server", "--web-port", str(self.config.web_port),
                 "--parent", str(os.getpid())]
@@ -238,7 +243,10 @@ class Viewer:
     def _send(self, command: cmd.Command) -> None:
         if not self._closed and self.broken:
             raise ViewerError(self.broken)
-        self._client.send(command)
+        if self._queue is not None:  # inside show(): one request for the whole frame
+            self._queue.append(command)
+        else:
+            self._client.send(command)
 
     # ---------------------------------------------------------------- drawing
     def ready(self, now: float | None = None) -> bool:
@@ -282,6 +290,20 @@ class Viewer:
         if not force and not self.ready(now):
             self.frames_skipped += 1
             return False
+        self._queue = []
+        try:
+            self._show(shape, truth, base_pose, fixture, label, reframe)
+            if not self._closed and self.broken:
+                raise ViewerError(self.broken)
+            self._client.send_many(self._queue)
+        finally:
+            self._queue = None
+        self._due = geo_next_due(self._due, now, 1.0 / self.config.max_fps)
+        self.frames_shown += 1
+        self._update_hud(now, force=label is not None or self.frames_shown == 1)
+        return True
+
+    def _show(self, shape: Shape, truth: Truth | None, base_pose, fixture, label, reframe) -> None:
         if shape.positions.ndim != 2:
             raise ValueError(f"Viewer.show takes one shape, got a batch of shape {shape.batch_shape}; index it")
         if not np.all(np.isfinite(shape.positions)):
@@ -325,24 +347,22 @@ class Viewer:
         self._draw_reconstruction()
         if truth_pts is not None and len(truth_pts) >= 2:
             tk = geo.subsample(len(truth_pts), cfg.max_rings)
-            tv, tf = tube_mesh(truth_pts[tk], cfg.truth_radius, 8)
+            normals = None if truth.frames is None else np.asarray(truth.frames)[ok][tk, :, 0]
+            tv, tf = tube_mesh(truth_pts[tk], cfg.truth_radius, 8, normals=normals)
             # unlit and drawn last without depth test: the truth's own colour, even inside the tube
             mat = cmd.material("MeshBasicMaterial", cfg.truth_color, depthTest=False, transparent=True)
             self._send(cmd.set_object("/twin/truth", cmd.mesh(tv, tf, mat, render_order=10)))
-        self._due = geo_next_due(self._due, now, 1.0 / cfg.max_fps)
-        self.frames_shown += 1
-        self._update_hud(now, force=label is not None or self.frames_shown == 1)
-        return True
 
     def _draw_reconstruction(self) -> None:
         if self._last is None:
             return
         cfg = self.config
         colors = self._last["colors"]
-        if self._stale:
-            colors = np.broadcast_to(_rgb(cfg.stale_color), colors.shape)
-        mat = cmd.material("MeshPhongMaterial", 0xFFFFFF, opacity=cfg.shape_opacity, vertex_colors=True,
-                           side=0, depthWrite=False)
+        opacity = cfg.shape_opacity
+        if self._stale:  # opaque grey: unmistakable (the truth is drawn over it anyway)
+            colors, opacity = np.broadcast_to(_rgb(cfg.stale_color), colors.shape), 1.0
+        mat = cmd.material("MeshPhongMaterial", 0xFFFFFF, opacity=opacity, vertex_colors=True, side=0,
+                           depthWrite=opacity == 1.0)
         self._send(cmd.set_object("/twin/shape", cmd.mesh(self._last["verts"], self._last["faces"], mat, colors)))
         markers = self._last["markers"]
         self._send(cmd.set_object("/twin/gratings", cmd.points(
@@ -418,7 +438,7 @@ class Viewer:
                 self.info.pop(k, None)
             else:
                 self.info[k] = v
-        self._update_hud(time.monotonic())
+        self._update_hud(time.monotonic(), force=True)
 
     def hud(self) -> dict:
         """The overlay's content: title, state, figures, colour bar and legend (what the page shows)."""
@@ -567,6 +587,7 @@ class ViewerSink:
         self.frames_shown = 0
         self._pending: tuple[Shape, Truth | None] | None = None
         self._due = -float("inf")
+        self._gave_up = False
 
     def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None:
         try:
@@ -585,7 +606,12 @@ class ViewerSink:
             if pick is not None:
                 self._pending = (shapes[pick], frames[pick].truth)
         v = self.viewer
-        if v.closed or v.broken or status.state == "ended":
+        if v.closed or status.state == "ended":
+            return
+        if v.broken:  # said once (counted as an error), then left alone
+            if not self._gave_up:
+                self._gave_up = True
+                raise ViewerError(v.broken)
             return
         if self._pending is not None:
             now = time.monotonic()

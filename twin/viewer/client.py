@@ -61,6 +61,17 @@ class SceneClient:
         if answer != b"ok":
             raise ViewerError(f"the viewer's server refused {kind} {path}: {answer[:200]!r}")
 
+    def send_many(self, commands: list[Command]) -> None:
+        """Several commands in one request (``batch``: type, path, data for each; our server's extension)."""
+        if not commands:
+            return
+        frames = [b"batch"]
+        for kind, path, data in commands:
+            frames += [kind.encode(), path.encode(), data]
+        answer = self._request(frames)
+        if answer != b"ok":
+            raise ViewerError(f"the viewer's server refused a batch: {answer[:200]!r}")
+
     def hud(self, content: dict) -> None:
         """Replace the page's overlay (figures, legend): a JSON object the page renders."""
         self._request([b"hud", b"", json.dumps(content, allow_nan=False).encode()])

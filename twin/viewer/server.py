@@ -11,7 +11,8 @@ listens on every interface and offers no option to change it):
 - **browsers** connect to the websocket ``/ws`` and get the whole scene first, then every change; the overlay
   travels as text messages (JSON), scene commands as binary ones;
 - ``get_scene`` answers the scene as one self-contained HTML page (the viewer inlined, commands embedded), and
-  ``hud`` (frames: ``hud``, empty, JSON) replaces the overlay.
+  ``hud`` (frames: ``hud``, empty, JSON) replaces the overlay; ``batch`` (frames: ``batch``, then type, path,
+  command for each) applies several commands in one request (one frame of the live view).
 
 On start it prints one JSON line ``{"zmq_url": …, "web_url": …}`` on stdout. With ``--parent PID`` it exits
 when that process is gone, so a killed run never leaves a server holding its ports.
@@ -181,6 +182,13 @@ def serve(host: str, zmq_port: int, web_port: int, parent: int | None) -> None:
                 path = frames[1].decode("utf-8", "replace")
                 scene.apply(kind, path, frames[2])
                 broadcast(frames[2], True)
+                await rep.send(b"ok")
+            elif kind == "batch" and len(frames) % 3 == 1:
+                for i in range(1, len(frames), 3):
+                    k, path = frames[i].decode("utf-8", "replace"), frames[i + 1].decode("utf-8", "replace")
+                    if k in MESHCAT_COMMANDS:
+                        scene.apply(k, path, frames[i + 2])
+                        broadcast(frames[i + 2], True)
                 await rep.send(b"ok")
             elif kind == "hud" and len(frames) == 3:
                 scene.hud = frames[2].decode("utf-8")
