@@ -3,18 +3,21 @@
 The receiver below parses the 58-byte header (version, type, device name, timestamp, body size, CRC-64), checks
 the CRC with its own bit-by-bit ECMA-182 CRC-64 (not our sender's table-driven one), and decodes the TRANSFORM
 and POLYDATA bodies field by field. Nothing of twin.igtl is used to read what twin.igtl wrote. Real sockets on
-loopback; clients connect and disconnect while the live loop runs.
+loopback; clients connect and disconnect while the live loop runs. Where Debian's libopenigtlink-dev is
+installed (``apt-get install libopenigtlink-dev g++``), a reader built on it checks the stream too.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 import struct
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -241,3 +244,47 @@ def test_twin_live_igtl_flag():
     assert proc.returncode == 0, err
     summary = json.loads(out)
     assert summary["igtl_frames"] >= 1 and summary["igtl_clients"] == 1 and summary["igtl_errors"] == 0
+
+
+# ------------------------------------------------------------------------------------------------ libopenigtlink
+INCLUDE = "/usr/include/openigtlink"
+
+
+@pytest.mark.skipif(not (os.path.isdir(INCLUDE) and shutil.which("g++")),
+                    reason="Debian's libopenigtlink-dev and g++ are not installed")
+def test_debians_libopenigtlink_reads_the_stream(tmp_path):
+    """A reader built on Debian's libopenigtlink (tests/data/igtl_reader.cxx) checks the CRCs and decodes."""
+    reader = tmp_path / "igtl_reader"
+    build = subprocess.run(["g++", "-O1", f"-I{INCLUDE}", "-o", str(reader),
+                            str(Path(__file__).with_name("data") / "igtl_reader.cxx"), "-lOpenIGTLink"],
+                           capture_output=True, text=True, timeout=300)
+    assert build.returncode == 0, build.stderr[-3000:]
+    shape = arc()
+    truth = Truth(s=shape.s, positions=shape.positions + np.array([0.0, 0.0, 1e-4]), frames=shape.frames)
+    with IgtlServer(port=0) as server:
+        proc = subprocess.Popen([str(reader), "127.0.0.1", str(server.address[1]), "3"], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 30
+            while server.clients < 1:
+                assert time.monotonic() < deadline and proc.poll() is None, proc.stderr.read()
+                time.sleep(0.01)
+            sink = IgtlSink(server, close_server=False)
+            sink([Frame(np.zeros((18, 4)), truth=truth)], batch(shape),
+                 LiveStatus(state="live", flags=np.zeros(1, np.uint8)))
+            out, err = proc.communicate(timeout=30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert proc.returncode == 0, err
+    got = {m["device"]: m for m in map(json.loads, out.splitlines())}
+    assert all(m["crc_ok"] for m in got.values())
+    expected = 1e3 * (shape.positions + truth.positions[0])  # placed at the truth's base
+    np.testing.assert_allclose(got["CatheterShape"]["points"], expected, atol=1e-4)
+    assert got["CatheterShape"]["lines"] == [list(range(len(shape.s)))]
+    assert got["CatheterShape"]["vertices"] == [] and got["CatheterShape"]["polygons"] == []
+    np.testing.assert_allclose(got["CatheterTruth"]["points"], 1e3 * truth.positions, atol=1e-4)
+    m = np.array(got["CatheterTip"]["matrix"])
+    np.testing.assert_allclose(m[:3, :3], shape.frames[-1], atol=1e-6)
+    np.testing.assert_allclose(m[:3, 3], expected[-1], atol=1e-4)
