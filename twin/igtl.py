@@ -329,10 +329,10 @@ class IgtlSink:
         self._due = -float("inf")
 
     def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None:
+        from twin.viewer.geometry import latest_usable, next_due
+
         try:
             if frames and shapes is not None:
-                from twin.viewer.geometry import latest_usable
-
                 i = latest_usable(shapes, status.flags, len(frames))
                 if i is not None:
                     self._pending = (shapes[i], frames[i].truth)
@@ -340,7 +340,7 @@ class IgtlSink:
             if self._pending is not None and now >= self._due:
                 shape, truth = self._pending
                 self._pending = None
-                self._due = max(self._due + self.period, now) if np.isfinite(self._due) else now + self.period
+                self._due = next_due(self._due, now, self.period)
                 self.server.publish(bundle(shape, truth))
                 self.frames_sent += 1
         except Exception as exc:  # OpenIGTLink must never end the live loop

@@ -22,7 +22,8 @@ objects, so everything hangs under a root node scaled by ``ViewerConfig.scale`` 
 and centred on the catheter, where the orbit controls turn. The camera is framed on the first frame.
 
 The pieces: :mod:`twin.viewer.geometry` (numpy only), :mod:`twin.viewer.commands` (meshcat's command format),
-:mod:`twin.viewer.client` (the zmq client), :mod:`twin.viewer.server`. Not thread-safe: use from one thread.
+:mod:`twin.viewer.client` (the zmq client), :mod:`twin.viewer.server`, :mod:`twin.viewer.sink` (the live loop's
+sink). Not thread-safe: use from one thread.
 """
 
 from __future__ import annotations
@@ -35,21 +36,17 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, TextIO
+from typing import TextIO
 
 import numpy as np
 
-from twin.frames import Frame, Shape, Truth
+from twin.frames import Shape, Truth
 from twin.viewer import commands as cmd
 from twin.viewer import geometry as geo
 from twin.viewer.client import SceneClient, ViewerError
 from twin.viewer.geometry import placement, tube_mesh
-
-if TYPE_CHECKING:  # pragma: no cover
-    from twin.live import LiveStatus
 
 __all__ = ["CAMERA_FOV_DEG", "Viewer", "ViewerConfig", "ViewerError", "ViewerSink", "keep_open", "placement",
            "tube_mesh"]
@@ -298,7 +295,7 @@ class Viewer:
             self._client.send_many(self._queue)
         finally:
             self._queue = None
-        self._due = geo_next_due(self._due, now, 1.0 / self.config.max_fps)
+        self._due = geo.next_due(self._due, now, 1.0 / self.config.max_fps)
         self.frames_shown += 1
         self._update_hud(now, force=label is not None or self.frames_shown == 1)
         return True
@@ -520,12 +517,6 @@ class Viewer:
         self.close()
 
 
-def geo_next_due(due: float, now: float, period: float) -> float:
-    """The rate limiter's next slot: one period after the last slot (keeps the average rate at 1/period when
-    frames come in batches); a limiter that fell behind restarts from now rather than drawing a burst."""
-    return max(due + period, now) if np.isfinite(due) else now + period
-
-
 def _drain(stream) -> None:
     with contextlib.suppress(Exception):
         while stream.read(4096):
@@ -554,79 +545,4 @@ def keep_open(viewer: Viewer, stream: TextIO | None = None, poll: float = 0.5) -
     viewer.close()
 
 
-class ViewerSink:
-    """A :class:`twin.live.LiveLoop` sink drawing the latest usable shape of each batch, at most ``rate`` Hz.
-
-    The frame's truth is drawn when the source carries one; rate and lost frames go to the overlay. A frame
-    dropped by the rate limit is kept and drawn at the next heartbeat. A stale stream turns the catheter grey.
-    Nothing raises out of the sink (the loop would drop it): errors are counted in ``errors`` (the first one
-    reported on ``stream``), and a viewer whose server is gone is left alone.
-
-    Parameters
-    ----------
-    viewer : Viewer
-    rate : float
-        Most frames drawn per second, Hz.
-    close_viewer : bool
-        Close the viewer when the loop closes the sink (False for ``--keep-open``).
-    stream : text file
-        Where the first error is reported (stderr).
-    """
-
-    def __init__(self, viewer: Viewer, rate: float = 30.0, *, close_viewer: bool = True,
-                 stream: TextIO | None = None):
-        if not rate > 0:
-            raise ValueError(f"ViewerSink: rate must be positive, got {rate}")
-        self.viewer = viewer
-        self.period = 1.0 / rate
-        self.close_viewer = close_viewer
-        self.stream = stream
-        self.errors = 0
-        self.last_error: str | None = None
-        self.frames_received = 0
-        self.frames_shown = 0
-        self._pending: tuple[Shape, Truth | None] | None = None
-        self._due = -float("inf")
-        self._gave_up = False
-
-    def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None:
-        try:
-            self._handle(frames, shapes, status)
-        except Exception as exc:  # the viewer must never end the live loop
-            self.errors += 1
-            self.last_error = f"{type(exc).__name__}: {exc}"
-            if self.errors == 1:
-                print(f"twin live: viewer: {self.last_error} (further errors counted, not shown)",
-                      file=self.stream or sys.stderr)
-
-    def _handle(self, frames, shapes, status) -> None:
-        self.frames_received += len(frames)
-        if frames and shapes is not None:
-            pick = geo.latest_usable(shapes, status.flags, len(frames))
-            if pick is not None:
-                self._pending = (shapes[pick], frames[pick].truth)
-        v = self.viewer
-        if v.closed or status.state == "ended":
-            return
-        if v.broken:  # said once (counted as an error), then left alone
-            if not self._gave_up:
-                self._gave_up = True
-                raise ViewerError(v.broken)
-            return
-        if self._pending is not None:
-            now = time.monotonic()
-            if now >= self._due:
-                shape, truth = self._pending
-                self._pending = None
-                self._due = geo_next_due(self._due, now, self.period)
-                v.show(shape, truth, force=True)
-                self.frames_shown += 1
-        v.info.update(rate_hz=status.rate_hz, lost=status.lost_samples, frames=status.frames)
-        detail = ""
-        if status.state == "stale" and np.isfinite(status.last_valid_age):
-            detail = f"no data for {status.last_valid_age:.0f} s"
-        v.set_state(status.state, detail)
-
-    def close(self) -> None:
-        if self.close_viewer:
-            self.viewer.close()
+from twin.viewer.sink import ViewerSink  # noqa: E402 (the sink needs the classes above)

@@ -19,6 +19,7 @@ __all__ = [
     "latest_usable",
     "local_error",
     "merge_meshes",
+    "next_due",
     "nice_length",
     "placement",
     "scale_bar",
@@ -302,3 +303,9 @@ def view_direction(points, min_elevation_deg: float = 15.0, max_elevation_deg: f
 def camera_distance(radius: float, fov_deg: float = 75.0, fill: float = 0.75) -> float:
     """Camera distance at which a sphere of ``radius`` spans ``fill`` of the view's height (same unit)."""
     return radius / (fill * np.tan(np.radians(fov_deg) / 2))
+
+
+def next_due(due: float, now: float, period: float) -> float:
+    """The rate limiter's next slot: one period after the last slot (keeps the average rate at 1/period when
+    frames come in batches); a limiter that fell behind restarts from now rather than drawing a burst."""
+    return max(due + period, now) if np.isfinite(due) else now + period
