@@ -82,6 +82,7 @@ class ErrorSink:
         if self.viewer is not None and time.monotonic() >= self._next_view:
             self._next_view = time.monotonic() + self._period
             i = ok[-1]
+            self.viewer.info.update(rate_hz=status.rate_hz, lost=status.lost_samples, frames=status.frames)
             self.viewer.show(shapes[i], truths[i])
 
 
@@ -123,7 +124,7 @@ def _open_viewer(enabled: bool):
     try:
         from twin.viewer import Viewer
 
-        viewer = Viewer(announce=None)
+        viewer = Viewer(announce=None, calibration="two-step + identified in the twin")
     except (ImportError, OSError) as exc:  # the viewer is optional for the demo: run headless instead
         _say(f"  (no viewer: {exc})")
         return None
@@ -187,9 +188,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(report(result))
     if viewer is not None:
-        if sys.stdin.isatty():
-            input(f"the viewer stays at {viewer.url}; press Enter to quit … ")
-        viewer.close()
+        from twin.viewer import keep_open
+
+        keep_open(viewer)  # the page stays live until Ctrl-C
     return 0
 
 

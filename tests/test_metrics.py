@@ -232,6 +232,24 @@ def test_shape_error_registers_by_arc_length():
     assert metrics.shape_error(recon, TRUTH, s=s, truth_s=S_DENSE, register="none").max > 0.01
 
 
+def test_shape_error_takes_a_shape_and_a_truth():
+    """``shape_error(shape, frame.truth)``: both carry their arc lengths, so the pairing is by arc length."""
+    from twin.frames import Shape, Truth
+
+    s = np.linspace(0.0, 0.17, 18)
+    s[1:-1] += 3.3e-4
+    R, t = rigid(8)
+    n = len(s)
+    shape = Shape(s=s, positions=space_curve(s) @ R.T + t, frames=np.tile(np.eye(3), (n, 1, 1)),
+                  curvature=np.zeros((n, 2)), grating_s=s, valid=np.ones(n, bool))
+    truth = Truth(s=S_DENSE, positions=TRUTH)
+    stats = metrics.shape_error(shape, truth)
+    expected = metrics.shape_error(shape.positions, TRUTH, s=s, truth_s=S_DENSE)
+    assert stats.max == expected.max and stats.tip == expected.tip and stats.max < 1e-6  # as above
+    bent = Truth(s=S_DENSE, positions=TRUTH + np.array([0.0, 0.0, 1e-3]) * (S_DENSE[:, None] / 0.17) ** 2)
+    assert metrics.shape_error(shape, bent).max > 1e-4  # a different truth is seen
+
+
 def test_shape_error_batches_match_single_curves():
     rng = np.random.default_rng(9)
     s = np.linspace(0.0, 0.17, 35)

@@ -416,6 +416,11 @@ def _at_arc_length(truth: np.ndarray, truth_s, s, n: int) -> np.ndarray:
     return truth[..., j, :] * (1 - f) + truth[..., j + 1, :] * f
 
 
+def _has_points(value) -> bool:
+    """A Shape or a Truth (anything with ``positions`` and ``s``), as opposed to an array of points."""
+    return hasattr(value, "positions") and hasattr(value, "s")
+
+
 def shape_error(
     positions,
     truth_positions,
@@ -448,11 +453,14 @@ def shape_error(
 
     Parameters
     ----------
-    positions : array_like, shape (..., n, 3)
+    positions : array_like, shape (..., n, 3), or Shape
         Reconstructed centrelines, m; n >= 3. Leading axes are a batch (vectorised, except ICP and the
-        translation search against per-frame truths, which loop over frames).
-    truth_positions : array_like, shape (m, 3) or (..., m, 3)
-        The truth, m: one curve for the whole batch or one per reconstruction.
+        translation search against per-frame truths, which loop over frames). A :class:`twin.Shape` (one or a
+        batch) gives its positions and, unless ``s`` is given, its arc lengths.
+    truth_positions : array_like, shape (m, 3) or (..., m, 3), or Truth
+        The truth, m: one curve for the whole batch or one per reconstruction. A :class:`twin.frames.Truth`
+        gives its positions and, unless ``truth_s`` is given, its arc lengths (used when ``s`` is known), so
+        ``shape_error(shape, frame.truth)`` pairs the two at equal arc length.
     s : array_like, shape (n,), optional
         Arc length of each reconstructed point, m; needed with ``truth_s``.
     truth_s : array_like, shape (m,), optional
@@ -472,6 +480,14 @@ def shape_error(
     """
     if register not in REGISTRATIONS:
         raise ValueError(f"shape_error: register must be one of {', '.join(REGISTRATIONS)}; got {register!r}")
+    # a Shape and a Truth (twin.frames) carry their own arc lengths: ``shape_error(shape, frame.truth)``
+    if _has_points(positions):
+        s = positions.s if s is None else s
+        positions = positions.positions
+    if _has_points(truth_positions):
+        if truth_s is None and s is not None:
+            truth_s = truth_positions.s
+        truth_positions = truth_positions.positions
     x = _coords(positions, "shape_error(positions)", min_points=3)
     batch, n = x.shape[:-2], x.shape[-2]
     truth = _truth(truth_positions, "truth_positions", batch)

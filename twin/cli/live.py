@@ -1,7 +1,8 @@
 """`twin live URL`: reconstruct shapes live from any source of frames and report how the stream is doing.
 
     twin live illumisense://127.0.0.1:2055 [--fiber FILE] [--calibration FILE] [--record FILE]
-              [--duration S] [--frames N] [--json] [--quiet] [--viewer [--viewer-rate HZ]]
+              [--duration S] [--frames N] [--json] [--quiet] [--viewer [--viewer-rate HZ] [--keep-open]]
+              [--igtl [HOST:]PORT [--igtl-rate HZ]]
 
 Prints a status line about once a second (state, frame rate, lost samples, framing errors, reconnects,
 partial/unusable frames, tip position in mm; on stderr with ``--json``) and a summary at the end; ``--json``
@@ -12,7 +13,12 @@ frames before the damage instead).
 
 ``--viewer`` shows the shapes live in a browser (meshcat, :mod:`twin.viewer`; the URL to open is printed on
 stderr): the latest shape at most ``--viewer-rate`` times a second (30), the truth beside it when the source
-carries one (the simulator), grey when the stream is stale. The viewer's server stops when the run ends.
+carries one (the simulator), grey when the stream is stale. The viewer's server stops when the run ends, or
+with ``--keep-open`` stays until Ctrl-C.
+
+``--igtl [HOST:]PORT`` serves the shapes over OpenIGTLink for 3D Slicer (:mod:`twin.igtl`; 127.0.0.1 unless a
+host is given; the address is printed on stderr): POLYDATA ``CatheterShape``, TRANSFORM ``CatheterTip`` and,
+with a truth, POLYDATA ``CatheterTruth``, at most ``--igtl-rate`` times a second (30).
 
 The fibre model is ``--fiber FILE``, else the one the source knows (the simulator, a recording), else the
 reference fibre :meth:`FiberModel.paper` (said on stderr). The calibration is ``--calibration FILE``, else the
@@ -57,6 +63,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--viewer", action="store_true", help="show the shapes live in a browser (meshcat)")
     parser.add_argument("--viewer-rate", type=float, default=30.0, metavar="HZ",
                         help="most frames the viewer draws per second (default 30)")
+    parser.add_argument("--keep-open", action="store_true",
+                        help="keep the viewer serving after the run, until Ctrl-C")
+    parser.add_argument("--igtl", metavar="[HOST:]PORT", default=None,
+                        help="serve the shapes over OpenIGTLink (3D Slicer) on HOST (127.0.0.1):PORT")
+    parser.add_argument("--igtl-rate", type=float, default=30.0, metavar="HZ",
+                        help="most OpenIGTLink updates per second (default 30)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--duration must be positive, got {args.duration}")
     if args.viewer and not args.viewer_rate > 0:
         raise ValueError(f"--viewer-rate must be positive, got {args.viewer_rate}")
+    if args.igtl is not None and not args.igtl_rate > 0:
+        raise ValueError(f"--igtl-rate must be positive, got {args.igtl_rate}")
     fiber = FiberModel.load(args.fiber) if args.fiber else None
     scheme = parse_url(args.url)[0]
     if fiber is None and scheme in HARDWARE:
@@ -79,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         return pending.pop() if pending else open_source(args.url, **options)
 
     sinks: list = []
-    viewer_sink = None
+    viewer_sink = igtl_sink = None
     try:
         if fiber is None:
             fiber = first.fiber
@@ -105,12 +119,23 @@ def run(args: argparse.Namespace) -> int:
         if args.viewer:
             from twin.viewer import Viewer, ViewerConfig, ViewerSink
 
-            viewer_sink = ViewerSink(Viewer(ViewerConfig(max_fps=args.viewer_rate)), rate=args.viewer_rate)
+            viewer = Viewer(ViewerConfig(max_fps=args.viewer_rate),
+                            calibration=args.calibration.name if args.calibration else None)
+            viewer_sink = ViewerSink(viewer, rate=args.viewer_rate, close_viewer=not args.keep_open)
             sinks.append(viewer_sink)
+        if args.igtl is not None:
+            from twin.igtl import IgtlServer, IgtlSink, parse_address
+
+            server = IgtlServer(*parse_address(args.igtl))
+            igtl_sink = IgtlSink(server, rate=args.igtl_rate)
+            sinks.append(igtl_sink)
+            print(f"twin live: OpenIGTLink on {server.address[0]}:{server.address[1]}", file=sys.stderr, flush=True)
     except BaseException:
         first.close()
         if viewer_sink is not None:
-            viewer_sink.close()
+            viewer_sink.viewer.close()
+        if igtl_sink is not None:
+            igtl_sink.close()
         raise
     loop = LiveLoop(factory, rec, sinks, stale_after=args.stale)
     summary = loop.run(duration=args.duration, max_frames=args.frames)
@@ -124,10 +149,18 @@ def run(args: argparse.Namespace) -> int:
         out["viewer_errors"] = viewer_sink.errors
         if viewer_sink.errors:
             print(f"twin live: viewer: {viewer_sink.errors} errors, last: {viewer_sink.last_error}", file=sys.stderr)
+    if igtl_sink is not None:
+        out["igtl_frames"] = igtl_sink.frames_sent
+        out["igtl_clients"] = igtl_sink.server.clients_seen
+        out["igtl_errors"] = igtl_sink.errors
     if args.json:
         print(json.dumps(out))
     else:
         print(format_summary(summary, out))
+    if viewer_sink is not None and args.keep_open:
+        from twin.viewer import keep_open
+
+        keep_open(viewer_sink.viewer)
     return 1 if summary.sink_errors or summary.reason == "source failed" else 0
 
 

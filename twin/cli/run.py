@@ -1,11 +1,11 @@
 """`twin run NAME [options]`: run a scenario found through the registry (:mod:`twin.registry`).
 
-``--viewer [--viewer-rate HZ]`` (before or among the scenario's options) opens a browser view
+``--viewer [--viewer-rate HZ] [--keep-open]`` (before or among the scenario's options) opens a browser view
 (:class:`twin.viewer.Viewer`; the URL is printed on stderr) and hands it to the scenario as ``args.viewer``
 (None without the flag); the scenario's own parser never sees these options. Scenarios draw as they go with
 ``viewer = getattr(args, "viewer", None)`` then ``viewer.show(shape, truth, label=…)`` (``getattr``: the same
 ``run(args)`` also serves the scenario's own ``__main__``, whose parser has no viewer). A scenario that does not
-draw still runs; the viewer's server stops when the scenario returns.
+draw still runs; the viewer's server stops when the scenario returns, or with ``--keep-open`` stays until Ctrl-C.
 """
 
 from __future__ import annotations
@@ -13,29 +13,36 @@ from __future__ import annotations
 import argparse
 import sys
 
-VIEWER_HELP = ("--viewer [--viewer-rate HZ]: show the run in a browser (meshcat; the URL is printed on stderr), "
-               "at most HZ frames per second (default 30)")
+VIEWER_HELP = ("--viewer [--viewer-rate HZ] [--keep-open]: show the run in a browser (the URL is printed on "
+               "stderr), at most HZ frames per second (default 30); --keep-open keeps it serving after the run, until "
+               "Ctrl-C")
+COMMON_HELP = ("Options the experiments share (after NAME; `twin run NAME --help` lists them all): --json (one "
+               "JSON object on stdout), --report DIR (plots and a markdown summary), --calibration (the calibration "
+               "to reconstruct with), and " + VIEWER_HELP + ".")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from twin.cli import scenarios
 
     known = scenarios()
+    parser.epilog = COMMON_HELP
     parser.add_argument("--viewer", action="store_true", help="show the run in a browser (meshcat)")
     parser.add_argument("--viewer-rate", type=float, default=None, metavar="HZ",
                         help="most frames the viewer draws per second (default 30; implies --viewer)")
+    parser.add_argument("--keep-open", action="store_true",
+                        help="keep the viewer serving after the run, until Ctrl-C (implies --viewer)")
     parser.add_argument("name", metavar="NAME", help="scenario: " + ", ".join(known) if known else "scenario name")
     parser.add_argument("options", nargs=argparse.REMAINDER, help="the scenario's own options (see NAME --help)")
 
 
-def take_viewer_options(options: list[str]) -> tuple[list[str], bool, float | None]:
-    """Split ``--viewer`` and ``--viewer-rate HZ`` (or ``=HZ``) out of a scenario's options.
+def take_viewer_options(options: list[str]) -> tuple[list[str], bool, float | None, bool]:
+    """Split ``--viewer``, ``--viewer-rate HZ`` (or ``=HZ``) and ``--keep-open`` out of a scenario's options.
 
-    Returns the remaining options (in order), whether a viewer was asked for, and the rate (None: default).
-    Everything after a ``--`` is left to the scenario.
+    Returns the remaining options (in order), whether a viewer was asked for, the rate (None: default) and
+    whether to keep it open. Everything after a ``--`` is left to the scenario.
     """
     rest: list[str] = []
-    wanted, rate = False, None
+    wanted, rate, keep = False, None, False
     i = 0
     while i < len(options):
         opt = options[i]
@@ -44,6 +51,8 @@ def take_viewer_options(options: list[str]) -> tuple[list[str], bool, float | No
             break
         if opt == "--viewer":
             wanted = True
+        elif opt == "--keep-open":
+            wanted = keep = True
         elif opt == "--viewer-rate" or opt.startswith("--viewer-rate="):
             if opt == "--viewer-rate":
                 if i + 1 >= len(options):
@@ -62,7 +71,7 @@ def take_viewer_options(options: list[str]) -> tuple[list[str], bool, float | No
         else:
             rest.append(opt)
         i += 1
-    return rest, wanted, rate
+    return rest, wanted, rate, keep
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,9 +84,10 @@ def run(args: argparse.Namespace) -> int:
     module = registry.load("twin.scenarios", args.name)
     parser = argparse.ArgumentParser(prog=f"twin run {args.name}", description=module.__doc__, epilog=VIEWER_HELP)
     module.add_arguments(parser)
-    options, wanted, rate = take_viewer_options(list(args.options))
+    options, wanted, rate, keep = take_viewer_options(list(args.options))
+    keep = keep or bool(getattr(args, "keep_open", False))
     rate = rate if rate is not None else getattr(args, "viewer_rate", None)
-    wanted = wanted or bool(getattr(args, "viewer", False)) or rate is not None
+    wanted = wanted or bool(getattr(args, "viewer", False)) or rate is not None or keep
     if rate is not None and not rate > 0:
         raise ValueError(f"--viewer-rate must be positive, got {rate}")
     ns = parser.parse_args(options)
@@ -93,4 +103,8 @@ def run(args: argparse.Namespace) -> int:
             if ns.viewer.frames_shown == 0:
                 print(f"twin run: scenario {args.name} drew nothing in the viewer (it does not use args.viewer)",
                       file=sys.stderr)
+            if keep:
+                from twin.viewer import keep_open
+
+                keep_open(ns.viewer)
             ns.viewer.close()

@@ -1,0 +1,373 @@
+"""OpenIGTLink for 3D Slicer: the live catheter shape, its tip pose and the truth, served over TCP.
+
+``twin live URL --igtl [HOST:]PORT`` starts an :class:`IgtlServer` (127.0.0.1 unless a host is given) and feeds
+it through :class:`IgtlSink`, a :class:`twin.live.LiveLoop` sink. For each reconstructed frame, at most
+``rate`` times a second, every connected client receives:
+
+- ``POLYDATA`` device ``CatheterShape``: the reconstructed centreline, points in mm, one polyline in the
+  LINES cell array (no vertices, polygons or attributes);
+- ``TRANSFORM`` device ``CatheterTip``: the tip pose (material frame d1 d2 d3 as the rotation's columns,
+  position in mm);
+- ``POLYDATA`` device ``CatheterTruth``: the true centreline, when the source carries a truth (the twin).
+
+In 3D Slicer: module OpenIGTLinkIF, add a connector of type *client* to the host and port, tick *Active*; the
+two models and the transform appear as nodes named after the devices.
+
+Placement: Slicer shows everything in one coordinate system. A shape lives in the fibre's base frame; with a
+truth whose material frames are known at s = 0 (the twin), the shape is put at the truth's base pose, so shape
+and truth overlay as in the browser viewer (:func:`twin.viewer.geometry.placement`); else both are sent as
+they are (the base frame is the world).
+
+The messages are written here from the OpenIGTLink specification (header version 1): a 58-byte big-endian
+header (version uint16, type char[12], device name char[20], timestamp uint64 with seconds in the upper and
+the fraction of a second in the lower 32 bits, body size uint64, CRC-64 of the body) and the body. The CRC is
+ECMA-182 (polynomial 0x42F0E1EBA9EA3693, initial value 0, no reflection, no final XOR). TRANSFORM's body is
+12 big-endian float32: the upper 3×4 of the homogeneous matrix column by column (R11 R21 R31 R12 … R33, then
+TX TY TZ in mm). POLYDATA's body: 10 uint32 counts (NPOINTS, NVERTICES, SIZE_VERTICES, NLINES, SIZE_LINES,
+NPOLYGONS, SIZE_POLYGONS, NTRIANGLE_STRIPS, SIZE_TRIANGLE_STRIPS, NATTRIBUTES; sizes in bytes), the points as
+float32 x y z, then each cell array as (count, index…) uint32 words. No library is needed (pyigtl, the
+obvious one, writes POLYDATA cell arrays in the wrong byte order).
+
+The server never slows the live loop: :meth:`IgtlServer.publish` appends a whole bundle of messages to each
+client's buffer and returns; one thread accepts clients, sends what is buffered and reads (and discards) what
+clients send. A client that does not keep up has bundles dropped whole (counted), never cut, so its stream
+stays parseable; a client that disconnects is forgotten. Clients may come and go at any time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import selectors
+import socket
+import struct
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, TextIO
+
+import numba
+import numpy as np
+
+from twin.frames import Frame, Shape, Truth
+
+if TYPE_CHECKING:  # pragma: no cover
+    from twin.live import LiveStatus
+
+__all__ = [
+    "HEADER_SIZE",
+    "IgtlServer",
+    "IgtlSink",
+    "crc64",
+    "message",
+    "parse_address",
+    "polydata_body",
+    "transform_body",
+]
+
+HEADER_SIZE = 58
+#: ECMA-182, as OpenIGTLink's header specifies
+CRC64_POLY = 0x42F0E1EBA9EA3693
+_HEADER = struct.Struct(">H12s20sQQQ")
+
+
+def _crc_table() -> np.ndarray:
+    """CRC-64 of each byte value (MSB first), the usual 256-entry table."""
+    crc = np.arange(256, dtype=np.uint64) << np.uint64(56)
+    top, poly = np.uint64(1) << np.uint64(63), np.uint64(CRC64_POLY)
+    for _ in range(8):
+        crc = np.where(crc & top, (crc << np.uint64(1)) ^ poly, crc << np.uint64(1))
+    return crc
+
+
+_TABLE = _crc_table()
+
+
+@numba.njit(cache=True)
+def _crc64(data: np.ndarray, table: np.ndarray) -> np.uint64:  # pragma: no cover (compiled)
+    crc = np.uint64(0)
+    for byte in data:
+        crc = table[np.uint64((crc >> np.uint64(56)) ^ np.uint64(byte)) & np.uint64(0xFF)] ^ (crc << np.uint64(8))
+    return crc
+
+
+def crc64(data: bytes) -> int:
+    """CRC-64/ECMA-182 of ``data`` as OpenIGTLink computes it (init 0, MSB first, no final XOR)."""
+    return int(_crc64(np.frombuffer(bytes(data), dtype=np.uint8), _TABLE))
+
+
+def _ascii(text: str, size: int, what: str) -> bytes:
+    raw = text.encode("ascii")
+    if len(raw) > size:
+        raise ValueError(f"OpenIGTLink {what} {text!r} is longer than {size} characters")
+    return raw
+
+
+def message(kind: str, device: str, body: bytes, timestamp: float | None = None) -> bytes:
+    """One OpenIGTLink message (header version 1): the 58-byte header, then ``body``.
+
+    Parameters
+    ----------
+    kind : str
+        Message type, e.g. ``"TRANSFORM"`` (≤ 12 ASCII characters).
+    device : str
+        Device name (≤ 20 ASCII characters).
+    body : bytes
+    timestamp : float, optional
+        Seconds since the Unix epoch (now by default); 0 means unused.
+    """
+    t = time.time() if timestamp is None else float(timestamp)
+    seconds = int(t)
+    fraction = min(round((t - seconds) * 2**32), 2**32 - 1)
+    stamp = (seconds << 32) | fraction if t > 0 else 0
+    return _HEADER.pack(1, _ascii(kind, 12, "type"), _ascii(device, 20, "device name"), stamp, len(body),
+                        crc64(body)) + body
+
+
+def transform_body(rotation, position_mm) -> bytes:
+    """TRANSFORM body: R (3, 3) column by column, then the translation, mm; 12 big-endian float32."""
+    R = np.asarray(rotation, dtype=np.float64)
+    p = np.asarray(position_mm, dtype=np.float64)
+    if R.shape != (3, 3) or p.shape != (3,):
+        raise ValueError(f"transform_body: expected R (3, 3) and p (3,), got {R.shape}, {p.shape}")
+    return np.concatenate([R.T.ravel(), p]).astype(">f4").tobytes()
+
+
+def polydata_body(points_mm) -> bytes:
+    """POLYDATA body: the points (n, 3) in mm joined by one polyline (the LINES cell array)."""
+    p = np.asarray(points_mm, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2:
+        raise ValueError(f"polydata_body: expected points of shape (n >= 2, 3), got {p.shape}")
+    n = len(p)
+    line = np.concatenate([[n], np.arange(n)]).astype(">u4").tobytes()
+    counts = np.array([n, 0, 0, 1, len(line), 0, 0, 0, 0, 0], dtype=">u4").tobytes()
+    return counts + p.astype(">f4").tobytes() + line
+
+
+def parse_address(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
+    """``"[HOST:]PORT"`` → (host, port); the host is 127.0.0.1 unless given. Port 0: any free port."""
+    host, sep, port = str(text).rpartition(":")
+    host = host if sep else default_host
+    try:
+        number = int(port)
+    except ValueError:
+        raise ValueError(f"--igtl: expected [HOST:]PORT, got {text!r}") from None
+    if not 0 <= number <= 65535 or not host:
+        raise ValueError(f"--igtl: expected [HOST:]PORT with a port in 0–65535, got {text!r}")
+    return host, number
+
+
+class _Client:
+    __slots__ = ("address", "out", "sock")
+
+    def __init__(self, sock: socket.socket, address):
+        self.sock, self.address, self.out = sock, address, bytearray()
+
+
+class IgtlServer:
+    """A TCP server pushing OpenIGTLink messages to every connected client (see the module notes).
+
+    Parameters
+    ----------
+    host, port : str, int
+        Where to listen (127.0.0.1; port 0 picks a free one: see :attr:`address`).
+    max_backlog : int
+        Bytes buffered per client beyond which a new bundle is dropped for that client.
+
+    Attributes
+    ----------
+    clients_seen, bundles_published, bundles_dropped : int
+        Connections accepted; bundles handed to :meth:`publish`; bundles dropped for slow clients.
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 18944, *, max_backlog: int = 1 << 20):
+        self.max_backlog = max_backlog
+        self._listener = socket.create_server((host, port), reuse_port=False)
+        self._listener.setblocking(False)
+        self.address: tuple[str, int] = self._listener.getsockname()[:2]
+        self._selector = selectors.DefaultSelector()
+        self._selector.register(self._listener, selectors.EVENT_READ, None)
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self._selector.register(self._wake_r, selectors.EVENT_READ, "wake")
+        self._clients: dict[int, _Client] = {}
+        self._lock = threading.Lock()
+        self._closed = False
+        self.clients_seen = 0
+        self.bundles_published = 0
+        self.bundles_dropped = 0
+        self._thread = threading.Thread(target=self._serve, name="twin-igtl", daemon=True)
+        self._thread.start()
+
+    @property
+    def clients(self) -> int:
+        """Clients connected now."""
+        with self._lock:
+            return len(self._clients)
+
+    def publish(self, bundle: bytes) -> int:
+        """Queue ``bundle`` (whole messages) for every client; returns how many clients it was queued for."""
+        if self._closed:
+            return 0
+        queued = 0
+        with self._lock:
+            self.bundles_published += 1
+            for c in self._clients.values():
+                if len(c.out) > self.max_backlog:
+                    self.bundles_dropped += 1
+                    continue
+                c.out += bundle
+                queued += 1
+        if queued:
+            with contextlib.suppress(OSError):
+                self._wake_w.send(b"x")
+        return queued
+
+    # ---------------------------------------------------------------- the server thread
+    def _serve(self) -> None:
+        while not self._closed:
+            with self._lock:
+                for fd, c in self._clients.items():
+                    self._selector.modify(c.sock, selectors.EVENT_READ | (selectors.EVENT_WRITE if c.out else 0), fd)
+            try:
+                events = self._selector.select(timeout=0.5)
+            except (OSError, ValueError):
+                if self._closed:
+                    return
+                raise
+            for key, mask in events:
+                if key.fileobj is self._listener:
+                    self._accept()
+                elif key.data == "wake":
+                    with contextlib.suppress(OSError):
+                        while self._wake_r.recv(4096):
+                            pass
+                else:
+                    self._service(key.data, mask)
+
+    def _accept(self) -> None:
+        with contextlib.suppress(BlockingIOError, InterruptedError):
+            while True:
+                sock, address = self._listener.accept()
+                sock.setblocking(False)
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                with self._lock:
+                    self._clients[sock.fileno()] = _Client(sock, address)
+                    self.clients_seen += 1
+                self._selector.register(sock, selectors.EVENT_READ, sock.fileno())
+
+    def _service(self, fd: int, mask: int) -> None:
+        with self._lock:
+            c = self._clients.get(fd)
+        if c is None:
+            return
+        try:
+            if mask & selectors.EVENT_READ and not c.sock.recv(65536):
+                raise ConnectionResetError("closed by the client")  # requests from clients are not answered
+            if mask & selectors.EVENT_WRITE:
+                with self._lock:
+                    data = bytes(c.out)
+                sent = c.sock.send(data) if data else 0
+                with self._lock:
+                    del c.out[:sent]
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            self._drop(fd)
+
+    def _drop(self, fd: int) -> None:
+        with self._lock:
+            c = self._clients.pop(fd, None)
+        if c is not None:
+            with contextlib.suppress(Exception):
+                self._selector.unregister(c.sock)
+            c.sock.close()
+
+    def close(self) -> None:
+        """Stop serving and disconnect every client. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(OSError):
+            self._wake_w.send(b"x")
+        self._thread.join(timeout=5)
+        for fd in list(self._clients):
+            self._drop(fd)
+        for s in (self._listener, self._wake_r, self._wake_w):
+            s.close()
+        self._selector.close()
+
+    def __enter__(self) -> IgtlServer:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class IgtlSink:
+    """A :class:`twin.live.LiveLoop` sink sending the latest usable shape of each batch over OpenIGTLink.
+
+    At most ``rate`` bundles a second (``CatheterShape``, ``CatheterTip``, and ``CatheterTruth`` when the frame
+    has a truth); a frame dropped by the rate limit is kept and sent at the next call. Nothing raises out of the
+    sink: errors are counted (the first one reported on ``stream``).
+
+    Attributes
+    ----------
+    frames_sent, errors : int
+    """
+
+    def __init__(self, server: IgtlServer, rate: float = 30.0, *, close_server: bool = True,
+                 stream: TextIO | None = None):
+        if not rate > 0:
+            raise ValueError(f"IgtlSink: rate must be positive, got {rate}")
+        self.server, self.period, self.close_server, self.stream = server, 1.0 / rate, close_server, stream
+        self.frames_sent = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self._pending: tuple[Shape, Truth | None] | None = None
+        self._due = -float("inf")
+
+    def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None:
+        from twin.viewer.geometry import latest_usable, next_due
+
+        try:
+            if frames and shapes is not None:
+                i = latest_usable(shapes, status.flags, len(frames))
+                if i is not None:
+                    self._pending = (shapes[i], frames[i].truth)
+            now = time.monotonic()
+            if self._pending is not None and now >= self._due:
+                shape, truth = self._pending
+                self._pending = None
+                self._due = next_due(self._due, now, self.period)
+                self.server.publish(bundle(shape, truth))
+                self.frames_sent += 1
+        except Exception as exc:  # OpenIGTLink must never end the live loop
+            self.errors += 1
+            self.last_error = f"{type(exc).__name__}: {exc}"
+            if self.errors == 1:
+                print(f"twin live: igtl: {self.last_error} (further errors counted, not shown)",
+                      file=self.stream or sys.stderr)
+
+    def close(self) -> None:
+        if self.close_server:
+            self.server.close()
+
+
+def bundle(shape: Shape, truth: Truth | None = None, timestamp: float | None = None) -> bytes:
+    """The messages of one frame: CatheterShape, CatheterTip and (with a truth) CatheterTruth."""
+    from twin.viewer.geometry import placement
+
+    R, p, _ = placement(shape, truth)
+    world = shape.positions @ R.T + p
+    tip_frame = R @ shape.frames[-1]
+    t = time.time() if timestamp is None else timestamp
+    out = [message("POLYDATA", "CatheterShape", polydata_body(1e3 * world), t),
+           message("TRANSFORM", "CatheterTip", transform_body(tip_frame, 1e3 * world[-1]), t)]
+    if truth is not None:
+        tp = np.asarray(truth.positions, dtype=np.float64)
+        ok = np.all(np.isfinite(tp), axis=1)
+        if ok.sum() >= 2:
+            out.append(message("POLYDATA", "CatheterTruth", polydata_body(1e3 * tp[ok]), t))
+    return b"".join(out)

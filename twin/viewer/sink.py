@@ -1,0 +1,98 @@
+"""The live loop's sink for the viewer: :class:`ViewerSink` (re-exported by :mod:`twin.viewer`)."""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, TextIO
+
+import numpy as np
+
+from twin.frames import Frame, Shape, Truth
+from twin.viewer import geometry as geo
+from twin.viewer.client import ViewerError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from twin.live import LiveStatus
+    from twin.viewer import Viewer
+
+__all__ = ["ViewerSink"]
+
+
+class ViewerSink:
+    """A :class:`twin.live.LiveLoop` sink drawing the latest usable shape of each batch, at most ``rate`` Hz.
+
+    The frame's truth is drawn when the source carries one; rate and lost frames go to the overlay. A frame
+    dropped by the rate limit is kept and drawn at the next heartbeat. A stale stream turns the catheter grey.
+    Nothing raises out of the sink (the loop would drop it): errors are counted in ``errors`` (the first one
+    reported on ``stream``), and a viewer whose server is gone is left alone.
+
+    Parameters
+    ----------
+    viewer : Viewer
+    rate : float
+        Most frames drawn per second, Hz.
+    close_viewer : bool
+        Close the viewer when the loop closes the sink (False for ``--keep-open``).
+    stream : text file
+        Where the first error is reported (stderr).
+    """
+
+    def __init__(self, viewer: Viewer, rate: float = 30.0, *, close_viewer: bool = True,
+                 stream: TextIO | None = None):
+        if not rate > 0:
+            raise ValueError(f"ViewerSink: rate must be positive, got {rate}")
+        self.viewer = viewer
+        self.period = 1.0 / rate
+        self.close_viewer = close_viewer
+        self.stream = stream
+        self.errors = 0
+        self.last_error: str | None = None
+        self.frames_received = 0
+        self.frames_shown = 0
+        self._pending: tuple[Shape, Truth | None] | None = None
+        self._due = -float("inf")
+        self._gave_up = False
+
+    def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None:
+        try:
+            self._handle(frames, shapes, status)
+        except Exception as exc:  # the viewer must never end the live loop
+            self.errors += 1
+            self.last_error = f"{type(exc).__name__}: {exc}"
+            if self.errors == 1:
+                print(f"twin live: viewer: {self.last_error} (further errors counted, not shown)",
+                      file=self.stream or sys.stderr)
+
+    def _handle(self, frames, shapes, status) -> None:
+        self.frames_received += len(frames)
+        if frames and shapes is not None:
+            pick = geo.latest_usable(shapes, status.flags, len(frames))
+            if pick is not None:
+                self._pending = (shapes[pick], frames[pick].truth)
+        v = self.viewer
+        if v.closed or status.state == "ended":
+            return
+        if v.broken:  # said once (counted as an error), then left alone
+            if not self._gave_up:
+                self._gave_up = True
+                raise ViewerError(v.broken)
+            return
+        if self._pending is not None:
+            now = time.monotonic()
+            if now >= self._due:
+                shape, truth = self._pending
+                self._pending = None
+                self._due = geo.next_due(self._due, now, self.period)
+                v.show(shape, truth, force=True)
+                self.frames_shown += 1
+        v.info.update(rate_hz=status.rate_hz, lost=status.lost_samples, frames=status.frames)
+        detail = ""
+        if status.state == "stale" and np.isfinite(status.last_valid_age):
+            detail = f"no data for {status.last_valid_age:.0f} s"
+        v.set_state(status.state, detail)
+
+    def close(self) -> None:
+        if self.close_viewer:
+            self.viewer.close()
