@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Report", "curvature_profiles", "error_over_time", "pyplot", "tip_trajectories"]
+__all__ = ["Report", "curvature_profiles", "error_over_time", "pyplot", "register_onto", "tip_trajectories"]
 
 
 def pyplot():
@@ -65,6 +65,20 @@ class Report:
         path = self.dir / "report.md"
         path.write_text("\n".join(self.lines))
         return path
+
+
+def register_onto(points: np.ndarray, s: np.ndarray, truth: np.ndarray, truth_s: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """A reconstruction (p, 3) at arc lengths ``s`` rigidly registered onto the truth (k, 3) at ``truth_s`` (Kabsch
+    on arc-length correspondences), and each registered point's distance from the truth polyline (p,), m."""
+    from twin import metrics
+
+    at_s = np.stack([np.interp(s, truth_s, truth[:, j]) for j in range(3)], axis=-1)
+    if not np.all(np.isfinite(points)):
+        return np.full_like(points, np.nan), np.full(len(points), np.nan)
+    r, t = metrics.kabsch(points, at_s)
+    registered = points @ r.T + t
+    return registered, metrics.point_to_polyline(registered, truth)
 
 
 def error_over_time(t: np.ndarray, series_mm: Mapping[str, np.ndarray], ylabel: str = "max error (mm)",

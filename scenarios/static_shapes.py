@@ -15,9 +15,13 @@ Summary (``--json``: ``summary``): over all shapes and repetitions, default mode
 ``max_error_mm`` is the largest per-frame max distance, ``mean_error_mm`` the mean of the per-frame mean
 distances; ``paper_…`` the same for the paper's pipeline.
 
-Calibration (``--calibration``): ``true`` reconstructs with the twin's true fibre parameters (as-built λ0,
-intrinsic twist, Δθ, g), leaving noise, drift, quantisation and the grating length; ``lambda0`` its as-built λ0
-only; ``nominal`` the datasheet only; a path loads a calibration TOML.
+Calibration (``--calibration``, :mod:`scenarios._common.calibration`): ``lab`` (default) as a lab makes it — the
+two-step calibration in the twin, then [Δθ, g] identified against the fixtures' geometry on shapes *other* than
+those reported: with 4 or more shapes, two folds (every other shape of the list), each fold reconstructed with the
+parameters identified on the other fold's frames; with fewer, on the paper's identification shapes not reported.
+``true`` reconstructs with the twin's true fibre parameters (as-built λ0, intrinsic twist, Δθ, g), leaving
+noise, drift, quantisation and the grating length; ``lambda0`` its as-built λ0 only; ``nominal`` the datasheet
+only; a path loads a calibration TOML. ``--json`` says which (``calibration``).
 
 ``--record DIR`` writes, per shape, the frames (``DIR/SHAPE.h5``, a twin recording) and the ground truth
 (``DIR/SHAPE_truth.csv``, arc length and points in m; ``--record-truth rod``: the catheter's own centreline,
@@ -27,37 +31,55 @@ inputs of ``twin identify``.
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from scenarios.series import CALIBRATIONS, calibration_for
-from sim_interrogator.optics import OpticsConfig
+from scenarios._common import entry
+from scenarios._common.calibration import (
+    CALIBRATIONS,
+    LAB_SHAPES,
+    UsedCalibration,
+    calibration_for,
+    check_calibration,
+    fixture_observation,
+    identify_on_fixtures,
+    lab_calibration,
+    two_step,
+)
+from scenarios._common.entry import option
+from scenarios._common.optics import OPTICS, optics_config
+from scenarios._common.static import fixture_for, measure
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
-from twin import FiberModel, Reconstructor, metrics, shapes
+from twin import FiberModel, Reconstructor, shapes
 
 FIXTURES = ("connect", "tube", "paper")
-MODES = ("default", "paper")
+#: Ours, the paper's with θ_b held through low curvature (κ_min = 1 1/m), the paper's literal transcription.
+MODES = ("default", "paper", "paper-literal")
+#: The paper's static results after identification (hardware, its pipeline), mm.
+PAPER_MAX_MM, PAPER_MEAN_MM = 2.52, 0.70
 
 
 @dataclass(frozen=True)
 class Params:
     """Parameters of the experiment (plain values: picklable, so runs can fan out across processes)."""
 
-    shapes: tuple[str, ...] = tuple(shapes.names())
-    repeats: int = 5
-    fixture: str = "connect"
-    optics: str = "realistic"
-    calibration: str = "true"
-    segments: int = 100
-    seed: int = 0
-    record: str | None = None
-    record_truth: str = "rod"
+    shapes: tuple[str, ...] = field(default=tuple(shapes.names()), metadata=option("library shapes"))
+    repeats: int = field(default=5, metadata=option("frames per shape, fresh noise each"))
+    fixture: str = field(default="connect", metadata=option(
+        "connect constraints (exact), a 3 mm tube, or paper (groove/tube)", choices=FIXTURES))
+    optics: str = field(default="realistic", metadata=option("synthetic interrogator effects", choices=OPTICS))
+    calibration: str = field(default="lab", metadata=option(
+        f"{', '.join(CALIBRATIONS)} or a calibration TOML (see above)", metavar="CAL"))
+    segments: int = field(default=100, metadata=option("rod segments"))
+    seed: int = field(default=0, metadata=option("noise seed"))
+    record: str | None = field(default=None, metadata=option(
+        "write each shape's frames and truth (twin identify's inputs) to this directory", metavar="DIR"))
+    record_truth: str = field(default="rod", metadata=option(
+        "truth written by --record: the catheter's centreline or the fixture's", choices=("rod", "fixture")))
 
 
 @dataclass(frozen=True)
@@ -75,12 +97,18 @@ class ShapeResult:
 
 @dataclass(frozen=True)
 class Result:
+    """``shapes`` per shape; ``calibration`` which calibration was used (per fold for ``lab``); ``curves`` the
+    last frame of each shape for overlays: ``s``, per mode the reconstruction registered onto the rod (Kabsch), the
+    rod (``truth``, ``truth_s``) and the fixture (``fixture``), all (n_shapes, …, 3) m."""
+
     params: Params
     shapes: tuple[ShapeResult, ...]
+    calibration: dict = field(default_factory=dict)
+    curves: dict = field(default_factory=dict, repr=False)
 
     def summary(self) -> dict:
         out = {}
-        for mode, prefix in (("default", ""), ("paper", "paper_")):
+        for mode, prefix in (("default", ""), ("paper", "paper_"), ("paper-literal", "paper_literal_")):
             rod = [r.errors[mode]["rod"] for r in self.shapes]
             out[f"{prefix}max_error_mm"] = float(max(np.max(e["max"]) for e in rod) * 1e3)
             out[f"{prefix}mean_error_mm"] = float(np.mean([np.mean(e["mean"]) for e in rod]) * 1e3)
@@ -98,31 +126,8 @@ class Result:
                     for against, stats in r.errors[mode].items()
                 }
             rows.append(row)
-        return {"params": asdict(self.params), "shapes": rows, "summary": self.summary()}
-
-
-def fixture_for(name: str, fixture: str) -> str:
-    if fixture == "paper":
-        return "groove" if shapes.get(name).planar else "tube"
-    return fixture
-
-
-def _stats(err: metrics.ErrorStats) -> dict:
-    return {"max": np.atleast_1d(err.max), "mean": np.atleast_1d(err.mean), "tip": np.atleast_1d(err.tip)}
-
-
-def measure(sim: SimInterrogator, frames, recs: dict[str, Reconstructor]) -> dict:
-    """Errors of each reconstructor on ``frames`` (all of one settled shape) against the rod and the fixture."""
-    truth = frames[0].truth
-    fixture_s = np.linspace(0.0, sim.fiber.sensed_length, len(truth.fixture))
-    out = {}
-    for mode, rec in recs.items():
-        shape = rec(frames)
-        rod = metrics.shape_error(shape.positions, truth.positions, s=shape.s, truth_s=truth.s)
-        fix = metrics.shape_error(shape.positions, truth.fixture, s=shape.s, truth_s=fixture_s,
-                                  register="icp+translation")
-        out[mode] = {"rod": _stats(rod), "fixture": _stats(fix)}
-    return out
+        return {"experiment": "static-shapes", "params": asdict(self.params), "calibration": self.calibration,
+                "shapes": rows, "summary": self.summary()}
 
 
 def record(directory: Path, name: str, sim: SimInterrogator, frames, cal, which: str) -> None:
@@ -147,78 +152,93 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     :class:`twin.viewer.Viewer` shows each shape's last reconstruction with its truth and fixture."""
     if params.fixture not in FIXTURES:
         raise ValueError(f"fixture must be one of {', '.join(FIXTURES)}; got {params.fixture!r}")
-    if params.optics not in ("realistic", "ideal"):
-        raise ValueError(f"optics must be realistic or ideal; got {params.optics!r}")
+    optics_config(params.optics)  # a clear error for an unknown name
+    check_calibration(params.calibration)
     if params.repeats < 1:
         raise ValueError(f"repeats must be at least 1, got {params.repeats}")
+    for n in params.shapes:
+        shapes.get(n)  # a clear error for an unknown shape
     fiber = FiberModel.paper()
-    results = []
     say = progress or (lambda msg: None)
+    settled = []
     for i, name in enumerate(params.shapes):
         kind = fixture_for(name, params.fixture)
-        cfg = OpticsConfig(seed=params.seed + i) if params.optics == "realistic" else OpticsConfig.ideal()
         say(f"[{i + 1}/{len(params.shapes)}] {name}: settling in the {kind} …")
 
         def tick(t, moved, name=name):
             say(f"    {name}: t = {t:.2f} s, still moving {moved * 1e6:.1f} µm")
 
         setup = StaticShape(name, kind, segments=params.segments)
-        sim = SimInterrogator(setup, fiber, cfg, progress=tick if progress else None)
+        sim = SimInterrogator(setup, fiber, optics_config(params.optics, params.seed + i),
+                              progress=tick if progress else None)
         settle_s = sim.data.time
-        frames = [sim.read() for _ in range(params.repeats)]
-        cal = calibration_for(params.calibration, sim)
+        settled.append((name, kind, sim, [sim.read() for _ in range(params.repeats)], float(settle_s)))
+    used, per_shape = calibrations(params, fiber, settled, say)
+    results, curves = [], {}
+    for (name, kind, sim, frames, settle_s), cal in zip(settled, per_shape, strict=True):
         if params.record:
             record(Path(params.record), name, sim, frames, cal, params.record_truth)
-        recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal)}
+        recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal),
+                "paper-literal": Reconstructor.paper(fiber, cal, kappa_min=0.0)}
         lost = int(sum(np.isnan(f.wavelengths).sum() for f in frames))
-        results.append(ShapeResult(name, shapes.get(name).planar, kind, float(settle_s),
-                                   measure(sim, frames, recs), lost))
+        results.append(ShapeResult(name, shapes.get(name).planar, kind, settle_s,
+                                   measure(sim, frames, recs, curves), lost))
         if viewer is not None:
             viewer.show(recs["default"](frames[-1]), frames[-1].truth, label=name, force=True, reframe=True)
         e = results[-1].errors["default"]["rod"]
         say(f"    {name}: default max {np.max(e['max']) * 1e3:.3f} mm, mean {np.mean(e['mean']) * 1e3:.3f} mm")
-    return Result(params, tuple(results))
+    return Result(params, tuple(results), used, curves)
+
+
+def calibrations(params: Params, fiber: FiberModel, settled: list, say) -> tuple[dict, list]:
+    """What each shape is reconstructed with, and the description for ``--json`` (module docstring)."""
+    names = [entry[0] for entry in settled]
+    cfg = optics_config(params.optics, params.seed)
+    if params.calibration != "lab":
+        used = calibration_for(params.calibration, settled[0][2].optics, fiber, progress=say)
+        return used.to_dict(), [used.calibration] * len(settled)
+    if len(settled) < 4:
+        others = tuple(n for n in LAB_SHAPES if n not in names)
+        cal = lab_calibration(fiber, cfg, names=others, progress=say)
+        used = UsedCalibration("lab", cal, "as a lab makes it: two-step calibration in the twin, then [Δθ, g] "
+                               f"identified against the fixtures' geometry on {', '.join(others)}")
+        return used.to_dict(), [cal] * len(settled)
+    say("calibration: lab — two-step calibration in the twin, then identification on two folds of the shapes …")
+    base = two_step(fiber, cfg)
+    folds = [list(range(0, len(settled), 2)), list(range(1, len(settled), 2))]
+    per_shape: list = [None] * len(settled)
+    described = []
+    for k, fold in enumerate(folds):
+        other = folds[1 - k]
+        cal = identify_on_fixtures(fiber, base, [fixture_observation(settled[j][3], fiber, names[j]) for j in other])
+        for j in fold:
+            per_shape[j] = cal
+        described.append({"reported": [names[j] for j in fold], "identified_on": [names[j] for j in other],
+                          "delta_theta": cal.delta_theta, "g_um": cal.gain * 1e6})
+        say(f"    fold {k + 1}: identified on {', '.join(names[j] for j in other)}: Δθ = {cal.delta_theta:.4f} rad, "
+            f"g = {cal.gain * 1e6:.3f} µm")
+    return {"name": "lab", "description": "as a lab makes it: two-step calibration in the twin, then [Δθ, g] "
+            "identified against the fixtures' geometry, in two folds: each shape reconstructed with the parameters "
+            "identified on the other fold's shapes", "folds": described}, per_shape
 
 
 # ------------------------------------------------------------------------------------------------ command line
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--shapes", default="all", help="comma-separated shape names (default: all 12)")
-    parser.add_argument("--repeats", type=int, default=5, help="frames per shape, fresh noise each (default 5)")
-    parser.add_argument("--fixture", choices=FIXTURES, default="connect",
-                        help="connect constraints (exact), a 3 mm tube, or paper (groove/tube) (default connect)")
-    parser.add_argument("--optics", choices=("realistic", "ideal"), default="realistic")
-    parser.add_argument("--calibration", default="true",
-                        help="true (the twin's true parameters), lambda0, nominal or a calibration TOML (default true)")
-    parser.add_argument("--segments", type=int, default=100, help="rod segments (default 100)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--record", metavar="DIR", help="write each shape's frames and truth (twin identify's inputs)")
-    parser.add_argument("--record-truth", choices=("rod", "fixture"), default="rod",
-                        help="truth written by --record: the catheter's centreline or the fixture's (default rod)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--report", metavar="DIR", help="write PNG plots and a markdown summary to DIR")
+def add_arguments(parser) -> None:
+    entry.add_arguments(parser, Params)
 
 
-def params_from_args(args: argparse.Namespace) -> Params:
-    names = tuple(shapes.names()) if args.shapes == "all" else tuple(s.strip() for s in args.shapes.split(","))
-    for n in names:
+def params_from_args(args) -> Params:
+    params = entry.params_from_args(Params, args)
+    if params.shapes == ("all",):
+        params = Params(**{**asdict(params), "shapes": tuple(shapes.names())})
+    for n in params.shapes:
         shapes.get(n)  # a clear error for an unknown shape
-    if args.calibration not in CALIBRATIONS and not Path(args.calibration).exists():
-        raise ValueError(f"--calibration {args.calibration}: no such file (or one of {', '.join(CALIBRATIONS)})")
-    return Params(names, args.repeats, args.fixture, args.optics, args.calibration, args.segments, args.seed,
-                  args.record, args.record_truth)
+    check_calibration(params.calibration)
+    return params
 
 
-def run(args: argparse.Namespace) -> int:
-    params = params_from_args(args)
-    result = run_experiment(params, progress=lambda msg: print(msg, file=sys.stderr, flush=True),
-                            viewer=getattr(args, "viewer", None))
-    if args.report:
-        print(f"report: {write_report(result, args.report)}", file=sys.stderr)
-    if args.json:
-        print(json.dumps(result.to_dict(), indent=2))
-        return 0
-    print(report(result))
-    return 0
+def run(args) -> int:
+    return entry.run("static-shapes", sys.modules[__name__], args)
 
 
 def write_report(result: Result, directory) -> Path:
@@ -255,7 +275,7 @@ def write_report(result: Result, directory) -> Path:
     return rep.write()
 
 
-def report(result: Result) -> str:
+def text_report(result: Result) -> str:
     p = result.params
     lines = [
         f"static shapes: fixture {p.fixture}, optics {p.optics}, calibration {p.calibration}, {p.repeats} "
@@ -277,11 +297,11 @@ def report(result: Result) -> str:
     s = result.summary()
     lines += ["", f"all shapes, against the rod: default max {s['max_error_mm']:.3f} mm, mean "
                   f"{s['mean_error_mm']:.3f} mm; paper max {s['paper_max_error_mm']:.3f} mm, mean "
-                  f"{s['paper_mean_error_mm']:.3f} mm"]
+                  f"{s['paper_mean_error_mm']:.3f} mm; paper literal max {s['paper_literal_max_error_mm']:.3f} mm, "
+                  f"mean {s['paper_literal_mean_error_mm']:.3f} mm",
+              f"calibration: {result.calibration.get('name')} — {result.calibration.get('description', '')}"]
     return "\n".join(lines)
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(prog="static_shapes", description=__doc__)
-    add_arguments(parser)
-    sys.exit(run(parser.parse_args()))
+    entry.main(sys.modules[__name__])

@@ -91,7 +91,8 @@ def test_identify_input_errors(tmp_path, capsys):
 
 
 ABLATION_CI = paper_ablation.Params(identify_shapes=("arc", "hook", "helix", "two-plane"),
-                                    validate_shapes=("s-curve", "mixed"), repeats=3, calibration_frames=50)
+                                    validate_shapes=("s-curve", "mixed"), repeats=3, calibration_frames=50,
+                                    truth="rod")
 
 
 def check_ablation(r: dict) -> None:

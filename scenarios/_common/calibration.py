@@ -158,7 +158,8 @@ def lab_calibration(fiber: FiberModel, optics: OpticsConfig, *, names: Sequence[
     """The lab calibration of the twin's fibre (module docstring), from the cache when it is there."""
     say = progress or (lambda msg: None)
     key = {"version": _CACHE_VERSION, "fiber": fiber.to_dict(),
-           "optics": {k: v for k, v in dataclasses.asdict(optics).items() if k != "seed"},
+           # the noise seed is the lab session's own; S_T mismatch does not act at the calibration's temperature
+           "optics": {k: v for k, v in dataclasses.asdict(optics).items() if k not in ("seed", "thermal_mismatch")},
            "shapes": list(names), "repeats": repeats}
     digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
     path = cache_dir() / f"lab-calibration-{digest}.toml"
