@@ -52,17 +52,22 @@ def test_calibrate_source_errors_are_one_line(tmp_path, capsys):
 
 def test_record_then_identify(calibration, tmp_path, capsys):
     """static-shapes --record writes what twin identify reads; identification on 2 planar + 2 spatial shapes
-    (connect fixture, 1 pm noise) recovers the twin's Δθ within 0.005 rad and g within 0.5 %."""
+    (connect fixture, 1 pm noise) recovers the twin's Δθ within 0.005 rad and g within 0.5 %, and improves a
+    shape it did not fit (--validate-frames/--validate-truth) as much as the fitted ones."""
     rec = tmp_path / "rec"
     names = ["arc", "hook", "helix", "two-plane"]
-    code, _, _ = run_cli(capsys, "run", "static-shapes", "--shapes", ",".join(names), "--repeats", "4",
+    held_out = "mixed"
+    code, _, _ = run_cli(capsys, "run", "static-shapes", "--shapes", ",".join([*names, held_out]), "--repeats", "4",
                          "--calibration", str(calibration), "--record", str(rec), "--json")
     assert code == 0
     pairs = [a for n in names for a in ("--frames", str(rec / f"{n}.h5"), "--truth", str(rec / f"{n}_truth.csv"))]
     out_cal = tmp_path / "identified.toml"
-    code, out, _ = run_cli(capsys, "identify", *pairs, "--out", str(out_cal), "--json")
+    code, out, _ = run_cli(capsys, "identify", *pairs, "--validate-frames", str(rec / f"{held_out}.h5"),
+                           "--validate-truth", str(rec / f"{held_out}_truth.csv"), "--out", str(out_cal), "--json")
     assert code == 0
     r = json.loads(out)
+    v = r["validation"]
+    assert v["shapes"] == [held_out] and v["worst_after_mm"] < 0.15 < v["worst_before_mm"]
     g_true = 37.5 * 0.777 * 0.961
     assert abs(r["delta_theta"] - 1.039) < 0.005 and abs(r["g_um"] / g_true - 1) < 0.005
     assert abs(r["delta_theta"] - 1.039) < 3 * r["delta_theta_std"] + 1e-4
