@@ -181,7 +181,9 @@ def write_report(r: dict, directory):
     """The ablation table as a chart and markdown in ``directory``; returns the report's path."""
     from scenarios.report import Report, pyplot
 
-    rep = Report(directory, "The paper's ablation in the twin")
+    truth = "fixtures'" if r["params"]["truth"] == "fixture" else "catheter's"
+    rep = Report(directory, "The paper's ablation in the twin", "calibration: per row (the two-step calibration, "
+                 f"then [Δθ, g] identified against the {truth} centrelines)")
     i, t = r["identified"], r["true"]
     rep.text(f"Identified Δθ = {i['delta_theta']:.5f} ± {i['delta_theta_std']:.5f} rad (true {t['delta_theta']:.5f}), "
              f"g = {i['g_um']:.4f} ± {i['g_std_um']:.4f} µm (true {t['g_um']:.4f}).")

@@ -31,8 +31,20 @@ import numpy as np
 from scenarios import _sheath_common as common
 from scenarios._common import entry
 from scenarios._common.calibration import calibration_for
+from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import DEG, option
-from scenarios.report import Report, curvature_profiles, error_over_time, pyplot, tip_trajectories
+from scenarios.report import (
+    Report,
+    curvature_profiles,
+    error_along_arc,
+    error_over_time,
+    overlay_panels,
+    per_shape_errors,
+    pyplot,
+    shape_overlays,
+    stamp,
+    tip_trajectories,
+)
 from sim_interrogator.sheath import SheathCycle
 
 PAPER_STD_MM = 0.82
@@ -266,7 +278,8 @@ def text_report(result: Result) -> str:
 def write_report(result: Result, directory: str) -> str:
     """``directory``/report.md with plots: tip scatter, error over time, tip trajectories, curvature."""
     s, p = result.summary(), result.params
-    rep = Report(directory, "Repeatability: in and out of the same sheath")
+    rep = Report(directory, "Repeatability: in and out of the same sheath",
+                 calibration_label(result.calibration))
     rep.text(
         f"The catheter was withdrawn {p.cycles} times by {p.withdraw * 1e3:.0f} mm at {p.speed * 1e3:.0f} mm/s "
         f"from a pre-bent 8 Fr sheath (60°, R 35 mm, bore 2.8 mm, μ = {p.friction:g}) and pushed back to the "
@@ -304,15 +317,36 @@ def write_report(result: Result, directory: str) -> str:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     offset = np.linalg.norm(recon.mean(axis=0) - true.mean(axis=0)) * 1e3
+    cal = calibration_label(result.calibration)
+    stamp(fig, cal)
     rep.figure("tip_scatter", fig, "Tip at each return to the reference, fibre base frame, each set about its own "
                f"mean (the reconstruction's mean is {offset:.2f} mm from the true one: its static error)")
     fig = error_over_time(result.t, {"default": result.frame_error["default"] * 1e3,
-                                     "paper's pipeline": result.frame_error["paper"] * 1e3},
+                                     "paper's pipeline, guarded": result.frame_error["paper"] * 1e3,
+                                     "paper's pipeline, literal": result.frame_error["paper-literal"] * 1e3},
                           ylabel="tip error, fibre frame (mm)", marks=result.at_reference,
                           mark_label="measured at the reference")
-    if result.frame_error["paper"].max() > 30 * max(result.frame_error["default"].max(), 1e-6):
+    if result.frame_error["paper-literal"].max() > 30 * max(result.frame_error["default"].max(), 1e-6):
         fig.axes[0].set_yscale("log")
+    stamp(fig, cal)
     rep.figure("error_over_time", fig, "Reconstructed tip error over the cycles")
+    names = [f"cycle {k + 1}" for k in range(len(result.tips["true"]))]
+    dist = {m: np.linalg.norm(result.tips["fibre"][m] - result.tips["fibre"][m].mean(axis=0), axis=1) * 1e3
+            for m in common.MODES}
+    fig = per_shape_errors(names, dist, None, "Distance of the tip from its mean tip at each return (fibre frame)",
+                           cal, paper_max_mm=PAPER_MAX_MM, xlabel="return")
+    rep.figure("spread_per_cycle", fig, "Each return's distance from the mean tip, per pipeline (dashed: the "
+               "paper's largest, on hardware)")
+    sh = result.shapes
+    if sh:
+        panels, along = overlay_panels(names, sh["truth"], sh["truth_s"], {m: sh[m] for m in ("default", "paper")},
+                                       sh["s"])
+        rep.figure("shape_overlays", shape_overlays(panels, "Shape at each return over the catheter (registered "
+                                                    "onto it; mm)", cal), "The shape at each return to the "
+                   "reference (mean over the window), registered onto the catheter")
+        fig = error_along_arc(sh["s"], {n: along["default"][i] * 1e3 for i, n in enumerate(names)},
+                              "Error along the arc length at each return, default pipeline", cal)
+        rep.figure("error_along_arc", fig, "distance of the registered reconstruction from the catheter")
     tr = {k: v * 1e3 for k, v in result.trajectories.items()}
     fig = tip_trajectories(tr["truth"], {"default": tr["default"]}, "tip in the world over the cycles")
     rep.figure("tip_trajectories", fig, "Tip trajectory over the cycles, truth vs reconstruction (tracked base)")

@@ -49,8 +49,20 @@ import numpy as np
 from scenarios import _sheath_common as common
 from scenarios._common import entry
 from scenarios._common.calibration import calibration_for
+from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import DEG, option
-from scenarios.report import Report, curvature_profiles, error_over_time, pyplot, tip_trajectories
+from scenarios.report import (
+    Report,
+    curvature_profiles,
+    error_along_arc,
+    error_over_time,
+    overlay_panels,
+    per_shape_errors,
+    pyplot,
+    shape_overlays,
+    stamp,
+    tip_trajectories,
+)
 from sim_interrogator.sheath import SheathRotate
 from twin import metrics
 
@@ -325,7 +337,8 @@ def text_report(result: Result) -> str:
 def write_report(result: Result, directory: str) -> str:
     """``directory``/report.md with plots: deviation vs angle, error over time, tip trajectories, curvature."""
     s, p = result.summary(), result.params
-    rep = Report(directory, "Rotation inside a pre-bent 8 Fr sheath")
+    rep = Report(directory, "Rotation inside a pre-bent 8 Fr sheath",
+                 calibration_label(result.calibration))
     rep.text(
         f"The catheter was turned {p.steps} × {math.degrees(p.total_angle / p.steps):.0f}° inside a pre-bent 8 Fr "
         f"sheath (60° bend, radius 35 mm, bore 2.8 mm, friction μ = {p.friction:g}); the end of the sensed region "
@@ -361,22 +374,43 @@ def write_report(result: Result, directory: str) -> str:
     deg = np.degrees(result.angles)
     for mode, style in (("default", "o-"), ("paper", "s--")):
         ax.plot(deg, result.deviation[mode]["tracked"] * 1e3, style, label=f"{mode} pipeline (vs EM)")
+    ax.plot(deg, result.deviation["paper-literal"]["tracked"] * 1e3, "x:", label="paper-literal pipeline (vs EM)")
     ax.plot(deg, result.deviation_truth["default"]["tracked"] * 1e3, "^:", label="default (vs true tip)")
     ax.axhline(PAPER_MAX_DEVIATION_MM, color="k", lw=0.8, ls="--", label="paper: max 0.36 mm")
-    if result.deviation["paper"]["tracked"].max() > 30 * result.deviation["default"]["tracked"].max():
+    if result.deviation["paper-literal"]["tracked"].max() > 30 * result.deviation["default"]["tracked"].max():
         ax.set_yscale("log")
     ax.set_xlabel("hub angle (°)")
     ax.set_ylabel("tip deviation (mm)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
+    cal = calibration_label(result.calibration)
+    fig.suptitle("Tip deviation after registration onto the EM readings", fontsize=10)
+    stamp(fig, cal)
     rep.figure("deviation_vs_angle", fig, "Tip deviation after registration at each angle")
+    names = [f"{math.degrees(a):.0f}°" for a in result.angles]
+    fig = per_shape_errors(names, {m: result.registered[m] * 1e3 for m in common.MODES}, None,
+                           "Tip deviation after whole-curve registration onto the 0° shape (the paper's Fig. 6b)",
+                           cal, paper_max_mm=PAPER_MAX_DEVIATION_MM, xlabel="hub angle")
+    rep.figure("registered_deviation", fig, "Each measured shape rigidly registered onto the one measured at 0°; "
+               "what is left at the tip, per pipeline (dashed: the paper's largest, on hardware)")
+    sh = result.shapes
+    if sh:
+        panels, along = overlay_panels(names, sh["truth"], sh["truth_s"], {m: sh[m] for m in ("default", "paper")},
+                                       sh["s"])
+        rep.figure("shape_overlays", shape_overlays(panels, "Measured shapes at each angle over the catheter "
+                                                    "(registered onto it; mm)", cal),
+                   "The shape at each angle (mean over the measurement window), registered onto the catheter")
+        fig = error_along_arc(sh["s"], {n: along["default"][i] * 1e3 for i, n in enumerate(names)},
+                              "Error along the arc length at each angle, default pipeline", cal)
+        rep.figure("error_along_arc", fig, "distance of the registered reconstruction from the catheter, per angle")
     fig = error_over_time(result.t, {
         "default: tip error (mm)": result.frame_error["default"]["tracked"] * 1e3,
-        "paper's pipeline (mm)": result.frame_error["paper"]["tracked"] * 1e3,
+        "paper's pipeline, guarded (mm)": result.frame_error["paper"]["tracked"] * 1e3,
         "wind-up over the sensed region (°)": np.degrees(np.abs(result.twist)),
     }, ylabel="mm  /  °", marks=result.turning, mark_label="hub turning")
     if result.frame_error["paper"]["tracked"].max() > 30 * result.frame_error["default"]["tracked"].max():
         fig.axes[0].set_yscale("log")
+    stamp(fig, cal)
     rep.figure("error_over_time", fig, "Registered tip error against the true tip, and the catheter's wind-up")
     mm_tips = {k: v * 1e3 for k, v in result.tips.items()}
     fig = tip_trajectories(mm_tips["truth"], {"EM sensor": mm_tips["em"], "default": mm_tips["default"]},

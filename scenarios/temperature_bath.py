@@ -47,6 +47,7 @@ from scipy.spatial.distance import pdist
 
 from scenarios._common import entry
 from scenarios._common.calibration import CALIBRATIONS, calibration_for, check_calibration
+from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
 from scenarios._common.optics import OPTICS, optics_config
 from scenarios.series import Series, collect
@@ -403,7 +404,8 @@ def write_report(result: Result, directory: str | Path) -> Path:
 
     plt = pyplot()
     p = result.params
-    rep = Report(directory, "Temperature bath: tip variation while the bath cools")
+    rep = Report(directory, "Temperature bath: tip variation while the bath cools",
+                 calibration_label(result.calibration))
     rep.text(f"The catheter is held in the **{p.shape}** shape ({p.fixture} fixture) while the bath cools from "
              f"{p.start_celsius:g} °C to {p.end_celsius:g} °C ({p.profile} curve toward a {p.room_celsius:g} °C "
              f"room, {p.duration:g} s simulated; λ0 referenced to {p.room_celsius:g} °C). The interrogator runs at "

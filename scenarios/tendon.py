@@ -52,6 +52,7 @@ import numpy as np
 
 from scenarios._common import entry
 from scenarios._common.calibration import CALIBRATIONS, calibration_for, check_calibration
+from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
 from scenarios._common.optics import OPTICS, optics_config
 from scenarios.series import Series, collect, to_world
@@ -353,7 +354,8 @@ def write_report(result: Result, directory: str | Path) -> Path:
     p = result.params
     s = result.summary()
     fiber = FiberModel.paper()
-    rep = Report(directory, "Tendon steering: reconstructed tip vs an EM sensor")
+    rep = Report(directory, "Tendon steering: reconstructed tip vs an EM sensor",
+                 calibration_label(result.calibration))
     rep.text(f"A bidirectional catheter hangs from a clamped base; pull-wires (r_t = {p.tendon_offset * 1e3:g} mm) "
              f"bend its {p.deflectable_length * 1e3:g} mm deflectable section back and forth with up to "
              f"{p.max_tension:g} N ({p.cycles:g} periods of {p.period:g} s; {s['tip_sweep_mm']:.0f} mm tip sweep, "

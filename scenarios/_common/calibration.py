@@ -42,7 +42,7 @@ from twin import Calibration, FiberModel, shapes
 from twin.calibration.identify import Observation, identify
 
 __all__ = ["CALIBRATIONS", "LAB_SHAPES", "UsedCalibration", "cache_dir", "calibration_for", "check_calibration",
-           "fixture_observation", "identify_on_fixtures", "lab_calibration", "paper_fixture"]
+           "fixture_observation", "identify_on_fixtures", "lab_calibration", "label", "paper_fixture"]
 
 #: What ``--calibration`` accepts besides a calibration TOML.
 CALIBRATIONS = ("lab", "true", "lambda0", "nominal")
@@ -75,7 +75,7 @@ class UsedCalibration:
     @property
     def label(self) -> str:
         """Short text stamped on figures."""
-        return f"calibration: {self.name}" + (f" ({_SHORT[self.name]})" if self.name in _SHORT else "")
+        return label(self.name)
 
     def to_dict(self) -> dict:
         c = self.calibration
@@ -89,6 +89,13 @@ class UsedCalibration:
 
 _SHORT = {"lab": "two-step + identification on fixture geometry", "true": "the twin's true parameters",
           "lambda0": "as-built λ0 only", "nominal": "datasheet"}
+
+
+def label(name: str) -> str:
+    """Short text stamped on figures for the calibration called ``name`` (or a result's ``calibration`` dict)."""
+    if isinstance(name, dict):
+        name = str(name.get("name", "?"))
+    return f"calibration: {name}" + (f" ({_SHORT[name]})" if name in _SHORT else "")
 
 
 def check_calibration(kind: str) -> str:
