@@ -53,6 +53,7 @@ from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
 from scenarios._common.optics import OPTICS, optics_config
 from scenarios._common.static import fixture_for, measure
+from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
 from twin import FiberModel, Reconstructor, shapes
@@ -148,9 +149,54 @@ def record(directory: Path, name: str, sim: SimInterrogator, frames, cal, which:
                     np.linspace(0.0, sim.fiber.sensed_length, len(truth.fixture)))
 
 
+class _Watched(StaticShape):
+    """A static setup that keeps the MuJoCo model and data it builds, so the catheter can be drawn while it
+    settles."""
+
+    model_data = None
+
+    def build(self):
+        self.model_data = super().build()
+        return self.model_data
+
+
+def settling_drawer(viewer, setup: _Watched, fiber: FiberModel, optics: OpticsConfig, rec: Reconstructor, name: str):
+    """A settle-progress callback that draws the catheter as it settles: the rod's curvature at the gratings
+    through the optics (noise-free) and ``rec``, beside the rod itself and the fixture; the viewer's rate limiter
+    decides how often."""
+    from models.rod_state import RodReader
+    from sim_interrogator.optics import Optics
+    from twin.frames import Truth
+
+    optics = Optics(fiber, optics.replace(noise=0.0, drift=0.0, seed=None))
+    reader: list = []
+
+    def draw(t: float, moved: float) -> None:
+        if setup.model_data is None:
+            return
+        model, data = setup.model_data
+        if not reader:
+            reader.append(RodReader(model, setup.rod_name))
+        st = reader[0].read(data)
+        s_in = st.s[1:-1]
+        k = np.stack([np.interp(fiber.grating_s, s_in, st.darboux[:, 1]),
+                      np.interp(fiber.grating_s, s_in, -st.darboux[:, 0])], axis=-1)
+        out = optics.wavelengths(k)
+        shape = rec(out[0] if isinstance(out, tuple) else out)
+        if not np.all(np.isfinite(shape.positions)):
+            return
+        e0 = int(np.argmin(np.abs(st.edge_s)))
+        base = (st.edge_frames[e0], np.array([np.interp(0.0, st.s, st.positions[:, j]) for j in range(3)]))
+        viewer.show(shape, Truth(s=st.s, positions=st.positions, fixture=setup.fixture_centreline()),
+                    base_pose=base, label=f"{name}: settling, t = {t:.2f} s, still moving {moved * 1e6:.0f} µm")
+
+    return draw
+
+
 def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     """Run the experiment; ``progress(message)`` is called as shapes settle and are measured; a
-    :class:`twin.viewer.Viewer` shows each shape's last reconstruction with its truth and fixture."""
+    :class:`twin.viewer.Viewer` shows each shape while it settles and then its last reconstruction with its truth
+    and fixture."""
     if params.fixture not in FIXTURES:
         raise ValueError(f"fixture must be one of {', '.join(FIXTURES)}; got {params.fixture!r}")
     optics_config(params.optics)  # a clear error for an unknown name
@@ -166,12 +212,17 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
         kind = fixture_for(name, params.fixture)
         say(f"[{i + 1}/{len(params.shapes)}] {name}: settling in the {kind} …")
 
-        def tick(t, moved, name=name):
-            say(f"    {name}: t = {t:.2f} s, still moving {moved * 1e6:.1f} µm")
+        setup = _Watched(name, kind, segments=params.segments)
+        cfg = optics_config(params.optics, params.seed + i)
+        draw = settling_drawer(viewer, setup, fiber, cfg, Reconstructor(fiber), name) if viewer is not None else None
 
-        setup = StaticShape(name, kind, segments=params.segments)
-        sim = SimInterrogator(setup, fiber, optics_config(params.optics, params.seed + i),
-                              progress=tick if progress else None)
+        def tick(t, moved, name=name, draw=draw):
+            if progress:
+                say(f"    {name}: t = {t:.2f} s, still moving {moved * 1e6:.1f} µm")
+            if draw is not None:
+                draw(t, moved)
+
+        sim = SimInterrogator(setup, fiber, cfg, progress=tick if progress or draw else None)
         settle_s = sim.data.time
         settled.append((name, kind, sim, [sim.read() for _ in range(params.repeats)], float(settle_s)))
     used, per_shape = calibrations(params, fiber, settled, say)

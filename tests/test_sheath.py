@@ -108,7 +108,7 @@ def test_rotation_reduced():
     assert s["paper_pipeline_max_deviation_mm"] <= 1.5
     # scored the paper's way (whole-curve registration onto the 0° shape) the default pipeline agrees with itself
     # to the noise, and the literal pipeline does not
-    assert r.registered["default"][0] == 0.0 and s["registered_max_deviation_mm"] <= ROTATION_NOISE_MM
+    assert r.registered["default"][0] < 1e-12 and s["registered_max_deviation_mm"] <= ROTATION_NOISE_MM
     assert s["paper_literal_registered_max_deviation_mm"] > 5 * s["registered_max_deviation_mm"]
     d = json.loads(json.dumps(r.to_dict()))
     assert len(d["per_angle"]) == 3 and d["summary"]["paper_max_deviation_mm"] == 0.36

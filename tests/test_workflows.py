@@ -191,3 +191,24 @@ def test_lab_calibration_is_close_to_the_truth_and_cached(tmp_path, monkeypatch)
     assert cache_dir() == tmp_path and len(list(tmp_path.glob("lab-calibration-*.toml"))) == 1
     again = calibration_for("lab", optics_config("realistic", seed=7))  # the noise seed of a run does not matter
     assert again.calibration.gain == used.calibration.gain
+
+
+def test_static_shapes_draws_while_settling():
+    """static-shapes --viewer draws the catheter while it settles (through the optics and the reconstruction),
+    not only its last frame; each drawing carries the rod and the fixture."""
+    from scenarios import static_shapes
+
+    class Viewer:
+        def __init__(self):
+            self.labels = []
+
+        def show(self, shape, truth=None, *, base_pose=None, label=None, force=False, reframe=False):
+            assert shape.positions.ndim == 2 and np.isfinite(shape.positions).all()
+            assert truth.fixture is not None and truth.positions.shape[-1] == 3
+            self.labels.append(label)
+            return True
+
+    v = Viewer()
+    static_shapes.run_experiment(static_shapes.Params(shapes=("arc",), repeats=1, calibration="true"), viewer=v)
+    settling = [lb for lb in v.labels if "settling" in lb]
+    assert len(settling) >= 2 and v.labels[-1] == "arc"

@@ -8,7 +8,8 @@ A scenario module provides
   the flag defaults to ``--`` + the field's name with dashes, the option's value times ``scale`` is the field's
   value (mm → m above; :data:`DEG` for degrees), ``choices`` restricts it; bools become ``--flag/--no-flag``;
   tuples of names are given comma-separated. The help shows the default in the option's unit;
-* ``run_experiment(params, progress=None[, viewer=None])`` returning a result with ``to_dict()`` (or a dict);
+* ``run_experiment(params, progress=None[, viewer=None])`` returning a result with ``to_dict()`` (or a dict,
+  whose keys starting with ``_`` are for the report only and left out of ``--json``);
 * ``text_report(result) -> str`` and ``write_report(result, directory) -> path``.
 
 and wires itself with three lines::
@@ -117,8 +118,9 @@ def run(name: str, module, args: argparse.Namespace) -> int:
     if getattr(args, "report", None):
         say(f"report: {module.write_report(result, args.report)}")
     if getattr(args, "json", False):
-        print(json.dumps(finite(result if isinstance(result, dict) else result.to_dict()), indent=2,
-                         allow_nan=False))
+        out = {k: v for k, v in result.items() if not k.startswith("_")} if isinstance(result, dict) else \
+            result.to_dict()
+        print(json.dumps(finite(out), indent=2, allow_nan=False))
     else:
         print(module.text_report(result))
     return 0

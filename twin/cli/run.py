@@ -17,9 +17,16 @@ VIEWER_HELP = ("--viewer [--viewer-rate HZ]: show the run in a browser (meshcat;
                "at most HZ frames per second (default 30)")
 
 
+COMMON_HELP = ("Every scenario takes --json (one JSON object on stdout) and --report DIR (DIR/report.md with "
+               "figures); the experiments take --calibration lab|true|lambda0|nominal|FILE (default lab: calibrated "
+               "as a lab would, two-step then identification against the fixtures' geometry; true: the twin's true "
+               "parameters) and --optics realistic|ideal. `twin run NAME --help` lists a scenario's own options.")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from twin.cli import scenarios
 
+    parser.epilog = COMMON_HELP + " " + VIEWER_HELP
     known = scenarios()
     parser.add_argument("--viewer", action="store_true", help="show the run in a browser (meshcat)")
     parser.add_argument("--viewer-rate", type=float, default=None, metavar="HZ",
