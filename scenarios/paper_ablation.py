@@ -117,9 +117,25 @@ def run_experiment(params: Params, progress=None) -> dict:
     recs[("integ", "rk4")] = Reconstructor.paper(fiber, cal_id, integrator="rk4")
     recs[("integ", "hem-mid")] = Reconstructor.paper(fiber, cal_id, integrator="hem-mid")
     errors = {}
+    curves: dict = {"names": [], "truth": [], "truth_s": None, "fixture": [], "default": [], "paper": []}
     for name, (s, frames) in recorded.items():
         say(f"reconstructing {name} …")
         errors[name] = measure(s, frames, recs)
+        truth = frames[-1].truth  # the overlays: row (3), the last frame of each shape
+        curves["names"].append(name)
+        curves["truth"].append(truth.positions)
+        curves["truth_s"] = truth.s
+        curves["fixture"].append(truth.fixture)
+        for mode in ("default", "paper"):
+            shape = recs[("3", mode)](frames[-1])
+            curves[mode].append(shape.positions)
+            curves["s"] = shape.s
+    per_shape = [{"shape": n, "set": "identification" if n in params.identify_shapes else "validation",
+                  **{f"{key}_{against}_{stat}_error_mm": float(np.max(e[("3", m)][against]["max"]) * 1e3
+                     if stat == "max" else np.mean(e[("3", m)][against]["mean"]) * 1e3)
+                     for m, key in (("default", "default"), ("paper", "paper"), ("paper-literal", "paper_literal"))
+                     for against in ("rod", "fixture") for stat in ("max", "mean")}}
+                 for n, e in errors.items()]
 
     def table(key, against, names):
         return _agg([errors[n][key][against] for n in names])
@@ -158,6 +174,8 @@ def run_experiment(params: Params, progress=None) -> dict:
         "interpolation": interpolation,
         "integrator": integrator,
         "paper": PAPER,
+        "per_shape_row3": per_shape,
+        "_curves": curves,
     }
 
 
@@ -187,6 +205,34 @@ def write_report(r: dict, directory):
     i, t = r["identified"], r["true"]
     rep.text(f"Identified Δθ = {i['delta_theta']:.5f} ± {i['delta_theta_std']:.5f} rad (true {t['delta_theta']:.5f}), "
              f"g = {i['g_um']:.4f} ± {i['g_std_um']:.4f} µm (true {t['g_um']:.4f}).")
+    from scenarios.report import error_along_arc, overlay_panels, per_shape_errors, shape_overlays
+
+    cal = rep.calibration
+    ps = r["per_shape_row3"]
+    names = [f"{e['shape']} ({e['set'][:5]}.)" for e in ps]
+    for against, what in (("rod", "the catheter"), ("fixture", "the fixture (the paper's metric)")):
+        fig = per_shape_errors(
+            names, {m: [e[f"{k}_{against}_max_error_mm"] for e in ps] for m, k in
+                    (("default", "default"), ("paper", "paper"), ("paper-literal", "paper_literal"))},
+            {m: [e[f"{k}_{against}_mean_error_mm"] for e in ps] for m, k in
+             (("default", "default"), ("paper", "paper"), ("paper-literal", "paper_literal"))},
+            f"Row (3), identified and compensated: error per shape against {what}", cal,
+            paper_max_mm=PAPER["rows"]["3"]["max_error_mm"], paper_mean_mm=PAPER["rows"]["3"]["mean_error_mm"])
+        rep.figure(f"errors_per_shape_{against}", fig, f"row (3): max and mean error per shape against {what}; "
+                   "dashed: the paper's figures on hardware")
+    c = r.get("_curves")
+    if c:
+        panels, along = overlay_panels(c["names"], np.stack(c["truth"]), c["truth_s"],
+                                       {m: np.stack(c[m]) for m in ("default", "paper")}, c["s"],
+                                       fixture=np.stack(c["fixture"]))
+        rep.figure("shape_overlays", shape_overlays(panels, "Row (3): reconstructions over the catheter and the "
+                                                    "fixture (registered onto the catheter; mm)", cal),
+                   "each shape's last frame with the identified calibration")
+        for m in ("default", "paper"):
+            fig = error_along_arc(c["s"], {n: along[m][i] * 1e3 for i, n in enumerate(c["names"])},
+                                  f"Row (3): error along the arc length, {m} pipeline, against the catheter", cal,
+                                  paper_max_mm=PAPER["rows"]["3"]["max_error_mm"])
+            rep.figure(f"error_along_arc_{m}", fig, f"{m} pipeline, last frame of each shape, registered")
     rows = [[f"({row['row']}) {row['label']}", row["mode"], row["identification_rod"]["max_error_mm"],
              row["validation_rod"]["max_error_mm"], row["validation_rod"]["mean_error_mm"],
              row["validation_fixture"]["max_error_mm"], PAPER["rows"][row["row"]]["max_error_mm"]]

@@ -334,7 +334,7 @@ def write_report(result: Result, directory: str) -> str:
     dist = {m: np.linalg.norm(result.tips["fibre"][m] - result.tips["fibre"][m].mean(axis=0), axis=1) * 1e3
             for m in common.MODES}
     fig = per_shape_errors(names, dist, None, "Distance of the tip from its mean tip at each return (fibre frame)",
-                           cal, paper_max_mm=PAPER_MAX_MM, xlabel="return")
+                           cal, paper_max_mm=PAPER_MAX_MM, xlabel="return", ylabel="distance from the mean tip (mm)")
     rep.figure("spread_per_cycle", fig, "Each return's distance from the mean tip, per pipeline (dashed: the "
                "paper's largest, on hardware)")
     sh = result.shapes

@@ -277,12 +277,12 @@ def error_along_arc(s: np.ndarray, errors_mm: Mapping[str, np.ndarray], title: s
 def per_shape_errors(names: Sequence[str], max_mm: Mapping[str, Sequence[float]],
                      mean_mm: Mapping[str, Sequence[float]] | None, title: str, calibration: str | None = None,
                      paper_max_mm: float | None = None, paper_mean_mm: float | None = None,
-                     xlabel: str = "shape", log: bool | None = None):
+                     xlabel: str = "shape", log: bool | None = None, ylabel: str = "max error (mm)"):
     """Max (and mean) error per shape, one bar per label, the paper's figures as dashed reference lines.
 
     ``log``: logarithmic axis; by default when the largest bar is 30× the smallest."""
     plt = pyplot()
-    panels = [("max error (mm)", max_mm, paper_max_mm)]
+    panels = [(ylabel, max_mm, paper_max_mm)]
     if mean_mm is not None:
         panels.append(("mean error (mm)", mean_mm, paper_mean_mm))
     fig, axs = plt.subplots(1, len(panels), figsize=(5.2 * len(panels), 3.6), squeeze=False)

@@ -388,9 +388,10 @@ def write_report(result: Result, directory: str) -> str:
     stamp(fig, cal)
     rep.figure("deviation_vs_angle", fig, "Tip deviation after registration at each angle")
     names = [f"{math.degrees(a):.0f}°" for a in result.angles]
-    fig = per_shape_errors(names, {m: result.registered[m] * 1e3 for m in common.MODES}, None,
+    fig = per_shape_errors(names[1:], {m: result.registered[m][1:] * 1e3 for m in common.MODES}, None,
                            "Tip deviation after whole-curve registration onto the 0° shape (the paper's Fig. 6b)",
-                           cal, paper_max_mm=PAPER_MAX_DEVIATION_MM, xlabel="hub angle")
+                           cal, paper_max_mm=PAPER_MAX_DEVIATION_MM, xlabel="hub angle",
+                           ylabel="tip deviation (mm)")
     rep.figure("registered_deviation", fig, "Each measured shape rigidly registered onto the one measured at 0°; "
                "what is left at the tip, per pipeline (dashed: the paper's largest, on hardware)")
     sh = result.shapes

@@ -20,8 +20,8 @@ from twin.strain import CurvatureSolver
 __all__ = ["METHODS", "PAPER_KAPPA_MIN", "Reconstructor"]
 
 METHODS = ("material", "paper")
-#: The paper pipeline's default κ_min, 1/m: well above κ's noise (≈ 0.03 1/m per component at 1 pm) and below
-#: the gentlest bend the experiments sense (≈ 4 1/m); 0.1 1/m is too low (a catheter's shaft curves at 0.05–0.1).
+#: The paper pipeline's default κ_min, 1/m: 30 × the noise of κ (≈ 0.03 1/m per component at 1 pm of wavelength
+#: noise on this fibre) and far below the bends a catheter is steered through (tens of 1/m).
 PAPER_KAPPA_MIN = 1.0
 
 
