@@ -484,7 +484,30 @@ def write_report(result: Result, directory: str | Path) -> Path:
          f"paper at {r0.bath_celsius[-1]:.0f} °C": r0.curvature["paper"][-1]},
         title="curvature along the fibre, truth vs reconstruction"), "Curvature profiles, start and end of the run")
     rep.text("Run: `twin run temperature-bath " + " ".join(_cli_args(p)) + "`")
+    _overlays(rep, result)
     return rep.write()
+
+
+def _overlays(rep, result: Result) -> None:
+    """The first and last windows of the first run over the catheter, and the error along the arc."""
+    from scenarios.report import error_along_arc, overlay_panels, shape_overlays
+
+    r = result.runs[0]
+    if not r.shapes or r.truth is None:
+        return
+    rot, pos = r.base_pose
+    idx = np.array([0, r.t.size - 1])
+    names = [f"bath {r.bath_celsius[i]:.1f} °C" for i in idx]
+    recon = {m: r.shapes[m].positions[idx] @ rot.T + pos for m in ("default", "paper")}
+    truth = np.repeat(r.truth.positions[None], idx.size, axis=0)
+    fixture = None if r.truth.fixture is None else np.repeat(r.truth.fixture[None], idx.size, axis=0)
+    panels, along = overlay_panels(names, truth, r.truth.s, recon, r.shapes["default"].s, fixture=fixture)
+    rep.figure("shape_overlays", shape_overlays(panels, "Hot and cooled: reconstructions over the catheter "
+                                                "(registered onto it; mm)", rep.calibration),
+               "the first and last averaging windows of the first run, registered onto the catheter")
+    fig = error_along_arc(r.shapes["default"].s, {n: along["default"][i] * 1e3 for i, n in enumerate(names)},
+                          "Error along the arc length, default pipeline", rep.calibration)
+    rep.figure("error_along_arc", fig, "distance of the registered reconstruction from the catheter")
 
 
 def _tip_scatter(result: Result):

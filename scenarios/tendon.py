@@ -412,8 +412,38 @@ def write_report(result: Result, directory: str | Path) -> Path:
     g = int(np.argmin(np.abs(fiber.grating_s - 0.5 * (fiber.sensed_length + result.setup["coil_end_s"]))))
     rep.figure("load", _load_figure(result, g),
                f"Wire tension and curvature at the grating at {fiber.grating_s[g] * 1e3:.0f} mm (in the section)")
+    if result.series is not None and result.shapes:
+        _overlays(rep, result)
     rep.text("Run: `twin run tendon " + " ".join(_cli_args(p)) + "`")
     return rep.write()
+
+
+def _overlays(rep, result: Result, count: int = 5) -> None:
+    """Shape overlays at a few frames (the extremes of the sweep among them) and the error along the arc."""
+    from scenarios.report import error_along_arc, overlay_panels, shape_overlays
+
+    series = result.series
+    idx = np.unique(np.append(np.linspace(0, len(series) - 1, count - 2).round().astype(int),
+                              [int(np.argmax(result.tension)), int(np.argmin(result.tension))]))
+    idx = np.array([i for i in idx if all(np.isfinite(result.shapes[m].positions[i]).all() for m in ("default",
+                                                                                                    "paper"))])
+    if idx.size == 0:
+        return
+    names = [f"t = {result.t[i]:.1f} s, T = {result.tension[i]:+.1f} N" for i in idx]
+    recon = {m: to_world(result.shapes[m][idx], _subseries(series, idx)) for m in ("default", "paper")}
+    panels, along = overlay_panels(names, series.truth_positions[idx], series.truth_s, recon,
+                                   result.shapes["default"].s)
+    rep.figure("shape_overlays", shape_overlays(panels, "Reconstructions over the catheter (registered onto it; mm)",
+                                                rep.calibration), "a few frames of the sweep, registered")
+    fig = error_along_arc(result.shapes["default"].s, {n: along["default"][i] * 1e3 for i, n in enumerate(names)},
+                          "Error along the arc length, default pipeline", rep.calibration)
+    rep.figure("error_along_arc", fig, "distance of the registered reconstruction from the catheter")
+
+
+def _subseries(series: Series, idx: np.ndarray) -> Series:
+    from dataclasses import replace
+
+    return replace(series, base_positions=series.base_positions[idx], base_frames=series.base_frames[idx])
 
 
 def _cli_args(p: Params) -> list[str]:

@@ -225,14 +225,15 @@ def test_scenarios_run_from_the_command_line(tmp_path, capsys):
     assert out["summary"]["paper_max_deviation_mm"] == 2.1 and out["calibration"]["name"] == "true"
     assert set(out["pipelines"]) == {"default", "paper", "paper-literal"}
     report = (tmp_path / "tendon" / "report.md").read_text()
-    for png in ("tip_trajectories", "error_over_time", "curvature", "load"):
+    for png in ("tip_trajectories", "error_over_time", "curvature", "load", "shape_overlays", "error_along_arc"):
         assert (tmp_path / "tendon" / f"{png}.png").stat().st_size > 1000 and f"{png}.png" in report
     assert main(["run", "temperature-bath", "--duration", "2", "--rate", "2", "--mismatch-percent", "0.3",
                  "--calibration", "true",
                  "--report", str(tmp_path / "bath")]) == 0
     text = capsys.readouterr().out
     assert "paper: ≤ 0.29 mm" in text
-    assert (tmp_path / "bath" / "tip_vs_temperature.png").exists()
+    for png in ("tip_vs_temperature", "shape_overlays", "error_along_arc"):
+        assert (tmp_path / "bath" / f"{png}.png").exists()
     assert main(["run", "tendon", "--wires", "2", "--offset-mm", "5"]) == 2
     assert "outside the catheter" in capsys.readouterr().err
     assert main(["run", "temperature-bath", "--end", "10"]) == 2
