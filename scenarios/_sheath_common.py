@@ -1,6 +1,7 @@
 """What the three sheath experiments (rotation, repeatability, sheath-motion) share: running a sheath setup into a
 :class:`~scenarios.series.Series` with a few extra per-frame records, the reconstructors, an EM-sensor-like tip
-reading, the viewer hook, command-line options and report pieces.
+reading, the viewer hook, the parameters every sheath experiment has and report pieces. The command-line glue,
+the calibration and the optics are every scenario's (:mod:`scenarios._common`).
 
 The EM sensor. The paper measured the tip with an electromagnetic tracker (an NDI Aurora 6-DOF sensor at the tip).
 It is modelled as the true position of the end of the sensed region plus white Gaussian noise of ``em_noise`` per
@@ -11,23 +12,39 @@ a measurement window, as an experimenter averages a held position.
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from scenarios._common.calibration import CALIBRATIONS
+from scenarios._common.entry import option
+from scenarios._common.optics import OPTICS, optics_config
 from scenarios.series import Series, collect
-from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.sheath import SheathSetup
 from sim_interrogator.sim import SimInterrogator
 from twin import Calibration, FiberModel, Reconstructor, Shape
 from twin.frames import Truth
 
-MODES = ("default", "paper")
+#: The pipelines every sheath experiment runs: ours, the paper's with θ_b held through low curvature
+#: (``Reconstructor.paper``, κ_min = 1 1/m) and the paper's literal transcription (κ_min = 0).
+MODES = ("default", "paper", "paper-literal")
+MODE_LABELS = {"default": "default pipeline", "paper": "paper's pipeline (guarded)",
+               "paper-literal": "paper's pipeline, literal"}
+
+
+def optics_field(default: str = "realistic"):
+    return field(default=default, metadata=option("synthetic interrogator effects", choices=OPTICS))
+
+
+def calibration_field(default: str = "lab"):
+    return field(default=default, metadata=option(
+        f"{', '.join(CALIBRATIONS)} or a calibration TOML (scenarios/_common/calibration.py)", metavar="CAL"))
+
+
+def seed_field():
+    return field(default=0, metadata=option("noise seed (interrogator and EM sensor)"))
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,15 +114,10 @@ class _Recording:
         return f
 
 
-def optics_config(kind: str, seed: int) -> OpticsConfig:
-    if kind not in ("realistic", "ideal"):
-        raise ValueError(f"optics must be realistic or ideal; got {kind!r}")
-    return OpticsConfig(seed=seed) if kind == "realistic" else OpticsConfig.ideal()
-
-
 def reconstructors(fiber: FiberModel, cal: Calibration | None) -> dict[str, Reconstructor]:
-    """The default pipeline and the paper's, with the same calibration."""
-    return {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal)}
+    """The pipelines of :data:`MODES`, with the same calibration."""
+    return {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal),
+            "paper-literal": Reconstructor.paper(fiber, cal, kappa_min=0.0)}
 
 
 def run_setup(setup: SheathSetup, *, optics: str, seed: int, rate: float, label: str,
@@ -176,47 +188,11 @@ def show_frames(viewer, shapes: Shape, series: Series, count: int = 40, pause: f
         time.sleep(pause)
 
 
-# ------------------------------------------------------------------------------------------------ command line
-def add_common_arguments(parser: argparse.ArgumentParser, *, rate: float, friction: float) -> None:
-    parser.add_argument("--optics", choices=("realistic", "ideal"), default="realistic",
-                        help="synthetic interrogator effects (default realistic)")
-    parser.add_argument("--calibration", default="true",
-                        help="true (the twin's true parameters), nominal, or a calibration TOML (default true)")
-    parser.add_argument("--friction", type=float, default=friction,
-                        help=f"Coulomb friction catheter–sheath (default {friction:g})")
-    parser.add_argument("--segments", type=int, default=100, help="rod segments (default 100)")
-    parser.add_argument("--rate", type=float, default=rate, help=f"interrogator frame rate, Hz (default {rate:g})")
-    parser.add_argument("--seed", type=int, default=0, help="noise seed (interrogator and EM sensor)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--report", metavar="DIR", help="write DIR/report.md with PNG plots")
-
-
-def stderr_progress(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
-
-
-def run_cli(name: str, args, module) -> int:
-    """``twin run NAME`` for a sheath experiment ``module`` (its params_from_args, run_experiment, write_report
-    and text_report): run it with progress on stderr, write ``--report``, print ``--json`` or the text report.
-    A catheter that does not settle, or a simulation that goes unstable, is one line on stderr (which setup,
-    how far it still moved) and exit status 1."""
-    from models.fixtures import SettleError
-
-    params = module.params_from_args(args)
-    try:
-        result = module.run_experiment(params, progress=stderr_progress, viewer=getattr(args, "viewer", None))
-    except SettleError as exc:
-        print(f"{name}: error: {exc}", file=sys.stderr)
-        return 1
-    if args.report:
-        stderr_progress(f"report: {module.write_report(result, args.report)}")
-    print(json.dumps(result.to_dict(), indent=2) if args.json else module.text_report(result))
-    return 0
-
-
-def paper_table(rows: list[tuple[str, str, str, str]]) -> tuple[list[str], list[tuple[str, str, str, str]]]:
+# ------------------------------------------------------------------------------------------------ reports
+def paper_table(rows: list[tuple[str, ...]]) -> tuple[list[str], list[tuple[str, ...]]]:
     """Headers and rows of the 'paper vs twin' table."""
-    return ["quantity", "paper", "twin: default pipeline", "twin: paper's pipeline"], rows
+    return ["quantity", "paper (hardware)", "twin: default pipeline", "twin: paper's pipeline (guarded)",
+            "twin: paper's pipeline, literal"], rows
 
 
 def mm(x) -> str:

@@ -7,10 +7,12 @@ The experiment runs what a lab would:
 1. the two-step calibration (``sim://calibration``: straight, then an in-plane bend of 0.16 1/cm);
 2. the 12 static shapes in the paper's fixtures (grooved plate for planar shapes, 3 mm tubes for spatial ones),
    ``repeats`` frames each;
-3. identification of [Δθ, g] on 3 planar + 3 spatial shapes (truth: the catheter's centreline with arc length,
-   as a CT would give; ``--truth fixture`` uses the fixtures' centrelines instead), validation on the other 6.
+3. identification of [Δθ, g] on 3 planar + 3 spatial shapes against the fixtures' centrelines (the grooves' and
+   tubes' CAD geometry, which is what the paper had; ``--truth rod`` uses the catheter's exact centreline
+   instead, as a CT would give it and no lab has), validation on the other 6.
 
-Rows of the table, each for the paper's pipeline and the default one, on the identification and validation
+Rows of the table, each for the paper's pipeline (θ_b held through low curvature), its literal transcription
+(κ_min = 0) and the default one, on the identification and validation
 sets: (1) nominal parameters, no twist compensation (λ0 from step 1 only); (2) nominal, twist-compensated;
 (3) identified, compensated. Errors are max and mean distances against the catheter (Kabsch registration) and
 against the fixture with the paper's metric (ICP + ±0.5 mm translation). Then, with the identified calibration
@@ -20,15 +22,16 @@ integrator comparison (HEM vs RK4, RMS of per-shape max errors) beside ours.
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from scenarios._common import entry
+from scenarios._common.calibration import fixture_observation
+from scenarios._common.entry import option
+from scenarios._common.static import fixture_for, measure
 from scenarios.factory import two_step_in_twin
-from scenarios.static_shapes import fixture_for, measure
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
@@ -51,13 +54,16 @@ ROWS = {"1": "nominal, no twist compensation", "2": "nominal, twist-compensated"
 
 @dataclass(frozen=True)
 class Params:
-    identify_shapes: tuple[str, ...] = IDENTIFY
-    validate_shapes: tuple[str, ...] = VALIDATE
-    repeats: int = 5
-    fixture: str = "paper"
-    truth: str = "rod"
-    calibration_frames: int = 100
-    seed: int = 0
+    identify_shapes: tuple[str, ...] = field(default=IDENTIFY, metadata=option("shapes to identify on"))
+    validate_shapes: tuple[str, ...] = field(default=VALIDATE, metadata=option("shapes to validate on"))
+    repeats: int = field(default=5, metadata=option("frames per shape"))
+    fixture: str = field(default="paper", metadata=option(
+        "paper: groove for planar shapes, tube for spatial ones", choices=("paper", "tube", "connect")))
+    truth: str = field(default="fixture", metadata=option(
+        "identification truth: the fixture's centreline (CAD, what a lab has) or the catheter's (a CT)",
+        choices=("fixture", "rod")))
+    calibration_frames: int = field(default=100, metadata=option("frames per pose of the two-step calibration"))
+    seed: int = field(default=0, metadata=option("noise seed"))
 
 
 def _agg(stats: list[dict]) -> dict:
@@ -97,8 +103,7 @@ def run_experiment(params: Params, progress=None) -> dict:
         if params.truth == "rod":
             obs.append(Observation(np.stack([f.wavelengths for f in frames]), t.positions, t.s, name))
         else:
-            obs.append(Observation(np.stack([f.wavelengths for f in frames]), t.fixture,
-                                   np.linspace(0, fiber.sensed_length, len(t.fixture)), name))
+            obs.append(fixture_observation(frames, fiber, name))
     ident = identify(fiber, obs, cal_twist)
     cal_id = ident.calibration(cal_twist)
 
@@ -106,14 +111,31 @@ def run_experiment(params: Params, progress=None) -> dict:
     cals = {"1": cal_plain, "2": cal_twist, "3": cal_id}
     recs = {(row, "paper"): Reconstructor.paper(fiber, c) for row, c in cals.items()}
     recs |= {(row, "default"): Reconstructor(fiber, c) for row, c in cals.items()}
+    recs |= {(row, "paper-literal"): Reconstructor.paper(fiber, c, kappa_min=0.0) for row, c in cals.items()}
     for kind in ("pchip", "knn", "linear"):
         recs[("interp", kind)] = Reconstructor.paper(fiber, cal_id, interpolation=kind)
     recs[("integ", "rk4")] = Reconstructor.paper(fiber, cal_id, integrator="rk4")
     recs[("integ", "hem-mid")] = Reconstructor.paper(fiber, cal_id, integrator="hem-mid")
     errors = {}
+    curves: dict = {"names": [], "truth": [], "truth_s": None, "fixture": [], "default": [], "paper": []}
     for name, (s, frames) in recorded.items():
         say(f"reconstructing {name} …")
         errors[name] = measure(s, frames, recs)
+        truth = frames[-1].truth  # the overlays: row (3), the last frame of each shape
+        curves["names"].append(name)
+        curves["truth"].append(truth.positions)
+        curves["truth_s"] = truth.s
+        curves["fixture"].append(truth.fixture)
+        for mode in ("default", "paper"):
+            shape = recs[("3", mode)](frames[-1])
+            curves[mode].append(shape.positions)
+            curves["s"] = shape.s
+    per_shape = [{"shape": n, "set": "identification" if n in params.identify_shapes else "validation",
+                  **{f"{key}_{against}_{stat}_error_mm": float(np.max(e[("3", m)][against]["max"]) * 1e3
+                     if stat == "max" else np.mean(e[("3", m)][against]["mean"]) * 1e3)
+                     for m, key in (("default", "default"), ("paper", "paper"), ("paper-literal", "paper_literal"))
+                     for against in ("rod", "fixture") for stat in ("max", "mean")}}
+                 for n, e in errors.items()]
 
     def table(key, against, names):
         return _agg([errors[n][key][against] for n in names])
@@ -121,12 +143,12 @@ def run_experiment(params: Params, progress=None) -> dict:
     sets = {"identification": params.identify_shapes, "validation": params.validate_shapes}
     rows = []
     for row in cals:
-        for mode in ("paper", "default"):
-            entry = {"row": row, "label": ROWS[row], "mode": mode}
+        for mode in ("paper", "paper-literal", "default"):
+            line = {"row": row, "label": ROWS[row], "mode": mode}
             for set_name, set_names in sets.items():
                 for against in ("rod", "fixture"):
-                    entry[f"{set_name}_{against}"] = table((row, mode), against, set_names)
-            rows.append(entry)
+                    line[f"{set_name}_{against}"] = table((row, mode), against, set_names)
+            rows.append(line)
     val = params.validate_shapes
     interpolation = {"spline": table(("3", "paper"), "fixture", val)}
     interpolation |= {k: table(("interp", k), "fixture", val) for k in ("pchip", "knn", "linear")}
@@ -137,8 +159,13 @@ def run_experiment(params: Params, progress=None) -> dict:
         "default_rms_of_max_mm": _rms_of_max([errors[n][("3", "default")]["fixture"] for n in val]),
     }
     return {
+        "experiment": "paper-ablation",
         "params": asdict(params),
-        "calibration": {"twist_error_max_rad": twist_error, "bend_curvature_min_1_per_m":
+        "calibration": {"name": "rows", "description": "each row its own calibration: (1) the two-step "
+                        "calibration's λ0 only, (2) with its twist, (3) then [Δθ, g] identified against the "
+                        f"{'fixtures' if params.truth == 'fixture' else 'catheter'}'s centrelines on "
+                        f"{', '.join(params.identify_shapes)}"},
+        "two_step": {"twist_error_max_rad": twist_error, "bend_curvature_min_1_per_m":
                         float(np.hypot(*report.bend_curvature.T).min())},
         "identified": {"delta_theta": ident.delta_theta, "delta_theta_std": ident.delta_theta_std,
                        "g_um": ident.gain * 1e6, "g_std_um": ident.gain_std * 1e6, "nfev": ident.nfev},
@@ -147,48 +174,65 @@ def run_experiment(params: Params, progress=None) -> dict:
         "interpolation": interpolation,
         "integrator": integrator,
         "paper": PAPER,
+        "per_shape_row3": per_shape,
+        "_curves": curves,
     }
 
 
 # ------------------------------------------------------------------------------------------------ command line
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--identify-shapes", default=",".join(IDENTIFY), help="shapes to identify on")
-    parser.add_argument("--validate-shapes", default=",".join(VALIDATE), help="shapes to validate on")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--fixture", choices=("paper", "tube", "connect"), default="paper",
-                        help="paper: groove for planar shapes, tube for spatial ones (default)")
-    parser.add_argument("--truth", choices=("rod", "fixture"), default="rod",
-                        help="identification truth: the catheter's centreline (a CT) or the fixture's (CAD)")
-    parser.add_argument("--calibration-frames", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--report", metavar="DIR", help="write PNG plots and a markdown summary to DIR")
+def add_arguments(parser) -> None:
+    entry.add_arguments(parser, Params)
 
 
-def run(args: argparse.Namespace) -> int:
-    def names(text):
-        out = tuple(n.strip() for n in text.split(",") if n.strip())
-        for n in out:
-            shapes.get(n)
-        return out
+def params_from_args(args) -> Params:
+    params = entry.params_from_args(Params, args)
+    for n in params.identify_shapes + params.validate_shapes:
+        shapes.get(n)  # a clear error for an unknown shape
+    return params
 
-    params = Params(names(args.identify_shapes), names(args.validate_shapes), args.repeats, args.fixture,
-                    args.truth, args.calibration_frames, args.seed)
-    result = run_experiment(params, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
-    if args.report:
-        print(f"report: {write_report(result, args.report)}", file=sys.stderr)
-    print(json.dumps(result, indent=2) if args.json else report(result))
-    return 0
+
+def run(args) -> int:
+    return entry.run("paper-ablation", sys.modules[__name__], args)
 
 
 def write_report(r: dict, directory):
     """The ablation table as a chart and markdown in ``directory``; returns the report's path."""
     from scenarios.report import Report, pyplot
 
-    rep = Report(directory, "The paper's ablation in the twin")
+    truth = "fixtures'" if r["params"]["truth"] == "fixture" else "catheter's"
+    rep = Report(directory, "The paper's ablation in the twin", "calibration: per row (the two-step calibration, "
+                 f"then [Δθ, g] identified against the {truth} centrelines)")
     i, t = r["identified"], r["true"]
     rep.text(f"Identified Δθ = {i['delta_theta']:.5f} ± {i['delta_theta_std']:.5f} rad (true {t['delta_theta']:.5f}), "
              f"g = {i['g_um']:.4f} ± {i['g_std_um']:.4f} µm (true {t['g_um']:.4f}).")
+    from scenarios.report import error_along_arc, overlay_panels, per_shape_errors, shape_overlays
+
+    cal = rep.calibration
+    ps = r["per_shape_row3"]
+    names = [f"{e['shape']} ({e['set'][:5]}.)" for e in ps]
+    for against, what in (("rod", "the catheter"), ("fixture", "the fixture (the paper's metric)")):
+        fig = per_shape_errors(
+            names, {m: [e[f"{k}_{against}_max_error_mm"] for e in ps] for m, k in
+                    (("default", "default"), ("paper", "paper"), ("paper-literal", "paper_literal"))},
+            {m: [e[f"{k}_{against}_mean_error_mm"] for e in ps] for m, k in
+             (("default", "default"), ("paper", "paper"), ("paper-literal", "paper_literal"))},
+            f"Row (3), identified and compensated: error per shape against {what}", cal,
+            paper_max_mm=PAPER["rows"]["3"]["max_error_mm"], paper_mean_mm=PAPER["rows"]["3"]["mean_error_mm"])
+        rep.figure(f"errors_per_shape_{against}", fig, f"row (3): max and mean error per shape against {what}; "
+                   "dashed: the paper's figures on hardware")
+    c = r.get("_curves")
+    if c:
+        panels, along = overlay_panels(c["names"], np.stack(c["truth"]), c["truth_s"],
+                                       {m: np.stack(c[m]) for m in ("default", "paper")}, c["s"],
+                                       fixture=np.stack(c["fixture"]))
+        rep.figure("shape_overlays", shape_overlays(panels, "Row (3): reconstructions over the catheter and the "
+                                                    "fixture (registered onto the catheter; mm)", cal),
+                   "each shape's last frame with the identified calibration")
+        for m in ("default", "paper"):
+            fig = error_along_arc(c["s"], {n: along[m][i] * 1e3 for i, n in enumerate(c["names"])},
+                                  f"Row (3): error along the arc length, {m} pipeline, against the catheter", cal,
+                                  paper_max_mm=PAPER["rows"]["3"]["max_error_mm"])
+            rep.figure(f"error_along_arc_{m}", fig, f"{m} pipeline, last frame of each shape, registered")
     rows = [[f"({row['row']}) {row['label']}", row["mode"], row["identification_rod"]["max_error_mm"],
              row["validation_rod"]["max_error_mm"], row["validation_rod"]["mean_error_mm"],
              row["validation_fixture"]["max_error_mm"], PAPER["rows"][row["row"]]["max_error_mm"]]
@@ -217,7 +261,7 @@ def write_report(r: dict, directory):
     return rep.write()
 
 
-def report(r: dict) -> str:
+def text_report(r: dict) -> str:
     i, t = r["identified"], r["true"]
     lines = [
         "paper ablation in the twin (errors in mm; rod: against the catheter, Kabsch; fixture: the paper's metric)",
@@ -246,6 +290,4 @@ def report(r: dict) -> str:
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(prog="paper_ablation", description=__doc__)
-    add_arguments(parser)
-    sys.exit(run(parser.parse_args()))
+    entry.main(sys.modules[__name__])

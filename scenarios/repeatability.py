@@ -22,7 +22,6 @@ By default the hub returns exactly to the reference (a motorised stage); ``--dep
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from dataclasses import asdict, dataclass, field
@@ -30,8 +29,22 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from scenarios import _sheath_common as common
-from scenarios.report import Report, curvature_profiles, error_over_time, tip_trajectories
-from scenarios.series import calibration_for
+from scenarios._common import entry
+from scenarios._common.calibration import calibration_for
+from scenarios._common.calibration import label as calibration_label
+from scenarios._common.entry import DEG, option
+from scenarios.report import (
+    Report,
+    curvature_profiles,
+    error_along_arc,
+    error_over_time,
+    overlay_panels,
+    per_shape_errors,
+    pyplot,
+    shape_overlays,
+    stamp,
+    tip_trajectories,
+)
 from sim_interrogator.sheath import SheathCycle
 
 PAPER_STD_MM = 0.82
@@ -62,21 +75,26 @@ class Params:
     seed : int
     """
 
-    cycles: int = 10
-    protrusion: float = 0.05
-    withdraw: float = 0.08
-    speed: float = 0.05
-    dwell: float = 1.0
-    window: float = 0.3
-    depth_jitter: float = 0.0
-    roll_jitter: float = 0.0
-    friction: float = 0.2
-    segments: int = 100
-    rate: float = 20.0
-    em_noise: float = 2e-4
-    optics: str = "realistic"
-    calibration: str = "true"
-    seed: int = 0
+    cycles: int = field(default=10, metadata=option("in-and-out cycles"))
+    protrusion: float = field(default=0.05, metadata=option(
+        "end of the sensed region beyond the sheath's end at the reference, mm", flag="--protrusion-mm", scale=1e-3))
+    withdraw: float = field(default=0.08, metadata=option("withdrawal per cycle, mm", flag="--withdraw-mm",
+                                                          scale=1e-3))
+    speed: float = field(default=0.05, metadata=option("hub speed, mm/s", flag="--speed-mm-s", scale=1e-3))
+    dwell: float = field(default=1.0, metadata=option("s at the reference"))
+    window: float = field(default=0.3, metadata=option("s at the end of a dwell averaged"))
+    depth_jitter: float = field(default=0.0, metadata=option("1σ of the return depth, mm", flag="--depth-jitter-mm",
+                                                             scale=1e-3))
+    roll_jitter: float = field(default=0.0, metadata=option("1σ of the return roll, °", flag="--roll-jitter-deg",
+                                                            scale=DEG))
+    friction: float = field(default=0.2, metadata=option("Coulomb friction catheter–sheath"))
+    segments: int = field(default=100, metadata=option("rod segments"))
+    rate: float = field(default=20.0, metadata=option("interrogator frame rate, Hz"))
+    em_noise: float = field(default=2e-4, metadata=option("EM sensor noise per axis, mm", flag="--em-noise-mm",
+                                                          scale=1e-3))
+    optics: str = common.optics_field()
+    calibration: str = common.calibration_field()
+    seed: int = common.seed_field()
 
 
 def spread(points: np.ndarray) -> dict:
@@ -125,6 +143,8 @@ class Result:
     curvature: dict = field(repr=False)
     lost_peaks: np.ndarray = field(repr=False)
     bore: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    shapes: dict = field(default_factory=dict, repr=False)
+    calibration: dict = field(default_factory=dict)
     settle_s: float = 0.0
     wall_s: float = 0.0
 
@@ -144,12 +164,15 @@ class Result:
             "max_mm": sp["fibre_default"]["max"] * 1e3,
             "paper_pipeline_std_mm": sp["fibre_paper"]["std"] * 1e3,
             "paper_pipeline_max_mm": sp["fibre_paper"]["max"] * 1e3,
+            "paper_literal_std_mm": sp["fibre_paper-literal"]["std"] * 1e3,
+            "paper_literal_max_mm": sp["fibre_paper-literal"]["max"] * 1e3,
             "true_std_mm": sp["true"]["std"] * 1e3,
             "true_max_mm": sp["true"]["max"] * 1e3,
             "world_std_mm": sp["world_default"]["std"] * 1e3,
             "em_std_mm": sp["em"]["std"] * 1e3,
             "max_tip_error_mm": float(self.tip_error["default"].max() * 1e3),
             "paper_pipeline_max_tip_error_mm": float(self.tip_error["paper"].max() * 1e3),
+            "paper_literal_max_tip_error_mm": float(self.tip_error["paper-literal"].max() * 1e3),
             "cycles": int(self.params.cycles),
             "lost_peaks": int(self.lost_peaks.sum()),
             "max_bore_offset_mm": float(np.nanmax(self.bore) * 1e3) if np.isfinite(self.bore).any() else None,
@@ -165,7 +188,8 @@ class Result:
                    "tip_error_mm": float(self.tip_error["default"][k] * 1e3),
                    "paper_tip_error_mm": float(self.tip_error["paper"][k] * 1e3)}
                   for k in range(len(self.tips["true"]))]
-        return {"experiment": "repeatability", "params": asdict(self.params), "setup": self.setup,
+        return {"experiment": "repeatability", "params": asdict(self.params), "calibration": self.calibration,
+                "setup": self.setup,
                 "summary": self.summary(), "spreads": spreads, "cycles": cycles, "settle_s": self.settle_s,
                 "wall_s": self.wall_s}
 
@@ -183,7 +207,8 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     run = common.run_setup(setup, optics=params.optics, seed=params.seed, rate=params.rate, label="repeatability",
                            progress=progress)
     ser, sim = run.series, run.sim
-    recs = common.reconstructors(sim.fiber, calibration_for(params.calibration, sim))
+    used = calibration_for(params.calibration, sim.optics, sim.fiber, progress=progress)
+    recs = common.reconstructors(sim.fiber, used.calibration)
     t = ser.t
     win = common.windows(t, setup.reference_times[1:], params.window)  # each return (not the settled start)
     last = int(win[-1][-1])
@@ -201,8 +226,12 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     tip_error, frame_error = {}, {}
     trajectories = {"truth": ser.tip}
     curvature = {"grating_s": sim.fiber.grating_s, "truth": ser.truth_curvature[last]}
+    # the catheter's centreline in the true base frame at each return, and each pipeline's shape in its own
+    rel = ser.truth_positions - ser.base_positions[:, None, :]
+    measured = {"truth": avg(np.einsum("nji,npj->npi", ser.base_frames, rel)), "truth_s": ser.truth_s}
     for mode, rec in recs.items():
         shape = rec(ser.wavelengths)
+        measured[mode], measured["s"] = avg(shape.positions), shape.s
         if mode == "default":
             common.show_frames(viewer, shape, ser)
         world = np.einsum("nij,nj->ni", ser.base_frames, shape.tip) + ser.base_positions
@@ -213,7 +242,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
         trajectories[mode] = world
         curvature[mode] = shape.curvature[last]
     result = Result(params, sim.describe(), tips, tip_error, t, frame_error, at_ref, trajectories, curvature,
-                    ser.lost_peaks, run.bore, float(setup.settle_result.time), run.wall_s)
+                    ser.lost_peaks, run.bore, measured, used.to_dict(), float(setup.settle_result.time), run.wall_s)
     if progress:
         s = result.summary()
         progress(f"repeatability: tip std {s['std_mm']:.3f} mm, max {s['max_mm']:.3f} mm over {params.cycles} "
@@ -228,26 +257,29 @@ def text_report(result: Result) -> str:
     lines = [
         f"repeatability: {p.cycles} cycles out of a pre-bent 8 Fr sheath by {p.withdraw * 1e3:.0f} mm and back to "
         f"the reference (sensed end {p.protrusion * 1e3:.0f} mm out), friction {p.friction:g}, optics {p.optics}, "
-        f"calibration {p.calibration}, return jitter {p.depth_jitter * 1e3:g} mm / "
+        f"calibration {result.calibration.get('name', p.calibration)}, return jitter {p.depth_jitter * 1e3:g} mm / "
         f"{math.degrees(p.roll_jitter):g}°",
         "spread of the tip at the reference over the cycles, mm (std = RMS distance from the mean tip)",
         "",
         f"{'':34s}{'std':>8s}{'max':>8s}",
         f"{'paper':34s}{PAPER_STD_MM:8.2f}{PAPER_MAX_MM:8.2f}",
     ]
-    for key, label in (("fibre_default", "reconstructed, fibre frame"), ("fibre_paper", "  paper's pipeline"),
+    for key, label in (("fibre_default", "reconstructed, fibre frame"), ("fibre_paper", "  paper's pipeline (guarded)"),
+                       ("fibre_paper-literal", "  paper's pipeline, literal"),
                        ("true", "true catheter, its base frame"), ("world_default", "reconstructed, world"),
                        ("true_world", "true catheter, world"), ("em", "EM sensor")):
         lines.append(f"{label:34s}{sp[key]['std'] * 1e3:8.3f}{sp[key]['max'] * 1e3:8.3f}")
     lines += ["", f"reconstructed tip error at the reference: ≤ {s['max_tip_error_mm']:.3f} mm (default), "
-                  f"≤ {s['paper_pipeline_max_tip_error_mm']:.3f} mm (paper's pipeline)"]
+                  f"≤ {s['paper_pipeline_max_tip_error_mm']:.3f} mm (paper's pipeline), "
+                  f"≤ {s['paper_literal_max_tip_error_mm']:.3f} mm (literal)"]
     return "\n".join(lines)
 
 
 def write_report(result: Result, directory: str) -> str:
     """``directory``/report.md with plots: tip scatter, error over time, tip trajectories, curvature."""
     s, p = result.summary(), result.params
-    rep = Report(directory, "Repeatability: in and out of the same sheath")
+    rep = Report(directory, "Repeatability: in and out of the same sheath",
+                 calibration_label(result.calibration))
     rep.text(
         f"The catheter was withdrawn {p.cycles} times by {p.withdraw * 1e3:.0f} mm at {p.speed * 1e3:.0f} mm/s "
         f"from a pre-bent 8 Fr sheath (60°, R 35 mm, bore 2.8 mm, μ = {p.friction:g}) and pushed back to the "
@@ -256,12 +288,14 @@ def write_report(result: Result, directory: str) -> str:
         "distance of the tip from its mean over the returns, in the fibre's own base frame (what the sensor reports "
         "without any tracking)."
     )
+    rep.text(f"Calibration: {result.calibration.get('name')} — {result.calibration.get('description', '')}.")
+    sp = result.spreads()
     rep.table(*common.paper_table([
-        ("tip spread, std", f"±{PAPER_STD_MM} mm", f"{s['std_mm']:.2f} mm", f"{s['paper_pipeline_std_mm']:.2f} mm"),
-        ("tip spread, max", f"{PAPER_MAX_MM} mm", f"{s['max_mm']:.2f} mm", f"{s['paper_pipeline_max_mm']:.2f} mm"),
-        ("true catheter tip spread, std / max", "–", f"{s['true_std_mm']:.2f} / {s['true_max_mm']:.2f} mm", "–"),
-        ("tip error at the reference (max)", "–", f"{s['max_tip_error_mm']:.2f} mm",
-         f"{s['paper_pipeline_max_tip_error_mm']:.2f} mm"),
+        ("tip spread, std", f"±{PAPER_STD_MM} mm", *(f"{sp['fibre_' + m]['std'] * 1e3:.2f} mm" for m in common.MODES)),
+        ("tip spread, max", f"{PAPER_MAX_MM} mm", *(f"{sp['fibre_' + m]['max'] * 1e3:.2f} mm" for m in common.MODES)),
+        ("true catheter tip spread, std / max", "–", f"{s['true_std_mm']:.2f} / {s['true_max_mm']:.2f} mm", "–", "–"),
+        ("tip error at the reference (max)", "–", *(f"{result.tip_error[m].max() * 1e3:.2f} mm"
+                                                    for m in common.MODES)),
     ]))
     rep.text(
         "The paper moved its catheter by hand and measured with its own pipeline; here the hub returns exactly "
@@ -283,15 +317,36 @@ def write_report(result: Result, directory: str) -> str:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     offset = np.linalg.norm(recon.mean(axis=0) - true.mean(axis=0)) * 1e3
+    cal = calibration_label(result.calibration)
+    stamp(fig, cal)
     rep.figure("tip_scatter", fig, "Tip at each return to the reference, fibre base frame, each set about its own "
                f"mean (the reconstruction's mean is {offset:.2f} mm from the true one: its static error)")
     fig = error_over_time(result.t, {"default": result.frame_error["default"] * 1e3,
-                                     "paper's pipeline": result.frame_error["paper"] * 1e3},
+                                     "paper's pipeline, guarded": result.frame_error["paper"] * 1e3,
+                                     "paper's pipeline, literal": result.frame_error["paper-literal"] * 1e3},
                           ylabel="tip error, fibre frame (mm)", marks=result.at_reference,
                           mark_label="measured at the reference")
-    if result.frame_error["paper"].max() > 30 * max(result.frame_error["default"].max(), 1e-6):
+    if result.frame_error["paper-literal"].max() > 30 * max(result.frame_error["default"].max(), 1e-6):
         fig.axes[0].set_yscale("log")
+    stamp(fig, cal)
     rep.figure("error_over_time", fig, "Reconstructed tip error over the cycles")
+    names = [f"cycle {k + 1}" for k in range(len(result.tips["true"]))]
+    dist = {m: np.linalg.norm(result.tips["fibre"][m] - result.tips["fibre"][m].mean(axis=0), axis=1) * 1e3
+            for m in common.MODES}
+    fig = per_shape_errors(names, dist, None, "Distance of the tip from its mean tip at each return (fibre frame)",
+                           cal, paper_max_mm=PAPER_MAX_MM, xlabel="return", ylabel="distance from the mean tip (mm)")
+    rep.figure("spread_per_cycle", fig, "Each return's distance from the mean tip, per pipeline (dashed: the "
+               "paper's largest, on hardware)")
+    sh = result.shapes
+    if sh:
+        panels, along = overlay_panels(names, sh["truth"], sh["truth_s"], {m: sh[m] for m in ("default", "paper")},
+                                       sh["s"])
+        rep.figure("shape_overlays", shape_overlays(panels, "Shape at each return over the catheter (registered "
+                                                    "onto it; mm)", cal), "The shape at each return to the "
+                   "reference (mean over the window), registered onto the catheter")
+        fig = error_along_arc(sh["s"], {n: along["default"][i] * 1e3 for i, n in enumerate(names)},
+                              "Error along the arc length at each return, default pipeline", cal)
+        rep.figure("error_along_arc", fig, "distance of the registered reconstruction from the catheter")
     tr = {k: v * 1e3 for k, v in result.trajectories.items()}
     fig = tip_trajectories(tr["truth"], {"default": tr["default"]}, "tip in the world over the cycles")
     rep.figure("tip_trajectories", fig, "Tip trajectory over the cycles, truth vs reconstruction (tracked base)")
@@ -303,44 +358,14 @@ def write_report(result: Result, directory: str) -> str:
     return str(rep.write())
 
 
-def pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 # ------------------------------------------------------------------------------------------------ command line
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cycles", type=int, default=10, help="in-and-out cycles (default 10)")
-    parser.add_argument("--protrusion-mm", type=float, default=50.0,
-                        help="end of the sensed region beyond the sheath's end at the reference, mm (default 50)")
-    parser.add_argument("--withdraw-mm", type=float, default=80.0, help="withdrawal per cycle, mm (default 80)")
-    parser.add_argument("--speed-mm-s", type=float, default=50.0, help="hub speed, mm/s (default 50)")
-    parser.add_argument("--dwell", type=float, default=1.0, help="s at the reference (default 1)")
-    parser.add_argument("--window", type=float, default=0.3, help="s at the end of a dwell averaged (default 0.3)")
-    parser.add_argument("--depth-jitter-mm", type=float, default=0.0, help="1σ of the return depth, mm (default 0)")
-    parser.add_argument("--roll-jitter-deg", type=float, default=0.0, help="1σ of the return roll, ° (default 0)")
-    parser.add_argument("--em-noise-mm", type=float, default=0.2, help="EM sensor noise per axis, mm (default 0.2)")
-    common.add_common_arguments(parser, rate=20.0, friction=0.2)
+def add_arguments(parser) -> None:
+    entry.add_arguments(parser, Params)
 
 
-def params_from_args(args: argparse.Namespace) -> Params:
-    return Params(cycles=args.cycles, protrusion=args.protrusion_mm * 1e-3, withdraw=args.withdraw_mm * 1e-3,
-                  speed=args.speed_mm_s * 1e-3, dwell=args.dwell, window=args.window,
-                  depth_jitter=args.depth_jitter_mm * 1e-3, roll_jitter=math.radians(args.roll_jitter_deg),
-                  friction=args.friction, segments=args.segments, rate=args.rate, em_noise=args.em_noise_mm * 1e-3,
-                  optics=args.optics, calibration=args.calibration, seed=args.seed)
-
-
-def run(args: argparse.Namespace) -> int:
-    return common.run_cli("repeatability", args, sys.modules[__name__])
+def run(args) -> int:
+    return entry.run("repeatability", sys.modules[__name__], args)
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(prog="repeatability", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(parser)
-    sys.exit(run(parser.parse_args()))
+    entry.main(sys.modules[__name__])

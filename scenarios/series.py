@@ -11,17 +11,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from sim_interrogator.sim import SimInterrogator
-from twin import Calibration, Reconstructor, Shape, metrics
+from twin import Reconstructor, Shape, metrics
 
-__all__ = ["CALIBRATIONS", "Series", "calibration_for", "collect", "errors", "to_world"]
-
-#: What ``--calibration`` accepts besides a calibration TOML.
-CALIBRATIONS = ("true", "lambda0", "nominal")
+__all__ = ["Series", "collect", "errors", "to_world"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,22 +96,6 @@ def collect(sim: SimInterrogator, n_frames: int, every: int = 1,
         temperature=np.stack([np.broadcast_to(tr.temperature, tr.curvature.shape[:1]) for tr in truths]),
         fixture=truths[0].fixture,
     )
-
-
-def calibration_for(kind: str, sim: SimInterrogator) -> Calibration | None:
-    """The calibration an experiment reconstructs with: ``true`` (the simulated fibre's true parameters: as-built
-    λ0, intrinsic twist, Δθ, g), ``lambda0`` (its as-built λ0 only), ``nominal`` (the datasheet: None), or the
-    path of a calibration TOML."""
-    if kind == "true":
-        return sim.optics.true_calibration()
-    if kind == "lambda0":
-        return Calibration(lambda0=sim.optics.true_fiber.lambda0,
-                           provenance={"method": "the simulated fibre's as-built λ0 only"})
-    if kind == "nominal":
-        return None
-    if not Path(kind).exists():
-        raise ValueError(f"calibration {kind!r}: no such file (or one of {', '.join(CALIBRATIONS)})")
-    return Calibration.load(kind)
 
 
 def to_world(shape: Shape, series: Series) -> np.ndarray:

@@ -9,8 +9,9 @@ under compression, where neighbouring gratings' peaks overlapped and were lost. 
 60° turn), μ 0.3; the hub pushes the catheter 185 mm in at 20 mm/s, holds, and pulls it back. Frames at 40 Hz,
 realistic optics (peaks of neighbouring gratings closer than 1 nm merge and are lost).
 
-Errors, frame by frame, of the default pipeline and the paper's (calibration = the twin's true parameters unless
-``--calibration`` says otherwise):
+Errors, frame by frame, of the default pipeline, the paper's (θ_b held through low curvature) and the paper's
+literal transcription (calibration ``lab`` unless ``--calibration`` says otherwise, see
+:mod:`scenarios._common.calibration`):
 
 * against the catheter's own centreline (Kabsch registration on arc length, then point-to-curve distances): the
   sensing error; ``mean_max_error_mm`` is the mean over frames of each frame's max error (the paper's "mean max
@@ -24,15 +25,28 @@ sheath under the sensed region: ``sharp`` (≥ 100 1/m: an 8 mm bend) and ``gent
 
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from scenarios import _sheath_common as common
-from scenarios.report import Report, curvature_profiles, error_over_time, tip_trajectories
-from scenarios.series import calibration_for, errors
+from scenarios._common import entry
+from scenarios._common.calibration import calibration_for
+from scenarios._common.calibration import label as calibration_label
+from scenarios._common.entry import option
+from scenarios.report import (
+    Report,
+    curvature_profiles,
+    error_along_arc,
+    error_over_time,
+    overlay_panels,
+    pyplot,
+    shape_overlays,
+    stamp,
+    tip_trajectories,
+)
+from scenarios.series import errors
 from sim_interrogator.sheath import SheathPath
 from twin import metrics
 
@@ -64,19 +78,21 @@ class Params:
     seed : int
     """
 
-    start: float = 0.06
-    travel: float = 0.185
-    speed: float = 0.02
-    hold: float = 0.5
-    return_trip: bool = True
-    friction: float = 0.3
-    segments: int = 100
-    rate: float = 40.0
-    analysis_rate: float = 2.0
-    sheath_icp: bool = True
-    optics: str = "realistic"
-    calibration: str = "true"
-    seed: int = 0
+    start: float = field(default=0.06, metadata=option(
+        "hub start, sheath arc length, mm (60: the tip at the end of the straight part)", flag="--start-mm",
+        scale=1e-3))
+    travel: float = field(default=0.185, metadata=option("push distance, mm", flag="--travel-mm", scale=1e-3))
+    speed: float = field(default=0.02, metadata=option("push speed, mm/s", flag="--speed-mm-s", scale=1e-3))
+    hold: float = field(default=0.5, metadata=option("s held at the deepest point and the end"))
+    return_trip: bool = field(default=True, metadata=option("pull back after the hold", flag="--return"))
+    friction: float = field(default=0.3, metadata=option("Coulomb friction catheter–sheath"))
+    segments: int = field(default=100, metadata=option("rod segments"))
+    rate: float = field(default=40.0, metadata=option("interrogator frame rate, Hz"))
+    analysis_rate: float = field(default=2.0, metadata=option("analysis rate, Hz"))
+    sheath_icp: bool = field(default=True, metadata=option("also measure against the sheath's centreline"))
+    optics: str = common.optics_field()
+    calibration: str = common.calibration_field()
+    seed: int = common.seed_field()
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,6 +127,10 @@ class Result:
     bore : ndarray (n,)
         Largest distance of the sensed region from the sheath's centreline, m (the clearance is 0.165 mm).
     settle_s, wall_s : float
+    calibration : dict
+        Which calibration was used.
+    shapes : dict
+        A few frames for the report's overlays (:func:`snapshots`).
     """
 
     params: Params
@@ -131,6 +151,8 @@ class Result:
     bore: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     settle_s: float = 0.0
     wall_s: float = 0.0
+    calibration: dict = field(default_factory=dict)
+    shapes: dict = field(default_factory=dict, repr=False)
 
     @property
     def sharp(self) -> np.ndarray:
@@ -161,13 +183,14 @@ class Result:
         return out
 
     def summary(self) -> dict:
-        d, p = self._stats("default"), self._stats("paper")
+        d, p, lit = self._stats("default"), self._stats("paper"), self._stats("paper-literal")
         lost = self.lost_peaks > 0
         return {
             "paper_mean_max_error_mm": PAPER_MEAN_MAX_MM,
             "paper_worst_error_mm": PAPER_WORST_MM,
             **d,
             **{f"paper_pipeline_{k}": v for k, v in p.items()},
+            **{f"paper_literal_{k}": v for k, v in lit.items()},
             "frames": int(self.t.size),
             "analysed_frames": int(self.analysed.sum()),
             "lost_peaks": int(self.lost_peaks.sum()),
@@ -182,11 +205,13 @@ class Result:
         timeline = [{"t_s": float(self.t[i]), "depth_mm": float(self.depth[i] * 1e3),
                      "max_error_mm": float(self.max_error["default"][i] * 1e3),
                      "paper_max_error_mm": float(self.max_error["paper"][i] * 1e3),
+                     "paper_literal_max_error_mm": float(self.max_error["paper-literal"][i] * 1e3),
                      "sheath_max_error_mm": _float_mm(self.sheath_error["default"][i]),
                      "lost_peaks": int(self.lost_peaks[i]),
                      "sheath_curvature_1_m": float(self.sheath_curvature[i])} for i in np.flatnonzero(a)]
         per_grating = self.lost_gratings.sum(axis=0)
-        return {"experiment": "sheath-motion", "params": asdict(self.params), "setup": self.setup,
+        return {"experiment": "sheath-motion", "params": asdict(self.params), "calibration": self.calibration,
+                "setup": self.setup,
                 "summary": self.summary(), "lost_peaks_per_grating": per_grating.tolist(),
                 "timeline_2hz": timeline, "settle_s": self.settle_s, "wall_s": self.wall_s}
 
@@ -216,6 +241,19 @@ def sheath_errors(setup: SheathPath, shape, t: np.ndarray, margin: float = 0.015
     return np.atleast_1d(err.max)
 
 
+def snapshots(shapes: dict, ser, max_error: np.ndarray, count: int = 4) -> dict:
+    """``count`` frames for overlays — evenly spread over the run, the worst frame of the default pipeline among
+    them — with the truth and each pipeline's reconstruction placed with the tracked base (world, m)."""
+    idx = np.unique(np.linspace(0, len(ser) - 1, count).round().astype(int))
+    if np.isfinite(max_error).any():
+        idx = np.unique(np.append(idx[:-1], int(np.nanargmax(max_error))))
+    out = {"index": idx, "t": ser.t[idx], "truth": ser.truth_positions[idx], "truth_s": ser.truth_s}
+    for mode, shape in shapes.items():
+        out[mode] = common.place(shape[idx], ser.base_positions[idx], ser.base_frames[idx])
+        out["s"] = shape.s
+    return out
+
+
 def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     """Run the sheath-motion experiment; ``progress(message)`` reports as it goes."""
     if params.analysis_rate <= 0 or params.analysis_rate > params.rate:
@@ -225,7 +263,8 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     run = common.run_setup(setup, optics=params.optics, seed=params.seed, rate=params.rate, label="sheath-motion",
                            progress=progress)
     ser, sim = run.series, run.sim
-    recs = common.reconstructors(sim.fiber, calibration_for(params.calibration, sim))
+    used = calibration_for(params.calibration, sim.optics, sim.fiber, progress=progress)
+    recs = common.reconstructors(sim.fiber, used.calibration)
     t = ser.t
     every = max(1, round(params.rate / params.analysis_rate))
     analysed = np.zeros(t.size, bool)
@@ -255,7 +294,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
         curvature[f"{mode}_valid"] = shape.valid[pick]
     result = Result(params, sim.describe(), t, max_e, mean_e, tip_e, sheath_e, analysed, ser.lost_peaks, lost_g,
                     sheath_k, rod_k, run.hub[:, 0], tips, curvature, run.bore, float(setup.settle_result.time),
-                    run.wall_s)
+                    run.wall_s, used.to_dict(), snapshots(shapes, ser, max_e["default"]))
     if progress:
         s = result.summary()
         progress(f"sheath-motion: mean max error {s['mean_max_error_mm']:.2f} mm, max {s['max_error_mm']:.2f} mm at "
@@ -285,13 +324,14 @@ def text_report(result: Result) -> str:
     lines = [
         f"sheath motion: pushed {p.travel * 1e3:.0f} mm at {p.speed * 1e3:.0f} mm/s through the 510 mm vascular-like "
         f"sheath{' and back' if p.return_trip else ''}, friction {p.friction:g}, {p.rate:g} Hz (analysed at "
-        f"{p.analysis_rate:g} Hz), optics {p.optics}, calibration {p.calibration}",
+        f"{p.analysis_rate:g} Hz), optics {p.optics}, calibration {result.calibration.get('name', p.calibration)}",
         "errors in mm against the catheter's own centreline (Kabsch) unless marked",
         "",
-        f"{'':40s}{'paper':>8s}{'default':>10s}{'paper pl.':>10s}",
+        f"{'':40s}{'paper':>8s}{'default':>10s}{'paper pl.':>10s}{'literal':>10s}",
     ]
     for label, key, paper in rows:
-        lines.append(f"{label:40s}{paper:>8s}{cell(key)}{cell('paper_pipeline_' + key)}")
+        lines.append(f"{label:40s}{paper:>8s}{cell(key)}{cell('paper_pipeline_' + key)}"
+                     f"{cell('paper_literal_' + key)}")
     lines += ["", f"peaks lost: {s['lost_peaks']} in {s['frames_with_lost_peaks']} of {s['frames']} frames"
                   + (f" (catheter curvature there up to {s['rod_curvature_at_lost_1_m']:.0f} 1/m)"
                      if s["rod_curvature_at_lost_1_m"] is not None else "")]
@@ -301,7 +341,8 @@ def text_report(result: Result) -> str:
 def write_report(result: Result, directory: str) -> str:
     """``directory``/report.md: error over time with lost peaks, bends under the sensor, tips, curvature."""
     s, p = result.summary(), result.params
-    rep = Report(directory, "Sheath motion: through a 510 mm rigid sheath")
+    rep = Report(directory, "Sheath motion: through a 510 mm rigid sheath",
+                 calibration_label(result.calibration))
     rep.text(
         f"The catheter was pushed {p.travel * 1e3:.0f} mm at {p.speed * 1e3:.0f} mm/s into a 510 mm rigid sheath of "
         f"3 mm bore (μ = {p.friction:g}) along a vascular-like path — 250 mm straight, a 45° bend (R 40 mm), a "
@@ -310,19 +351,23 @@ def write_report(result: Result, directory: str) -> str:
         f"{p.analysis_rate:g} Hz like the paper. Errors are against the catheter's own centreline after a rigid "
         "(Kabsch) registration unless marked."
     )
+    cal = calibration_label(result.calibration)
+    rep.text(f"Calibration: {result.calibration.get('name')} — {result.calibration.get('description', '')}.")
+
+    def each(key):
+        return tuple(f"{s[p + key]:.2f} mm" if s.get(p + key) is not None else "–"
+                     for p in ("", "paper_pipeline_", "paper_literal_"))
+
+    def pairs(a, b):
+        return tuple(_pair(s.get(p + a), s.get(p + b)) for p in ("", "paper_pipeline_", "paper_literal_"))
+
     rep.table(*common.paper_table([
-        ("mean max error", f"≈ {PAPER_MEAN_MAX_MM} mm", f"{s['mean_max_error_mm']:.2f} mm",
-         f"{s['paper_pipeline_mean_max_error_mm']:.2f} mm"),
-        ("max error (sharp bends / lost peaks)", f"{PAPER_WORST_MM} mm", f"{s['max_error_mm']:.2f} mm",
-         f"{s['paper_pipeline_max_error_mm']:.2f} mm"),
-        ("max error at 40 Hz", "–", f"{s['max_error_40hz_mm']:.2f} mm",
-         f"{s['paper_pipeline_max_error_40hz_mm']:.2f} mm"),
+        ("mean max error", f"≈ {PAPER_MEAN_MAX_MM} mm", *each("mean_max_error_mm")),
+        ("max error (sharp bends / lost peaks)", f"{PAPER_WORST_MM} mm", *each("max_error_mm")),
+        ("max error at 40 Hz", "–", *each("max_error_40hz_mm")),
         ("vs the sheath's centreline (ICP): mean max / max", "–",
-         _pair(s.get("sheath_mean_max_error_mm"), s.get("sheath_max_error_mm")),
-         _pair(s.get("paper_pipeline_sheath_mean_max_error_mm"), s.get("paper_pipeline_sheath_max_error_mm"))),
-        ("mean max error with / without lost peaks", "–",
-         _pair(s["lost_mean_max_error_mm"], s["intact_mean_max_error_mm"]),
-         _pair(s["paper_pipeline_lost_mean_max_error_mm"], s["paper_pipeline_intact_mean_max_error_mm"])),
+         *pairs("sheath_mean_max_error_mm", "sheath_max_error_mm")),
+        ("mean max error with / without lost peaks", "–", *pairs("lost_mean_max_error_mm", "intact_mean_max_error_mm")),
     ]))
     lost_note = (f"{s['lost_peaks']} peaks were lost in {s['frames_with_lost_peaks']} of {s['frames']} frames, where "
                  f"the catheter curved up to {s['rod_curvature_at_lost_1_m']:.0f} 1/m at a grating: a grating in the "
@@ -336,7 +381,8 @@ def write_report(result: Result, directory: str) -> str:
              "grating beyond to interpolate from.")
     marks = result.lost_peaks > 0
     fig = error_over_time(result.t, {"default": result.max_error["default"] * 1e3,
-                                     "paper's pipeline": result.max_error["paper"] * 1e3},
+                                     "paper's pipeline, guarded": result.max_error["paper"] * 1e3,
+                                     "paper's pipeline, literal": result.max_error["paper-literal"] * 1e3},
                           ylabel="max error per frame (mm)", marks=marks, mark_label="peaks lost")
     ax = fig.axes[0]
     a = result.analysed
@@ -345,7 +391,20 @@ def write_report(result: Result, directory: str) -> str:
     if result.max_error["paper"].max() > 30 * max(np.nanmin(result.max_error["default"]), 1e-6):
         ax.set_yscale("log")
     ax.legend(fontsize=8)
+    stamp(fig, cal)
     rep.figure("error_over_time", fig, "Max error per frame; shaded where peaks were lost")
+    sh = result.shapes
+    if sh:
+        names = [f"t = {t:.1f} s" for t in sh["t"]]
+        panels, along = overlay_panels(names, sh["truth"], sh["truth_s"], {m: sh[m] for m in ("default", "paper")},
+                                       sh["s"])
+        rep.figure("shape_overlays", shape_overlays(panels, "Reconstructions over the catheter in the sheath "
+                                                    "(registered onto it; mm)", cal),
+                   "A few frames spread over the run (the default pipeline's worst among them), registered onto the "
+                   "catheter")
+        fig = error_along_arc(sh["s"], {n: along["default"][i] * 1e3 for i, n in enumerate(names)},
+                              "Error along the arc length, default pipeline", cal, paper_max_mm=PAPER_WORST_MM)
+        rep.figure("error_along_arc", fig, "distance of the registered reconstruction from the catheter")
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 3.2))
     ax.plot(result.t, result.sheath_curvature, label="sheath under the sensed region, max (1/m)")
@@ -383,41 +442,14 @@ def _pair(a, b) -> str:
     return f"{f(a)} / {f(b)} mm"
 
 
-def pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 # ------------------------------------------------------------------------------------------------ command line
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--start-mm", type=float, default=60.0,
-                        help="hub start, sheath arc length, mm (default 60: the tip at the end of the straight part)")
-    parser.add_argument("--travel-mm", type=float, default=185.0, help="push distance, mm (default 185)")
-    parser.add_argument("--speed-mm-s", type=float, default=20.0, help="push speed, mm/s (default 20)")
-    parser.add_argument("--hold", type=float, default=0.5, help="s held at the deepest point and the end")
-    parser.add_argument("--no-return", action="store_true", help="push in only (no pull back)")
-    parser.add_argument("--analysis-rate", type=float, default=2.0, help="analysis rate, Hz (default 2)")
-    parser.add_argument("--no-sheath-icp", action="store_true", help="skip the errors against the sheath")
-    common.add_common_arguments(parser, rate=40.0, friction=0.3)
+def add_arguments(parser) -> None:
+    entry.add_arguments(parser, Params)
 
 
-def params_from_args(args: argparse.Namespace) -> Params:
-    return Params(start=args.start_mm * 1e-3, travel=args.travel_mm * 1e-3, speed=args.speed_mm_s * 1e-3,
-                  hold=args.hold, return_trip=not args.no_return, friction=args.friction, segments=args.segments,
-                  rate=args.rate, analysis_rate=args.analysis_rate, sheath_icp=not args.no_sheath_icp,
-                  optics=args.optics, calibration=args.calibration, seed=args.seed)
-
-
-def run(args: argparse.Namespace) -> int:
-    return common.run_cli("sheath-motion", args, sys.modules[__name__])
+def run(args) -> int:
+    return entry.run("sheath-motion", sys.modules[__name__], args)
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(prog="sheath_motion", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(parser)
-    sys.exit(run(parser.parse_args()))
+    entry.main(sys.modules[__name__])

@@ -35,8 +35,6 @@ temperature, shape error over time, tip scatter, curvature profiles at 60 and 30
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 import time
 import warnings
@@ -47,14 +45,19 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.distance import pdist
 
-from scenarios.series import Series, calibration_for, collect
-from sim_interrogator.optics import OpticsConfig
+from scenarios._common import entry
+from scenarios._common.calibration import CALIBRATIONS, calibration_for, check_calibration
+from scenarios._common.calibration import label as calibration_label
+from scenarios._common.entry import option
+from scenarios._common.optics import OPTICS, optics_config
+from scenarios.series import Series, collect
 from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.thermal import PROFILES, Bath
 from twin import FiberModel, Reconstructor, Shape, metrics, shapes
 from twin.frames import Truth
 
-MODES = ("default", "paper")
+#: Ours, the paper's with θ_b held through low curvature (κ_min = 1 1/m), the paper's literal transcription.
+MODES = ("default", "paper", "paper-literal")
 PAPER_TIP_VARIATION_MM = 0.29  #: Al-Ahmad et al.: tip variation over 30 K (60 → 30 °C)
 
 
@@ -66,22 +69,26 @@ class Params:
     ``mismatches`` as fractions (0.003 = 0.3 %) of the per-core S_T spread, one run each.
     """
 
-    shape: str = "helix"
-    fixture: str = "connect"
-    start_celsius: float = 60.0
-    end_celsius: float = 30.0
-    room_celsius: float = 22.0
-    profile: str = "exponential"
-    duration: float = 60.0
-    gradient: float = 0.0
-    rate: float = 25.0
-    average: float = 1.0
-    mismatches: tuple[float, ...] = (0.003, 0.0)
-    optics: str = "realistic"
-    calibration: str = "true"
-    segments: int = 100
-    seed: int = 0
-    fiber_seed: int = 0
+    shape: str = field(default="helix", metadata=option("library shape"))
+    fixture: str = field(default="connect", metadata=option(
+        "connect constraints (exact), a 3 mm tube, or a groove (planar shapes)", choices=("connect", "tube", "groove")))
+    start_celsius: float = field(default=60.0, metadata=option("bath temperature at the start, °C", flag="--start"))
+    end_celsius: float = field(default=30.0, metadata=option("bath temperature at the end, °C", flag="--end"))
+    room_celsius: float = field(default=22.0, metadata=option(
+        "room temperature = λ0 reference and the cooling's asymptote, °C", flag="--room"))
+    profile: str = field(default="exponential", metadata=option("cooling curve", choices=PROFILES))
+    duration: float = field(default=60.0, metadata=option("simulated seconds"))
+    gradient: float = field(default=0.0, metadata=option("temperature gradient along the fibre, K/m"))
+    rate: float = field(default=25.0, metadata=option("interrogator rate, Hz"))
+    average: float = field(default=1.0, metadata=option("averaging window, s (0: none)"))
+    mismatches: tuple[float, ...] = (0.003, 0.0)  # --mismatch-percent, in add_arguments
+    optics: str = field(default="realistic", metadata=option("synthetic interrogator effects", choices=OPTICS))
+    calibration: str = field(default="lab", metadata=option(
+        f"{', '.join(CALIBRATIONS)} or a calibration TOML (scenarios/_common/calibration.py)", metavar="CAL"))
+    segments: int = field(default=100, metadata=option("rod segments"))
+    seed: int = field(default=0, metadata=option("seed of the interrogator's noise and drift"))
+    fiber_seed: int = field(default=0, metadata=option(
+        "which as-built fibre (its λ0 spread and per-core S_T deviations)"))
 
 
 @dataclass(frozen=True, eq=False)
@@ -189,6 +196,7 @@ class Result:
     params: Params
     runs: tuple[BathRun, ...]
     setup: dict
+    calibration: dict = field(default_factory=dict)
 
     def run_for(self, mismatch: float) -> BathRun | None:
         return next((r for r in self.runs if r.mismatch == mismatch), None)
@@ -209,6 +217,7 @@ class Result:
         out = {"paper_tip_variation_mm": PAPER_TIP_VARIATION_MM, "thermal_mismatch": r.mismatch,
                "tip_variation_mm": st["variation"] * 1e3, "tip_range_mm": st["range"] * 1e3,
                "paper_pipeline_tip_variation_mm": tip_stats(r.tips["paper"])["variation"] * 1e3,
+               "paper_literal_tip_variation_mm": tip_stats(r.tips["paper-literal"])["variation"] * 1e3,
                "temperature_change_k": float(r.bath_celsius[0] - r.bath_celsius[-1])}
         out["predicted_mismatch_effect_mm"] = predicted_effect(r) * 1e3
         out["expected_mismatch_effect_mm"] = expected_effect(r) * 1e3
@@ -238,7 +247,8 @@ class Result:
                 if effect is not None:
                     row[mode]["mismatch_effect_mm"] = effect * 1e3
             runs.append(row)
-        return {"params": asdict(self.params), "setup": self.setup, "runs": runs, "summary": self.summary()}
+        return {"experiment": "temperature-bath", "params": asdict(self.params), "calibration": self.calibration,
+                "setup": self.setup, "runs": runs, "summary": self.summary()}
 
 
 # ------------------------------------------------------------------------------------------------ the experiment
@@ -249,10 +259,8 @@ def check(params: Params) -> None:
         raise ValueError(f"fixture must be connect, tube or groove; got {params.fixture!r}")
     if params.profile not in PROFILES:
         raise ValueError(f"profile must be one of {', '.join(PROFILES)}; got {params.profile!r}")
-    if params.optics not in ("realistic", "ideal"):
-        raise ValueError(f"optics must be realistic or ideal; got {params.optics!r}")
-    if params.calibration not in ("true", "lambda0", "nominal") and not Path(params.calibration).exists():
-        raise ValueError(f"calibration {params.calibration!r}: no such file (or use true, lambda0, nominal)")
+    optics_config(params.optics)  # a clear error for an unknown name
+    check_calibration(params.calibration)
     if not (params.rate > 0 and params.average >= 0 and params.duration > 0):
         raise ValueError("rate and duration must be > 0 and average >= 0")
     if not params.mismatches or any(not 0 <= m < 0.1 for m in params.mismatches):
@@ -278,8 +286,7 @@ def run_bath(params: Params, mismatch: float, fiber: FiberModel,
              say: Callable[[str], None] = lambda msg: None) -> BathRun:
     """One run of the bath with a given per-core S_T mismatch."""
     t_wall = time.perf_counter()
-    base = OpticsConfig(seed=params.seed) if params.optics == "realistic" else OpticsConfig.ideal()
-    cfg = base.replace(thermal_mismatch=mismatch, fiber_seed=params.fiber_seed)
+    cfg = optics_config(params.optics, params.seed).replace(thermal_mismatch=mismatch, fiber_seed=params.fiber_seed)
     setup = Bath(params.shape, params.fixture, params.start_celsius, params.end_celsius, params.room_celsius,
                  params.room_celsius, params.profile, params.duration, params.gradient, params.segments)
     label = f"mismatch {mismatch * 100:g} %"
@@ -296,8 +303,10 @@ def run_bath(params: Params, mismatch: float, fiber: FiberModel,
     series = collect(sim, n_frames, progress=tick)
     n_avg = max(1, round(params.average * params.rate))
     w, t, temp, mid = _windows(series, n_avg)
-    cal = calibration_for(params.calibration, sim)
-    recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal)}
+    used = calibration_for(params.calibration, sim.optics, fiber, progress=say)
+    cal = used.calibration
+    recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal),
+            "paper-literal": Reconstructor.paper(fiber, cal, kappa_min=0.0)}
     rot, pos = series.base_frames[0], series.base_positions[0]
     true_tip = (series.tip[mid] - pos) @ rot
     tips, errors, curv, shp = {}, {}, {}, {}
@@ -325,8 +334,9 @@ def run_bath(params: Params, mismatch: float, fiber: FiberModel,
                    base_pose=(rot, pos), truth=truth)
 
 
-def run_experiment(params: Params, progress: Callable[[str], None] | None = None) -> Result:
-    """Run the bath once per entry of ``params.mismatches``; ``progress(message)`` reports as it goes."""
+def run_experiment(params: Params, progress: Callable[[str], None] | None = None, viewer=None) -> Result:
+    """Run the bath once per entry of ``params.mismatches``; ``progress(message)`` reports as it goes; a viewer
+    replays the first run at the end."""
     check(params)
     say = progress or (lambda msg: None)
     fiber = FiberModel.paper()
@@ -339,16 +349,21 @@ def run_experiment(params: Params, progress: Callable[[str], None] | None = None
             f"{runs[-1].wall_s:.1f} s wall")
     setup = Bath(params.shape, params.fixture, params.start_celsius, params.end_celsius, params.room_celsius,
                  params.room_celsius, params.profile, params.duration, params.gradient, params.segments).describe()
-    return Result(params, tuple(runs), setup)
+    result = Result(params, tuple(runs), setup, calibration_for(params.calibration, optics_config(
+        params.optics, params.seed).replace(fiber_seed=params.fiber_seed), fiber).to_dict())
+    if viewer is not None:
+        show(viewer, result)
+    return result
 
 
 # ------------------------------------------------------------------------------------------------ output
-def report_text(result: Result) -> str:
+def text_report(result: Result) -> str:
     p = result.params
     lines = [
         f"temperature bath: {p.shape} in a {p.fixture} fixture, {p.start_celsius:g} → {p.end_celsius:g} °C "
         f"({p.profile}, {p.duration:g} s simulated, room/λ0 reference {p.room_celsius:g} °C), "
-        f"{p.rate:g} Hz averaged over {p.average:g} s, optics {p.optics}, calibration {p.calibration}",
+        f"{p.rate:g} Hz averaged over {p.average:g} s, optics {p.optics}, "
+        f"calibration {result.calibration.get('name', p.calibration)}",
         "tip positions in the fibre's base frame (fixed); variation = max distance from the mean, range = max "
         "distance between two positions, change = first to last window",
         "",
@@ -389,7 +404,8 @@ def write_report(result: Result, directory: str | Path) -> Path:
 
     plt = pyplot()
     p = result.params
-    rep = Report(directory, "Temperature bath: tip variation while the bath cools")
+    rep = Report(directory, "Temperature bath: tip variation while the bath cools",
+                 calibration_label(result.calibration))
     rep.text(f"The catheter is held in the **{p.shape}** shape ({p.fixture} fixture) while the bath cools from "
              f"{p.start_celsius:g} °C to {p.end_celsius:g} °C ({p.profile} curve toward a {p.room_celsius:g} °C "
              f"room, {p.duration:g} s simulated; λ0 referenced to {p.room_celsius:g} °C). The interrogator runs at "
@@ -468,7 +484,30 @@ def write_report(result: Result, directory: str | Path) -> Path:
          f"paper at {r0.bath_celsius[-1]:.0f} °C": r0.curvature["paper"][-1]},
         title="curvature along the fibre, truth vs reconstruction"), "Curvature profiles, start and end of the run")
     rep.text("Run: `twin run temperature-bath " + " ".join(_cli_args(p)) + "`")
+    _overlays(rep, result)
     return rep.write()
+
+
+def _overlays(rep, result: Result) -> None:
+    """The first and last windows of the first run over the catheter, and the error along the arc."""
+    from scenarios.report import error_along_arc, overlay_panels, shape_overlays
+
+    r = result.runs[0]
+    if not r.shapes or r.truth is None:
+        return
+    rot, pos = r.base_pose
+    idx = np.array([0, r.t.size - 1])
+    names = [f"bath {r.bath_celsius[i]:.1f} °C" for i in idx]
+    recon = {m: r.shapes[m].positions[idx] @ rot.T + pos for m in ("default", "paper")}
+    truth = np.repeat(r.truth.positions[None], idx.size, axis=0)
+    fixture = None if r.truth.fixture is None else np.repeat(r.truth.fixture[None], idx.size, axis=0)
+    panels, along = overlay_panels(names, truth, r.truth.s, recon, r.shapes["default"].s, fixture=fixture)
+    rep.figure("shape_overlays", shape_overlays(panels, "Hot and cooled: reconstructions over the catheter "
+                                                "(registered onto it; mm)", rep.calibration),
+               "the first and last averaging windows of the first run, registered onto the catheter")
+    fig = error_along_arc(r.shapes["default"].s, {n: along["default"][i] * 1e3 for i, n in enumerate(names)},
+                          "Error along the arc length, default pipeline", rep.calibration)
+    rep.figure("error_along_arc", fig, "distance of the registered reconstruction from the catheter")
 
 
 def _tip_scatter(result: Result):
@@ -526,60 +565,26 @@ def show(viewer, result: Result, most: int = 60) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ command line
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--shape", default="helix", help="library shape (default helix)")
-    parser.add_argument("--fixture", choices=("connect", "tube", "groove"), default="connect",
-                        help="connect constraints (exact, default), a 3 mm tube, or a groove (planar shapes)")
-    parser.add_argument("--start", type=float, default=60.0, help="bath temperature at the start, °C (default 60)")
-    parser.add_argument("--end", type=float, default=30.0, help="bath temperature at the end, °C (default 30)")
-    parser.add_argument("--room", type=float, default=22.0,
-                        help="room temperature = λ0 reference and the cooling's asymptote, °C (default 22)")
-    parser.add_argument("--profile", choices=PROFILES, default="exponential",
-                        help="cooling curve (default exponential)")
-    parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds (default 60)")
-    parser.add_argument("--gradient", type=float, default=0.0, help="temperature gradient along the fibre, K/m")
-    parser.add_argument("--rate", type=float, default=25.0, help="interrogator rate, Hz (default 25)")
-    parser.add_argument("--average", type=float, default=1.0, help="averaging window, s (default 1; 0: none)")
+def add_arguments(parser) -> None:
+    entry.add_arguments(parser, Params)
     parser.add_argument("--mismatch-percent", default="0.3,0",
                         help="per-core S_T mismatch(es), %%, one run each; include 0 to isolate the mismatch's "
                              "effect (default 0.3,0)")
-    parser.add_argument("--optics", choices=("realistic", "ideal"), default="realistic")
-    parser.add_argument("--calibration", default="true",
-                        help="true (the twin's true parameters), lambda0 (as-built λ0 only), nominal, or a TOML")
-    parser.add_argument("--segments", type=int, default=100, help="rod segments (default 100)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the interrogator's noise and drift")
-    parser.add_argument("--fiber-seed", type=int, default=0,
-                        help="which as-built fibre (its λ0 spread and per-core S_T deviations; default 0)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--report", metavar="DIR", help="write DIR/report.md with PNG plots")
 
 
-def params_from_args(args: argparse.Namespace) -> Params:
+def params_from_args(args) -> Params:
     try:
         mismatches = tuple(float(v) / 100 for v in args.mismatch_percent.split(",") if v.strip())
     except ValueError:
         raise ValueError(f"--mismatch-percent {args.mismatch_percent!r}: expected numbers like 0.3,0") from None
-    params = Params(args.shape, args.fixture, args.start, args.end, args.room, args.profile, args.duration,
-                    args.gradient, args.rate, args.average, mismatches, args.optics, args.calibration, args.segments,
-                    args.seed, args.fiber_seed)
+    params = entry.params_from_args(Params, args, mismatches=mismatches)
     check(params)
     return params
 
 
-def run(args: argparse.Namespace) -> int:
-    params = params_from_args(args)
-    result = run_experiment(params, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
-    viewer = getattr(args, "viewer", None)
-    if viewer is not None:
-        show(viewer, result)
-    if args.report:
-        path = write_report(result, args.report)
-        print(f"report: {path}", file=sys.stderr)
-    print(json.dumps(result.to_dict(), indent=2) if args.json else report_text(result))
-    return 0
+def run(args) -> int:
+    return entry.run("temperature-bath", sys.modules[__name__], args)
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(prog="temperature_bath", description=__doc__)
-    add_arguments(parser)
-    sys.exit(run(parser.parse_args()))
+    entry.main(sys.modules[__name__])

@@ -41,8 +41,6 @@ a calibration TOML. ``--report DIR`` writes DIR/report.md with trajectory, devia
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import sys
 import time
@@ -52,14 +50,19 @@ from pathlib import Path
 
 import numpy as np
 
-from scenarios.series import Series, calibration_for, collect, to_world
-from sim_interrogator.optics import OpticsConfig
+from scenarios._common import entry
+from scenarios._common.calibration import CALIBRATIONS, calibration_for, check_calibration
+from scenarios._common.calibration import label as calibration_label
+from scenarios._common.entry import option
+from scenarios._common.optics import OPTICS, optics_config
+from scenarios.series import Series, collect, to_world
 from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.tendon import Tendon
 from twin import FiberModel, Reconstructor, metrics
 from twin.frames import Truth
 
-MODES = ("default", "paper")
+#: Ours, the paper's with θ_b held through low curvature (κ_min = 1 1/m), the paper's literal transcription.
+MODES = ("default", "paper", "paper-literal")
 PAPER_MAX_DEVIATION_MM = 2.1  #: Al-Ahmad et al.: max deviation of the reconstructed tip from the EM sensor
 
 
@@ -68,20 +71,26 @@ class Params:
     """Parameters of the experiment (plain values: picklable). SI units: N, s, m, Hz; ``em_noise`` is the EM
     sensor's per-axis noise (1σ), m; ``axial_stiffness`` the deflectable section's effective EA, N."""
 
-    max_tension: float = 10.0
-    period: float = 10.0
-    cycles: float = 2.0
-    wires: int = 2
-    deflectable_length: float = 0.06
-    tendon_offset: float = 0.9e-3
-    axial_stiffness: float = 2.0e4
-    rate: float = 20.0
-    em_noise: float = 0.3e-3
-    optics: str = "realistic"
-    calibration: str = "true"
-    segments: int = 100
-    seed: int = 0
-    fiber_seed: int = 0
+    max_tension: float = field(default=10.0, metadata=option("largest wire tension, N"))
+    period: float = field(default=10.0, metadata=option("steering period, s"))
+    cycles: float = field(default=2.0, metadata=option("number of periods"))
+    wires: int = field(default=2, metadata=option(
+        "2: bidirectional sweep to both sides; 1: one wire pulled and released", choices=(1, 2)))
+    deflectable_length: float = field(default=0.06, metadata=option("deflectable section, mm",
+                                                                     flag="--deflectable-mm", scale=1e-3))
+    tendon_offset: float = field(default=0.9e-3, metadata=option("pull-wire offset from the axis, mm",
+                                                                 flag="--offset-mm", scale=1e-3))
+    axial_stiffness: float = field(default=2.0e4, metadata=option(
+        "effective EA of the section for the fibre's compression strain, N (0: none)"))
+    rate: float = field(default=20.0, metadata=option("interrogator and EM rate, Hz"))
+    em_noise: float = field(default=0.3e-3, metadata=option("EM sensor noise per axis, mm", flag="--em-noise-mm",
+                                                            scale=1e-3))
+    optics: str = field(default="realistic", metadata=option("synthetic interrogator effects", choices=OPTICS))
+    calibration: str = field(default="lab", metadata=option(
+        f"{', '.join(CALIBRATIONS)} or a calibration TOML (scenarios/_common/calibration.py)", metavar="CAL"))
+    segments: int = field(default=100, metadata=option("rod segments"))
+    seed: int = field(default=0, metadata=option("seed of the interrogator's and the EM sensor's noise"))
+    fiber_seed: int = field(default=0, metadata=option("which as-built fibre"))
 
 
 def _stats(d: np.ndarray) -> dict[str, float]:
@@ -135,6 +144,7 @@ class Result:
     wall_s: float
     shapes: dict = field(repr=False, default_factory=dict)
     series: Series | None = field(repr=False, default=None)
+    calibration: dict = field(default_factory=dict)
 
     def deviations(self, mode: str) -> dict[str, np.ndarray]:
         """Per-frame distances (m): ``em`` (from the EM reading, base-pose placement), ``registered`` (from the
@@ -172,10 +182,12 @@ class Result:
                 "registered_max_deviation_mm": m["registered_max_deviation_mm"],
                 "true_tip_error_max_mm": m["true_tip_error_max_mm"],
                 "paper_pipeline_max_deviation_mm": self.metrics("paper")["max_deviation_mm"],
+                "paper_literal_max_deviation_mm": self.metrics("paper-literal")["max_deviation_mm"],
                 **self.em_noise_stats(), **self.motion()}
 
     def to_dict(self) -> dict:
-        return {"params": asdict(self.params), "setup": self.setup, "frames": int(self.t.size),
+        return {"experiment": "tendon", "params": asdict(self.params), "calibration": self.calibration,
+                "setup": self.setup, "frames": int(self.t.size),
                 "lost_peaks": self.lost_peaks, "wall_s": self.wall_s,
                 "pipelines": {mode: self.metrics(mode) for mode in MODES}, "summary": self.summary()}
 
@@ -183,10 +195,8 @@ class Result:
 # ------------------------------------------------------------------------------------------------ the experiment
 def check(params: Params) -> None:
     """Clear errors for bad parameters (before any physics runs)."""
-    if params.optics not in ("realistic", "ideal"):
-        raise ValueError(f"optics must be realistic or ideal; got {params.optics!r}")
-    if params.calibration not in ("true", "lambda0", "nominal") and not Path(params.calibration).exists():
-        raise ValueError(f"calibration {params.calibration!r}: no such file (or use true, lambda0, nominal)")
+    optics_config(params.optics)  # a clear error for an unknown name
+    check_calibration(params.calibration)
     if not params.rate > 0:
         raise ValueError(f"rate must be > 0 Hz, got {params.rate}")
     if not params.em_noise >= 0:
@@ -199,16 +209,15 @@ def make_setup(params: Params) -> Tendon:
                   axial_stiffness=params.axial_stiffness, segments=params.segments)
 
 
-def run_experiment(params: Params, progress: Callable[[str], None] | None = None) -> Result:
+def run_experiment(params: Params, progress: Callable[[str], None] | None = None, viewer=None) -> Result:
     """Steer the simulated catheter, reconstruct every frame and compare the tip with the EM-like reading;
-    ``progress(message)`` reports as it goes."""
+    ``progress(message)`` reports as it goes; a viewer replays the frames at the end."""
     check(params)
     say = progress or (lambda msg: None)
     t_wall = time.perf_counter()
     fiber = FiberModel.paper()
     setup = make_setup(params)
-    cfg = OpticsConfig(seed=params.seed) if params.optics == "realistic" else OpticsConfig.ideal()
-    cfg = cfg.replace(fiber_seed=params.fiber_seed)
+    cfg = optics_config(params.optics, params.seed).replace(fiber_seed=params.fiber_seed)
     sim = SimInterrogator(setup, fiber, cfg, rate=params.rate)
     n_frames = round(setup.duration * params.rate) + 1
     d = setup.describe()
@@ -224,8 +233,10 @@ def run_experiment(params: Params, progress: Callable[[str], None] | None = None
     series = collect(sim, n_frames, progress=tick)
     t = series.t
     em = series.tip + np.random.default_rng([params.seed, 1]).normal(0.0, params.em_noise, series.tip.shape)
-    cal = calibration_for(params.calibration, sim)
-    recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal)}
+    used = calibration_for(params.calibration, sim.optics, fiber, progress=progress)
+    cal = used.calibration
+    recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal),
+            "paper-literal": Reconstructor.paper(fiber, cal, kappa_min=0.0)}
     tips, reg, errors, curv, shp = {}, {}, {}, {}, {}
     for mode, rec in recs.items():
         shape = rec(series.wavelengths)
@@ -244,33 +255,35 @@ def run_experiment(params: Params, progress: Callable[[str], None] | None = None
     result = Result(params=params, setup=d, t=t, tension=setup.tension(t), true_tip=series.tip, em=em, tips=tips,
                     registered_tips=reg, shape_error=errors, curvature=curv, true_curvature=series.truth_curvature,
                     axial_strain=setup.axial_strain(t, fiber.grating_s), lost_peaks=int(series.lost_peaks.sum()),
-                    wall_s=time.perf_counter() - t_wall, shapes=shp, series=series)
+                    wall_s=time.perf_counter() - t_wall, shapes=shp, series=series, calibration=used.to_dict())
     m = result.metrics("default")
     say(f"    max deviation from the EM sensor {m['max_deviation_mm']:.2f} mm (RMS {m['rms_deviation_mm']:.2f} mm), "
         f"{result.wall_s:.1f} s wall")
+    if viewer is not None:
+        show(viewer, result)
     return result
 
 
 # ------------------------------------------------------------------------------------------------ output
-def report_text(result: Result) -> str:
+def text_report(result: Result) -> str:
     p = result.params
     mo = result.motion()
     lines = [
         f"tendon: ±{p.max_tension:g} N on a {p.deflectable_length * 1e3:g} mm deflectable section "
         f"(r_t {p.tendon_offset * 1e3:g} mm, {p.wires} wire{'s' if p.wires > 1 else ''}), {p.cycles:g} × "
         f"{p.period:g} s at {p.rate:g} Hz; EM noise {p.em_noise * 1e3:g} mm per axis; optics {p.optics}, "
-        f"calibration {p.calibration}",
+        f"calibration {result.calibration.get('name', p.calibration)}",
         f"steering: tip sweep {mo['tip_sweep_mm']:.1f} mm, curvature up to {mo['max_curvature_per_cm']:.3f} 1/cm, "
         f"compression up to {mo['max_compression_microstrain']:.0f} µε; {result.lost_peaks} peaks lost",
         "tip deviations in mm over all frames; 'EM' places the reconstruction with the true base pose, "
         "'registered' fits one rigid transform of the tip trajectory to the EM readings",
         "",
-        f"{'pipeline':9s}{'EM max':>8s}{'EM rms':>8s}{'reg max':>9s}{'reg rms':>9s}{'true max':>10s}{'true rms':>10s}"
+        f"{'pipeline':14s}{'EM max':>8s}{'EM rms':>8s}{'reg max':>9s}{'reg rms':>9s}{'true max':>10s}{'true rms':>10s}"
         f"{'shape max':>11s}",
     ]
     for mode in MODES:
         m = result.metrics(mode)
-        lines.append(f"{mode:9s}{m['max_deviation_mm']:8.3f}{m['rms_deviation_mm']:8.3f}"
+        lines.append(f"{mode:14s}{m['max_deviation_mm']:8.3f}{m['rms_deviation_mm']:8.3f}"
                      f"{m['registered_max_deviation_mm']:9.3f}{m['registered_rms_deviation_mm']:9.3f}"
                      f"{m['true_tip_error_max_mm']:10.3f}{m['true_tip_error_rms_mm']:10.3f}"
                      f"{m['shape_error_max_mm']:11.3f}")
@@ -341,7 +354,8 @@ def write_report(result: Result, directory: str | Path) -> Path:
     p = result.params
     s = result.summary()
     fiber = FiberModel.paper()
-    rep = Report(directory, "Tendon steering: reconstructed tip vs an EM sensor")
+    rep = Report(directory, "Tendon steering: reconstructed tip vs an EM sensor",
+                 calibration_label(result.calibration))
     rep.text(f"A bidirectional catheter hangs from a clamped base; pull-wires (r_t = {p.tendon_offset * 1e3:g} mm) "
              f"bend its {p.deflectable_length * 1e3:g} mm deflectable section back and forth with up to "
              f"{p.max_tension:g} N ({p.cycles:g} periods of {p.period:g} s; {s['tip_sweep_mm']:.0f} mm tip sweep, "
@@ -398,8 +412,38 @@ def write_report(result: Result, directory: str | Path) -> Path:
     g = int(np.argmin(np.abs(fiber.grating_s - 0.5 * (fiber.sensed_length + result.setup["coil_end_s"]))))
     rep.figure("load", _load_figure(result, g),
                f"Wire tension and curvature at the grating at {fiber.grating_s[g] * 1e3:.0f} mm (in the section)")
+    if result.series is not None and result.shapes:
+        _overlays(rep, result)
     rep.text("Run: `twin run tendon " + " ".join(_cli_args(p)) + "`")
     return rep.write()
+
+
+def _overlays(rep, result: Result, count: int = 5) -> None:
+    """Shape overlays at a few frames (the extremes of the sweep among them) and the error along the arc."""
+    from scenarios.report import error_along_arc, overlay_panels, shape_overlays
+
+    series = result.series
+    idx = np.unique(np.append(np.linspace(0, len(series) - 1, count - 2).round().astype(int),
+                              [int(np.argmax(result.tension)), int(np.argmin(result.tension))]))
+    idx = np.array([i for i in idx if all(np.isfinite(result.shapes[m].positions[i]).all() for m in ("default",
+                                                                                                    "paper"))])
+    if idx.size == 0:
+        return
+    names = [f"t = {result.t[i]:.1f} s, T = {result.tension[i]:+.1f} N" for i in idx]
+    recon = {m: to_world(result.shapes[m][idx], _subseries(series, idx)) for m in ("default", "paper")}
+    panels, along = overlay_panels(names, series.truth_positions[idx], series.truth_s, recon,
+                                   result.shapes["default"].s)
+    rep.figure("shape_overlays", shape_overlays(panels, "Reconstructions over the catheter (registered onto it; mm)",
+                                                rep.calibration), "a few frames of the sweep, registered")
+    fig = error_along_arc(result.shapes["default"].s, {n: along["default"][i] * 1e3 for i, n in enumerate(names)},
+                          "Error along the arc length, default pipeline", rep.calibration)
+    rep.figure("error_along_arc", fig, "distance of the registered reconstruction from the catheter")
+
+
+def _subseries(series: Series, idx: np.ndarray) -> Series:
+    from dataclasses import replace
+
+    return replace(series, base_positions=series.base_positions[idx], base_frames=series.base_frames[idx])
 
 
 def _cli_args(p: Params) -> list[str]:
@@ -437,51 +481,20 @@ def show(viewer, result: Result, most: int = 150) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ command line
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--max-tension", type=float, default=10.0, help="largest wire tension, N (default 10)")
-    parser.add_argument("--period", type=float, default=10.0, help="steering period, s (default 10)")
-    parser.add_argument("--cycles", type=float, default=2.0, help="number of periods (default 2)")
-    parser.add_argument("--wires", type=int, choices=(1, 2), default=2,
-                        help="2: bidirectional sweep to both sides (default); 1: one wire pulled and released")
-    parser.add_argument("--deflectable-mm", type=float, default=60.0, help="deflectable section, mm (default 60)")
-    parser.add_argument("--offset-mm", type=float, default=0.9, help="pull-wire offset from the axis, mm (default 0.9)")
-    parser.add_argument("--axial-stiffness", type=float, default=2.0e4,
-                        help="effective EA of the section for the fibre's compression strain, N (default 2e4; 0: none)")
-    parser.add_argument("--rate", type=float, default=20.0, help="interrogator and EM rate, Hz (default 20)")
-    parser.add_argument("--em-noise-mm", type=float, default=0.3, help="EM sensor noise per axis, mm (default 0.3)")
-    parser.add_argument("--optics", choices=("realistic", "ideal"), default="realistic")
-    parser.add_argument("--calibration", default="true",
-                        help="true (the twin's true parameters), lambda0 (as-built λ0 only), nominal, or a TOML")
-    parser.add_argument("--segments", type=int, default=100, help="rod segments (default 100)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the interrogator's and the EM sensor's noise")
-    parser.add_argument("--fiber-seed", type=int, default=0, help="which as-built fibre (default 0)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--report", metavar="DIR", help="write DIR/report.md with PNG plots")
+def add_arguments(parser) -> None:
+    entry.add_arguments(parser, Params)
 
 
-def params_from_args(args: argparse.Namespace) -> Params:
-    params = Params(args.max_tension, args.period, args.cycles, args.wires, args.deflectable_mm * 1e-3,
-                    args.offset_mm * 1e-3, args.axial_stiffness, args.rate, args.em_noise_mm * 1e-3, args.optics,
-                    args.calibration, args.segments, args.seed, args.fiber_seed)
+def params_from_args(args) -> Params:
+    params = entry.params_from_args(Params, args)
     check(params)
     make_setup(params)  # the setup's own checks (tension, section length, offset) before any physics
     return params
 
 
-def run(args: argparse.Namespace) -> int:
-    params = params_from_args(args)
-    result = run_experiment(params, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
-    viewer = getattr(args, "viewer", None)
-    if viewer is not None:
-        show(viewer, result)
-    if args.report:
-        path = write_report(result, args.report)
-        print(f"report: {path}", file=sys.stderr)
-    print(json.dumps(result.to_dict(), indent=2) if args.json else report_text(result))
-    return 0
+def run(args) -> int:
+    return entry.run("tendon", sys.modules[__name__], args)
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(prog="tendon", description=__doc__)
-    add_arguments(parser)
-    sys.exit(run(parser.parse_args()))
+    entry.main(sys.modules[__name__])

@@ -188,3 +188,16 @@ def test_torsion_schemes():
     # an angle jump across ±π is wrapped, not taken as a 2π turn
     _, tau = curve.torsion_nodes(np.array([3.0, -3.0, -2.9]), s[:3], "forward")
     assert tau[0] == pytest.approx((2 * np.pi - 6.0) / 0.01)
+
+
+def test_hold_bend_angle():
+    """θ_b held at the last reliable value, leading nodes take the first reliable one, batch-wise; κ_min = 0 is
+    the identity; a curve with no reliable node keeps its first angle."""
+    theta = np.array([[0.1, 0.2, 0.3, 0.4, 0.5, 0.6], [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]])
+    kappa = np.array([[0.0, 0.5, 3.0, 0.2, 4.0, 0.9], [0.1, 0.1, 0.1, 0.1, 0.1, 0.1]])
+    held = curve.hold_bend_angle(theta, kappa, 1.0)
+    np.testing.assert_array_equal(held[0], [0.3, 0.3, 0.3, 0.3, 0.5, 0.5])
+    np.testing.assert_array_equal(held[1], np.full(6, 1.0))
+    np.testing.assert_array_equal(curve.hold_bend_angle(theta, kappa, 0.0), theta)
+    _, tau = curve.torsion_nodes(held[:1], np.arange(6) * 0.01, "forward")
+    assert np.count_nonzero(tau) == 2  # the turn is taken where the next reliable grating is reached

@@ -145,7 +145,7 @@ def test_temperature_bath_ci():
     * the common mode the central core removes is S_T·ΔT·λ0 ≈ −0.29 nm (to 2 %, the window averages of ΔT), and
       left uncompensated it would move the tip by millimetres (> 5 mm; 4/3·ε/r leaks ≈ 9 1/m per 30 K).
     """
-    params = temperature_bath.Params(duration=10.0, rate=10.0, average=1.0)
+    params = temperature_bath.Params(duration=10.0, rate=10.0, average=1.0, calibration="true")
     result = temperature_bath.run_experiment(params)
     with_m, without = result.runs
     noise_budget = 0.30e-3
@@ -180,7 +180,7 @@ def _step_bound(setup: Tendon) -> float:
 def test_tendon_ci_ideal_optics_is_limited_by_the_curvature_step():
     """Without optical effects or EM noise, the reconstructed tip is off only by the step ambiguity (1.05 mm
     bound at the defaults: the coil's end is 0.525 mm from the gratings' midpoint, κ = 45 1/m, 44.5 mm lever)."""
-    params = tendon.Params(cycles=0.75, period=6.0, rate=5.0, optics="ideal", em_noise=0.0)
+    params = tendon.Params(cycles=0.75, period=6.0, rate=5.0, optics="ideal", em_noise=0.0, calibration="true")
     result = tendon.run_experiment(params)
     bound = _step_bound(tendon.make_setup(params))
     assert 0.5e-3 < bound < 1.2e-3
@@ -198,7 +198,7 @@ def test_tendon_ci_against_the_em_sensor():
     the deviation from the EM sensor ≤ their sum, 3.1 mm (the paper saw 2.1 mm). The tip sweeps > 40 mm and the
     compression (−500 µε at 10 N, EA 20 kN) reaches the optics and is removed by the central core.
     """
-    params = tendon.Params(cycles=1.0, period=6.0, rate=10.0)
+    params = tendon.Params(cycles=1.0, period=6.0, rate=10.0, calibration="true")
     result = tendon.run_experiment(params)
     n = result.t.size
     rec_budget = _step_bound(tendon.make_setup(params)) + 4 * TIP_NOISE_RMS
@@ -219,18 +219,21 @@ def test_scenarios_run_from_the_command_line(tmp_path, capsys):
     with its PNGs; bad options are one clear error."""
     from twin.cli import main
 
-    assert main(["run", "tendon", "--cycles", "0.25", "--period", "2", "--rate", "5", "--json",
+    assert main(["run", "tendon", "--cycles", "0.25", "--period", "2", "--rate", "5", "--calibration", "true", "--json",
                  "--report", str(tmp_path / "tendon")]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["summary"]["paper_max_deviation_mm"] == 2.1
+    assert out["summary"]["paper_max_deviation_mm"] == 2.1 and out["calibration"]["name"] == "true"
+    assert set(out["pipelines"]) == {"default", "paper", "paper-literal"}
     report = (tmp_path / "tendon" / "report.md").read_text()
-    for png in ("tip_trajectories", "error_over_time", "curvature", "load"):
+    for png in ("tip_trajectories", "error_over_time", "curvature", "load", "shape_overlays", "error_along_arc"):
         assert (tmp_path / "tendon" / f"{png}.png").stat().st_size > 1000 and f"{png}.png" in report
     assert main(["run", "temperature-bath", "--duration", "2", "--rate", "2", "--mismatch-percent", "0.3",
+                 "--calibration", "true",
                  "--report", str(tmp_path / "bath")]) == 0
     text = capsys.readouterr().out
     assert "paper: ≤ 0.29 mm" in text
-    assert (tmp_path / "bath" / "tip_vs_temperature.png").exists()
+    for png in ("tip_vs_temperature", "shape_overlays", "error_along_arc"):
+        assert (tmp_path / "bath" / f"{png}.png").exists()
     assert main(["run", "tendon", "--wires", "2", "--offset-mm", "5"]) == 2
     assert "outside the catheter" in capsys.readouterr().err
     assert main(["run", "temperature-bath", "--end", "10"]) == 2
@@ -251,7 +254,7 @@ def test_viewer_hook_is_called():
             self.calls.append((base_pose[0].shape, label))
 
     viewer = FakeViewer()
-    result = tendon.run_experiment(tendon.Params(cycles=0.25, period=2.0, rate=5.0))
+    result = tendon.run_experiment(tendon.Params(cycles=0.25, period=2.0, rate=5.0, calibration="true"))
     tendon.show(viewer, result)
     assert viewer.calls and viewer.calls[0][0] == (3, 3) and "T =" in viewer.calls[-1][1]
     args = argparse.Namespace(viewer=None)
@@ -265,7 +268,7 @@ def test_temperature_bath_full_run():
     test scaled to 60 windows and 60 s of drift (0.2·√60 = 1.5 pm → 0.22 mm; 3× the RMS ≈ 0.7 mm) holds without
     mismatch; the mismatch effect matches its linearised prediction; the paper's 0.29 mm is within the expected
     effect's 95 % range (2.45× the RMS for a 2D Gaussian) of a 0.3 % spread."""
-    result = temperature_bath.run_experiment(temperature_bath.Params())
+    result = temperature_bath.run_experiment(temperature_bath.Params(calibration="true"))
     with_m, without = result.runs
     assert temperature_bath.tip_stats(without.tips["default"])["variation"] < 0.7e-3
     assert result.mismatch_effect(with_m) == pytest.approx(temperature_bath.predicted_effect(with_m), rel=0.1,
@@ -276,7 +279,7 @@ def test_temperature_bath_full_run():
 @pytest.mark.slow
 def test_tendon_full_run():
     """The default experiment (2 × 10 s at 20 Hz): the CI budgets with 401 frames (EM: 5.3σ = 1.6 mm)."""
-    params = tendon.Params()
+    params = tendon.Params(calibration="true")  # the budgets are the noise's; the lab calibration adds its own
     result = tendon.run_experiment(params)
     rec_budget = _step_bound(tendon.make_setup(params)) + 4 * TIP_NOISE_RMS
     em_budget = params.em_noise * chi.ppf(1 - 1e-3 / result.t.size, 3)

@@ -25,6 +25,7 @@ __all__ = [
     "INTERPOLATIONS",
     "TORSIONS",
     "basis",
+    "hold_bend_angle",
     "integrate",
     "interpolate",
     "sample_points",
@@ -210,6 +211,43 @@ def torsion_nodes(theta: np.ndarray, s_nodes: np.ndarray, scheme: str) -> tuple[
     last = 2 * d[..., -1:] - d[..., -2:-1] if n >= 3 else d[..., -1:]
     # the paper's last node: Δθ_b[N-1] = 2Δθ_b[N-2] − Δθ_b[N-3], over the last spacing
     return s_nodes.copy(), np.concatenate([d, last], axis=-1) / np.append(l, l[-1])
+
+
+def hold_bend_angle(theta: np.ndarray, kappa: np.ndarray, kappa_min: float) -> np.ndarray:
+    """Bend-plane angles held through low curvature: where κ < ``kappa_min`` the last reliable θ_b is kept,
+    and gratings before the first reliable one take that one's angle.
+
+    The paper's pipeline (math.md §3.2) is silent about near-zero curvature, where θ_b = atan2(k_y, k_x) is
+    noise (atan2(0, 0) = 0 even without noise). Its wrapped differences there become torsion spikes that carry
+    the Frenet frame into the next bend rolled by up to π. Holding θ_b gives zero torsion through the
+    unreliable stretch, so the frame is carried through straight parts unchanged and the whole change of bend
+    plane across the stretch is taken at its far end. This is our addition, not the paper's;
+    ``kappa_min = 0`` returns ``theta`` unchanged (the literal transcription).
+
+    Parameters
+    ----------
+    theta : ndarray, shape (..., n_nodes)
+        Bend-plane angles, rad.
+    kappa : ndarray, shape (..., n_nodes)
+        Curvature magnitudes at the same nodes, 1/m.
+    kappa_min : float
+        Smallest curvature whose bend-plane angle is trusted, 1/m.
+
+    Returns
+    -------
+    ndarray, shape (..., n_nodes)
+        θ_b with every unreliable node replaced; a curve with no reliable node keeps its first angle everywhere.
+    """
+    theta = np.asarray(theta, dtype=np.float64)
+    if not kappa_min > 0:
+        return theta
+    reliable = np.asarray(kappa) >= kappa_min
+    n = theta.shape[-1]
+    idx = np.where(reliable, np.arange(n), -1)
+    last = np.maximum.accumulate(idx, axis=-1)
+    first = np.argmax(reliable, axis=-1)[..., None]  # 0 when no node is reliable
+    src = np.where(last < 0, first, last)
+    return np.take_along_axis(theta, src, axis=-1)
 
 
 def unwrap_nodes(theta: np.ndarray) -> np.ndarray:

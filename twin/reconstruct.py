@@ -17,9 +17,12 @@ from twin.fiber import FiberModel
 from twin.frames import Frame, Shape
 from twin.strain import CurvatureSolver
 
-__all__ = ["METHODS", "Reconstructor"]
+__all__ = ["METHODS", "PAPER_KAPPA_MIN", "Reconstructor"]
 
 METHODS = ("material", "paper")
+#: The paper pipeline's default κ_min, 1/m: 30 × the noise of κ (≈ 0.03 1/m per component at 1 pm of wavelength
+#: noise on this fibre) and far below the bends a catheter is steered through (tens of 1/m).
+PAPER_KAPPA_MIN = 1.0
 
 
 class Reconstructor:
@@ -48,6 +51,12 @@ class Reconstructor:
     inversion : {"lstsq", "paper"}, optional
         Curvature-vector inversion; default ``lstsq`` for the material method and the paper's eqs. 5–7 for
         the paper method.
+    kappa_min : float, optional
+        Paper method only: where κ < ``kappa_min`` (1/m) the bend-plane angle θ_b is held at its last reliable
+        value, leading gratings taking the first reliable one (:func:`twin.curve.hold_bend_angle`); torsion is
+        then zero there. Default 1 1/m (30 × the noise of κ at 1 pm). Our addition: the paper does not say
+        what it does at near-zero curvature, and its literal transcription (``kappa_min=0``) rolls the frame by
+        up to π wherever part of the length is nearly straight (math.md §3.6).
 
     Calling the reconstructor on wavelengths of shape (..., n_gratings, n_cores) (nm; NaN for a missing peak),
     a :class:`~twin.frames.Frame` or a sequence of Frames returns a :class:`~twin.frames.Shape`. A grating
@@ -71,6 +80,7 @@ class Reconstructor:
         torsion: str | None = None,
         step: float = 1e-3,
         inversion: str | None = None,
+        kappa_min: float | None = None,
     ):
         if not isinstance(fiber, FiberModel):
             raise TypeError(f"fiber must be a FiberModel, got {type(fiber).__name__}")
@@ -87,6 +97,12 @@ class Reconstructor:
         if torsion not in curve.TORSIONS:
             raise ValueError(f"torsion must be one of {', '.join(curve.TORSIONS)}; got {torsion!r}")
         inversion = inversion or ("lstsq" if method == "material" else "paper")
+        if kappa_min is not None and method != "paper":
+            raise ValueError("kappa_min applies to the paper method only (the material frame needs no bend angle)")
+        kappa_min = PAPER_KAPPA_MIN if kappa_min is None else float(kappa_min)
+        if not (np.isfinite(kappa_min) and kappa_min >= 0):
+            raise ValueError(f"kappa_min must be a curvature >= 0 in 1/m, got {kappa_min}")
+        self.kappa_min = kappa_min if method == "paper" else 0.0
         self.fiber = fiber
         self.calibration = calibration or Calibration()
         self.method = method
@@ -107,12 +123,15 @@ class Reconstructor:
         return (
             f"Reconstructor(method={self.method!r}, interpolation={self.interpolation!r}, "
             f"integrator={self.integrator!r}, torsion={self.torsion!r}, step={self.h:.3g} m, "
-            f"inversion={self.inversion!r}, {self.fiber.n_gratings} gratings × {self.fiber.n_cores} cores)"
+            f"inversion={self.inversion!r}, "
+            + (f"kappa_min={self.kappa_min:g} 1/m, " if self.method == "paper" else "")
+            + f"{self.fiber.n_gratings} gratings × {self.fiber.n_cores} cores)"
         )
 
     @classmethod
     def paper(cls, fiber: FiberModel, calibration: Calibration | None = None, **options) -> Reconstructor:
-        """The paper's pipeline literally: eqs. 5–7, forward torsion, not-a-knot spline, HEM (left samples)."""
+        """The paper's pipeline: eqs. 5–7, forward torsion, not-a-knot spline, HEM (left samples), with θ_b held
+        through curvature below ``kappa_min`` (default 1 1/m; ``kappa_min=0``: the literal transcription)."""
         opts = dict(method="paper", interpolation="spline", integrator="hem-left", torsion="forward")
         opts.update(options)
         return cls(fiber, calibration, **opts)
@@ -227,7 +246,7 @@ class Reconstructor:
             return rates.reshape(shape_r), None, None
         # Frenet (paper) pipeline
         kappa = np.hypot(k[..., 0], k[..., 1])
-        theta = np.arctan2(k[..., 1], k[..., 0])
+        theta = curve.hold_bend_angle(np.arctan2(k[..., 1], k[..., 0]), kappa, self.kappa_min)
         if self.torsion == "theta-spline":
             th = curve.unwrap_nodes(theta)
             tau = th @ prep["b_theta_d"].T

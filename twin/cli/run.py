@@ -21,9 +21,16 @@ COMMON_HELP = ("Options the experiments share (after NAME; `twin run NAME --help
                "to reconstruct with), and " + VIEWER_HELP + ".")
 
 
+COMMON_HELP = ("Every scenario takes --json (one JSON object on stdout) and --report DIR (DIR/report.md with "
+               "figures); the experiments take --calibration lab|true|lambda0|nominal|FILE (default lab: calibrated "
+               "as a lab would, two-step then identification against the fixtures' geometry; true: the twin's true "
+               "parameters) and --optics realistic|ideal. `twin run NAME --help` lists a scenario's own options.")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from twin.cli import scenarios
 
+    parser.epilog = COMMON_HELP + " " + VIEWER_HELP
     known = scenarios()
     parser.epilog = COMMON_HELP
     parser.add_argument("--viewer", action="store_true", help="show the run in a browser (meshcat)")
