@@ -13,7 +13,7 @@ FORBIDDEN = {
     "models": {"sim_interrogator", "scenarios"},
     "sim_interrogator": {"scenarios"},
 }
-OPTIONAL = ("mujoco", "meshcat", "matplotlib", "h5py", "pyigtl", "dask", "distributed", "pyarrow")
+OPTIONAL = ("mujoco", "meshcat", "matplotlib", "h5py", "dask", "distributed", "pyarrow", "zmq", "tornado", "umsgpack")
 
 
 def _imports(path: Path):
