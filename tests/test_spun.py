@@ -149,14 +149,41 @@ def test_twist_solver_is_exact_on_the_linear_model_and_survives_missing_peaks():
     np.testing.assert_allclose(sol.curvature, k, atol=1e-9)
     np.testing.assert_allclose(sol.twist_rate, tau, atol=1e-7)
     np.testing.assert_allclose(sol.common_mode, SPUN.strain_sensitivity * 1e-4, rtol=1e-9)
-    # an outer core lost: 3 equations, 4 unknowns → invalid; the centre core lost → invalid (twist and common
-    # mode inseparable); other gratings untouched
+    # an outer core lost: 3 equations, 4 unknowns → τ there is interpolated from the frame's other gratings and
+    # the curvature solved with it; the centre core lost → the same; two cores lost → invalid
     e[0, 3, 1] = np.nan
     e[1, 4, 0] = np.nan
+    e[2, 5, 1:3] = np.nan
     sol = solver.solve(e)
-    assert not sol.valid[0, 3] and not sol.valid[1, 4]
-    assert sol.valid.sum() == sol.valid.size - 2
-    np.testing.assert_allclose(sol.twist_rate[sol.valid], tau[sol.valid], atol=1e-7)
+    assert sol.valid[0, 3] and sol.valid[1, 4] and not sol.valid[2, 5]
+    assert sol.valid.sum() == sol.valid.size - 1
+    assert np.isnan(sol.twist_rate[2, 5]) and sol.twist_filled.sum() == 2
+    assert sol.twist_filled[0, 3] and sol.twist_filled[1, 4]
+    measured = sol.valid & ~sol.twist_filled
+    np.testing.assert_allclose(sol.twist_rate[measured], tau[measured], atol=1e-7)
+    np.testing.assert_allclose(sol.curvature[measured], k[measured], atol=1e-9)
+    for f, n in ((0, 3), (1, 4)):
+        good = measured[f]
+        fill = np.interp(SPUN.grating_s[n], SPUN.grating_s[good], tau[f, good])
+        assert sol.twist_rate[f, n] == pytest.approx(fill, abs=1e-7)
+        # the curvature is exact up to the twist term's share of the interpolation error
+        err = np.abs(sol.curvature[f, n] - k[f, n]).max()
+        assert err < 3 * 35e-6 * SPUN.spin_omega * abs(fill - tau[f, n]) + 1e-9
+
+
+def test_a_lost_peak_keeps_the_grating_and_interpolates_the_twist():
+    """A 4-core spun fibre losing one peak keeps the grating's curvature; the reconstruction fills its twist
+    from the neighbouring gratings, so a constant-twist helix stays within 0.1 mm."""
+    u = (0.0, 20.0, 6.0)
+    k = np.tile([u[1], -u[0]], (SPUN.n_gratings, 1))
+    w = exact_wavelengths(SPUN, k, np.full(SPUN.n_gratings, u[2]))
+    w[[4, 9, 10], [1, 2, 0]] = np.nan
+    rec = Reconstructor(SPUN)
+    shape = rec(w)
+    assert shape.valid.all()
+    pos, _ = exact_helix(u, shape.s)
+    assert np.linalg.norm(shape.positions - pos, axis=-1).max() < 0.1e-3
+    np.testing.assert_allclose(rec.twist_angle(w)[-1], u[2] * SPUN.sensed_length, rtol=1e-4)
 
 
 def test_seven_core_spun_fibre_survives_a_lost_outer_core():

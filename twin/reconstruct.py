@@ -147,7 +147,7 @@ class Reconstructor:
             from twin.spun import TwistSolver, helix_of, twist_design
 
             self._solver = TwistSolver(twist_design(self.fiber, calibration), self.wavelength_noise / self._lam0,
-                                       helix=helix_of(self.fiber, calibration))
+                                       helix=helix_of(self.fiber, calibration), s=self.fiber.grating_s)
 
     def with_calibration(self, calibration: Calibration | None) -> Reconstructor:
         """The same reconstructor with another calibration (cheap: the interpolation operators are shared)."""

@@ -147,16 +147,20 @@ class TwistSolution(StrainSolution):
     Attributes
     ----------
     twist_rate : ndarray, shape (..., n_gratings)
-        Mechanical twist rate τ, rad/m (NaN where invalid).
+        Mechanical twist rate τ, rad/m (NaN where invalid; interpolated where ``twist_filled``).
     curvature_std : ndarray, shape (n_gratings, 2)
         1σ of (k_x, k_y) from the assumed wavelength noise with every peak present, 1/m.
     twist_rate_std : ndarray, shape (n_gratings,)
         1σ of τ likewise, rad/m.
+    twist_filled : ndarray of bool, shape (..., n_gratings)
+        Gratings that lost a peak the twist needs but not bending: τ there is interpolated from the frame's
+        other gratings (and its term removed before the curvature was solved).
     """
 
     twist_rate: np.ndarray
     curvature_std: np.ndarray
     twist_rate_std: np.ndarray
+    twist_filled: np.ndarray
 
 
 class TwistSolver:
@@ -176,9 +180,12 @@ class TwistSolver:
         Undo the helix's second-order path length: the linear twist estimate τ_lin is mapped through the exact
         pure-twist relation √(1 + cos²α r²(2Ωτ + τ²)) − 1 = cos²α r² Ω τ_lin (docs/spun-fibres.md), which
         removes the τ/(2Ω) relative bias (1.6 % at 10 rad/m and 50 turns/m). None: the linear estimate.
+    s : array_like, shape (n_gratings,), optional
+        Grating positions, m, for interpolating τ into gratings that lost a peak the twist needs (default:
+        equally spaced).
     """
 
-    def __init__(self, design, strain_std=1e-3 / 1550.0, *, rcond: float = 1e-9, helix=None):
+    def __init__(self, design, strain_std=1e-3 / 1550.0, *, rcond: float = 1e-9, helix=None, s=None):
         d = np.array(design, dtype=np.float64)
         if d.ndim != 3 or d.shape[2] != 4:
             raise ValueError(f"design must have shape (n_gratings, n_cores, 4), got {d.shape}")
@@ -193,6 +200,7 @@ class TwistSolver:
         self.design = d
         self.rcond = float(rcond)
         self.helix = None if helix is None else (float(helix[0]), float(helix[1]))
+        self.s = np.arange(self.n_gratings, dtype=np.float64) if s is None else np.asarray(s, dtype=np.float64)
         normal, dtw = self._normal(np.ones((self.n_gratings, self.n_cores), bool), np.arange(self.n_gratings))
         bad = self._rcond(normal) < self.rcond
         if bad.any():
@@ -227,6 +235,7 @@ class TwistSolver:
         e0 = np.where(missing, 0.0, e)
         x = np.einsum("nkc,...nc->...nk", self._p, e0)
         hit = missing.any(axis=-1)
+        filled = np.zeros(hit.shape, bool)
         if hit.any():
             x[hit] = np.nan
             idx = np.nonzero(hit)
@@ -235,6 +244,20 @@ class TwistSolver:
             if ok.any():
                 sol = np.linalg.solve(normal[ok], dtw[ok] @ e0[idx][ok][..., None])[..., 0] * self._scale
                 x[tuple(a[ok] for a in idx)] = sol
+            # Too few rows for the twist (a 4-core fibre that lost a peak): τ there is interpolated from the
+            # frame's other gratings and its term removed before solving for bending and the common mode alone.
+            if (~ok).any():
+                rest = tuple(a[~ok] for a in idx)
+                n3, d3 = normal[~ok][:, :3, :3], dtw[~ok][:, :3, :]
+                ok3 = self._rcond(n3) >= self.rcond
+                if ok3.any():
+                    sel = tuple(a[ok3] for a in rest)
+                    tau = self._fill(x[..., 3], sel)
+                    rhs = e0[sel] - self.design[sel[-1], :, 3] * tau[:, None]
+                    sol = np.linalg.solve(n3[ok3], d3[ok3] @ rhs[..., None])[..., 0] * self._scale[:3]
+                    x[(*sel, slice(0, 3))] = sol
+                    x[(*sel, 3)] = tau
+                    filled[sel] = True
         valid = ~np.isnan(x[..., 1])
         if self.helix is not None and self.helix[0] != 0:
             x[..., 3] = exact_twist(x[..., 3], *self.helix)
@@ -245,4 +268,18 @@ class TwistSolver:
             twist_rate=x[..., 3],
             curvature_std=self.std[:, 1:3],
             twist_rate_std=self.std[:, 3],
+            twist_filled=filled,
         )
+
+    def _fill(self, tau: np.ndarray, sel: tuple) -> np.ndarray:
+        """τ at the gratings ``sel`` interpolated linearly in s from the same frame's measured ones (0 when the
+        frame has none); a loop over the affected frames only: a lost peak is the exception."""
+        tf = tau.reshape(-1, self.n_gratings)
+        frame = np.ravel_multi_index(sel[:-1], tau.shape[:-1]) if tau.ndim > 1 else np.zeros(sel[-1].size, int)
+        out = np.zeros(sel[-1].size)
+        for f in np.unique(frame):
+            good = ~np.isnan(tf[f])
+            here = frame == f
+            if good.any():
+                out[here] = np.interp(self.s[sel[-1][here]], self.s[good], tf[f, good])
+        return out
