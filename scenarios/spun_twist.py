@@ -10,13 +10,13 @@ today's straight-core fibre (``FiberModel.paper()``), from one physics run:
    (sim://sheath-rotate, the paper's rotation experiment), read at ``--rate`` Hz while turning and dwelling.
 
 The spun fibre's wavelengths come from the twin (the exact helical path length of the rod's curvature and twist,
-with the realistic optics: noise ``--noise``, drift, quantisation, λ0 spread, intrinsic twist, the as-built core
-spacing error, per-core S_T); the straight fibre's from the same rod's curvature through its own optics with the
-same effects. Every frame is reconstructed three ways (each with its twin's true calibration): spun with the twist
-measured, spun with the twist ignored, straight cores. Errors are distances to the rod's centreline per frame, with
-the reconstruction placed by the rod's true base pose (position and material frame at s = 0, a tracked base, no
-registration: a roll anywhere along the fibre shows); ``registered_max_error_mm`` registers rigidly first (Kabsch
-on arc length, as static-shapes reports), which hides a roll made before the bends.
+with the realistic optics: noise ``--noise``, drift ``--drift``, quantisation, λ0 spread, intrinsic twist, the
+as-built core spacing error, per-core S_T); the straight fibre's from the same rod's curvature through its own
+optics with the same effects. Every frame is reconstructed three ways (each with its twin's true calibration): spun
+with the twist measured, spun with the twist ignored, straight cores. Errors are distances to the rod's centreline
+per frame, with the reconstruction placed by the rod's true base pose (position and material frame at s = 0, a
+tracked base, no registration: a roll anywhere along the fibre shows); ``registered_max_error_mm`` registers rigidly
+first (Kabsch on arc length, as static-shapes reports), which hides a roll made before the bends.
 
 Reported (``--json``; ``summary``):
 
@@ -73,6 +73,7 @@ class Params:
     segments: int = 100
     seed: int = 0
     rotation: bool = True
+    drift: float = 2e-4
 
 
 @dataclass
@@ -116,7 +117,7 @@ class _Part:
 def _config(fiber: FiberModel, params: Params, seed: int) -> OpticsConfig:
     if params.optics == "ideal":
         return OpticsConfig.ideal(seed=seed)
-    return OpticsConfig(seed=seed, noise=params.noise,
+    return OpticsConfig(seed=seed, noise=params.noise, drift=params.drift,
                         delta_theta=nominal_delta_theta(fiber) * AS_BUILT_SPACING)
 
 
@@ -377,6 +378,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spin", type=float, default=d.spin, help=f"spin rate, turns/m (default {d.spin:g})")
     parser.add_argument("--noise", type=float, default=d.noise * 1e3,
                         help=f"white wavelength noise, pm (default {d.noise * 1e3:g})")
+    parser.add_argument("--drift", type=float, default=d.drift * 1e3,
+                        help=f"random-walk wavelength drift per peak, pm/√s (default {d.drift * 1e3:g})")
     parser.add_argument("--spin-rates", default=",".join(f"{v:g}" for v in d.spin_rates),
                         help="spin rates of the resolution and payoff tables, turns/m")
     parser.add_argument("--noises", default=",".join(f"{v * 1e3:g}" for v in d.noises),
@@ -392,12 +395,14 @@ def params_from_args(args: argparse.Namespace) -> Params:
     names = tuple(s.strip() for s in args.shapes.split(",") if s.strip())
     for n in names:
         shapes.get(n)  # a clear error for an unknown shape
-    if not (math.isfinite(args.noise) and args.noise >= 0):
-        raise ValueError(f"--noise: expected pm >= 0, got {args.noise}")
+    for name in ("noise", "drift"):
+        v = getattr(args, name)
+        if not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"--{name}: expected pm >= 0, got {v}")
     return Params(names, args.repeats, args.steps, args.rate, args.spin, args.noise * 1e-3,
                   _floats(args.spin_rates, "--spin-rates"),
                   tuple(v * 1e-3 for v in _floats(args.noises, "--noises")), args.optics, args.friction,
-                  args.segments, args.seed, not args.no_rotation)
+                  args.segments, args.seed, not args.no_rotation, args.drift * 1e-3)
 
 
 def run(args: argparse.Namespace) -> int:
