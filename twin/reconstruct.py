@@ -273,7 +273,7 @@ class Reconstructor:
         rates = np.stack([tau, kap], axis=1).reshape(shape_r)
         # bend-plane angle along the output points: θ(0) plus the integrator's own quadrature of τ
         tau_steps = tau.reshape(n_f, -1, self._m)
-        weights = _QUADRATURE[self._m]
+        weights = {1: [1.0], 2: [0.5, 0.5], 3: [1 / 6, 4 / 6, 1 / 6]}[self._m]
         dtheta = self.h * (tau_steps @ np.asarray(weights))
         theta_out = theta0[:, :1] + np.concatenate([np.zeros((n_f, 1)), np.cumsum(dtheta, axis=1)], axis=1)
         c0, s0 = np.cos(theta_out[:, 0]), np.sin(theta_out[:, 0])
