@@ -22,6 +22,11 @@ Effects, each a field of :class:`OpticsConfig` (``OpticsConfig.ideal()`` turns a
   ``slot_half_width`` set, a window-based interrogator also loses a peak that leaves its grating's window.
   Lost peaks are NaN with :attr:`twin.PeakStatus.OUT_OF_SLOT`. (Peaks that cross would be swapped by a real
   interrogator; the model reports them lost.)
+
+A spun fibre (``FiberModel.spin_rate`` ≠ 0, docs/spun-fibres.md) takes the mechanical twist rate too: its strains
+are the exact path lengths of the helical cores (:func:`twin.spun.exact_strain`), evaluated at the grating's
+sample points where the cores' angle advances by Ω along the grating, with the same noise, drift, quantisation,
+temperature and peak loss; ``spin_error`` makes the as-drawn spin rate differ from the datasheet's.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from twin import Calibration, FiberModel, PeakStatus, strain
+from twin import Calibration, FiberModel, PeakStatus, spun, strain
 from twin.calibration import nominal_delta_theta, scaled_core_angles
 
 __all__ = ["Optics", "OpticsConfig"]
@@ -77,6 +82,8 @@ class OpticsConfig:
         Length over which each grating averages the strain, m.
     jitter : float
         Timestamp jitter (1σ), s.
+    spin_error : float
+        A spun fibre's as-drawn spin rate minus the nominal one, turns/m (ignored for straight cores).
     fiber_seed : int
         Seed of the as-built scatter (λ0 spread, S_T mismatch): one value is one physical fibre, so a
         calibration made in one run holds in the next.
@@ -102,6 +109,7 @@ class OpticsConfig:
     jitter: float = 2e-5
     fiber_seed: int = 0
     seed: int | None = 0
+    spin_error: float = 0.0
 
     @classmethod
     def ideal(cls, **changes) -> OpticsConfig:
@@ -152,6 +160,8 @@ class Optics:
             lambda0=fiber.lambda0 + cfg.lambda0_spread * rng.standard_normal(fiber.lambda0.shape),
             temperature_sensitivity=s_t,
         )
+        if fiber.spin_rate:
+            self.true_fiber = self.true_fiber.replace(spin_rate=fiber.spin_rate + cfg.spin_error)
         x = fiber.grating_s / fiber.sensed_length
         self.twist = cfg.twist_total * x + cfg.twist_wobble * np.sin(2 * np.pi * x)
         self._design = strain.design_matrix(self.true_fiber, twist=self.twist)
@@ -179,7 +189,7 @@ class Optics:
         """Quadrature weights (n_sub,) that average samples at :attr:`sample_s` over each grating."""
         return self._weights
 
-    def wavelengths(self, curvature, axial_strain=0.0, delta_T=None, t: float | None = None):
+    def wavelengths(self, curvature, axial_strain=0.0, delta_T=None, t: float | None = None, twist_rate=None):
         """Peak wavelengths and status for one state (or a batch of states).
 
         Parameters
@@ -193,6 +203,8 @@ class Optics:
             Temperature change, K; default ``config.temperature``.
         t : float, optional
             Simulation time, s; advances the drift by the time since the last call.
+        twist_rate : array_like (..., n_gratings) or (..., n_gratings, n_sub), optional
+            The catheter's mechanical twist rate τ, rad/m: read by a spun fibre (default 0), ignored otherwise.
 
         Returns
         -------
@@ -201,6 +213,9 @@ class Optics:
         status : ndarray of uint8, same shape
             :class:`twin.PeakStatus` bits.
         """
+        if self.true_fiber.spin_rate:
+            return self.spun_wavelengths(curvature, 0.0 if twist_rate is None else twist_rate, axial_strain,
+                                         delta_T, t)
         cfg, fiber = self.config, self.true_fiber
         k = np.asarray(curvature, dtype=np.float64)
         n_g, n_c = fiber.n_gratings, fiber.n_cores
@@ -231,6 +246,73 @@ class Optics:
             return w[0], status[0]
         return w.reshape(*batch, n_g, n_c), status.reshape(*batch, n_g, n_c)
 
+    def spun_wavelengths(self, curvature, twist_rate, axial_strain=0.0, delta_T=None, t: float | None = None):
+        """A spun fibre's peak wavelengths and status from the exact helical path lengths (docs/spun-fibres.md §2).
+
+        Parameters as :meth:`wavelengths`; ``twist_rate`` (rad/m) has the curvature's leading shape without its
+        last axis. Curvature and twist given per grating are held over the grating's length; the strain is
+        evaluated at :attr:`sample_s` (the cores turn by Ω × the grating length within it) and averaged.
+        """
+        cfg, fiber = self.config, self.true_fiber
+        n_g, n_c, n_sub = fiber.n_gratings, fiber.n_cores, self.sample_offsets.size
+        k = np.asarray(curvature, dtype=np.float64)
+        per_sample = k.ndim >= 3 and k.shape[-3:] == (n_g, n_sub, 2)
+        if not per_sample and (k.ndim < 2 or k.shape[-2:] != (n_g, 2)):
+            raise ValueError(f"curvature must have shape (..., {n_g}, 2) or (..., {n_g}, {n_sub}, 2), got {k.shape}")
+        batch = k.shape[:-3] if per_sample else k.shape[:-2]
+        n_f = int(np.prod(batch)) if batch else 1
+        k = np.broadcast_to(k if per_sample else k[..., None, :], (*batch, n_g, n_sub, 2)).reshape(n_f, -1, 2)
+        tau = np.asarray(twist_rate, dtype=np.float64)
+        if tau.ndim and tau.shape[len(batch):] == (n_g,):
+            tau = tau[..., None]
+        tau = np.broadcast_to(tau, (*batch, n_g, n_sub)).reshape(n_f, -1)
+        d_t = cfg.temperature if delta_T is None else delta_T
+        axial = self._per_grating(axial_strain, batch, n_f)
+        temp = self._per_grating(d_t, batch, n_f)
+        s = self.sample_s.ravel()
+        x = s / self.nominal.sensed_length
+        phase = cfg.twist_total * x + cfg.twist_wobble * np.sin(2 * np.pi * x)  # the intrinsic twist, as above
+        eps0 = np.repeat(axial, n_sub, axis=1) - cfg.fiber_offset * k[..., 0]
+        mech = spun.exact_strain(fiber, k, tau, eps0, s=s, twist=phase).reshape(n_f, n_g, n_sub, n_c)
+        e = fiber.strain_sensitivity * np.einsum("fgsc,s->fgc", mech, self._weights)
+        e += temp[..., None] * self._s_t
+        w, status = self._effects_numpy(e, n_f, t)
+        if not batch:
+            return w[0], status[0]
+        return w.reshape(*batch, n_g, n_c), status.reshape(*batch, n_g, n_c)
+
+    def _effects_numpy(self, e: np.ndarray, n_f: int, t: float | None):
+        """Drift, noise, quantisation and peak loss on optical strains ``e`` (n_f, n_g, n_c), as :func:`_effects`
+        does for the design form (the same random draws, so a straight fibre gets the same noise)."""
+        cfg, fiber = self.config, self.true_fiber
+        step = 0.0
+        if cfg.drift and t is not None:
+            if self._t_last is not None and t > self._t_last:
+                step = cfg.drift * np.sqrt(t - self._t_last)
+            self._t_last = t
+        z = self._rng.standard_normal((n_f + 1, *e.shape[1:])) if cfg.noise or step else None
+        if step > 0:
+            self._drift += step * z[0]
+        w = fiber.lambda0 * (1.0 + e) + self._drift
+        if cfg.noise > 0:
+            w = w + cfg.noise * z[1:]
+        if cfg.quantisation > 0:
+            w = np.round(w / cfg.quantisation) * cfg.quantisation
+        lost = (w < cfg.band[0]) | (w > cfg.band[1])
+        if cfg.slot_half_width:
+            lost |= np.abs(w - self.nominal.lambda0) > cfg.slot_half_width
+        if cfg.min_peak_separation > 0:
+            order = np.broadcast_to(self._order, w.shape)
+            close = np.abs(np.diff(np.take_along_axis(w, order, axis=1), axis=1)) < cfg.min_peak_separation
+            by_rank = np.zeros(w.shape, bool)
+            by_rank[:, :-1] |= close
+            by_rank[:, 1:] |= close
+            merged = np.zeros(w.shape, bool)
+            np.put_along_axis(merged, order, by_rank, axis=1)
+            lost |= merged
+        status = np.where(lost, np.uint8(self._lost_flag), np.uint8(0))
+        return np.where(lost, np.nan, w), status
+
     def _per_grating(self, value, batch: tuple, n_f: int) -> np.ndarray:
         """A scalar or (..., n_gratings) value as a (n_f, n_gratings) array (a zero-stride view if scalar)."""
         if np.ndim(value) == 0:
@@ -247,8 +329,15 @@ class Optics:
         grating 0) and the true Δθ and g. Reconstructing with it leaves only noise, drift, quantisation and the
         grating-length average."""
         d = self.describe()
+        spin = d.get("spin_rate")
+        gain = d["gain_m"]
+        if spin:
+            # the cores turn by Ω l within a grating of length l, which averages the bending strain by
+            # sinc(Ω l/2) (docs/spun-fibres.md §6); a gain calibration absorbs it
+            half = 0.5 * 2 * np.pi * spin * self.config.grating_length
+            gain *= np.sin(half) / half if half else 1.0
         return Calibration(lambda0=self.true_fiber.lambda0, twist=np.asarray(d["twist_rad"]),
-                           delta_theta=d["delta_theta"], gain=d["gain_m"],
+                           delta_theta=d["delta_theta"], gain=gain, spin_rate=spin,
                            provenance={"method": "the simulated fibre's true parameters"})
 
     def describe(self) -> dict:
@@ -258,6 +347,7 @@ class Optics:
             "delta_theta": nominal_delta_theta(f),
             "gain_m": float(f.core_radii[f.bending_cores].mean() * f.strain_sensitivity),
             "twist_rad": (self.twist - self.twist[0]).tolist(),
+            **({"spin_rate": f.spin_rate} if f.spin_rate else {}),
         }
 
 

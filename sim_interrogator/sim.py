@@ -127,7 +127,7 @@ class SimInterrogator(Source):
         delta_t, axial = self.setup.conditions(t, self.fiber.grating_s)
         d = self._grating_average @ self._darboux_buf  # (κ1, κ2, τ) averaged over each grating
         k = d[:, 1::-1] * self._sign  # (k_x, k_y) = (κ2, −κ1)
-        w, status = self.optics.wavelengths(k, axial, delta_t, t=t)
+        w, status = self.optics.wavelengths(k, axial, delta_t, t=t, twist_rate=d[:, 2])
         t1 = time.perf_counter()
         self.optics_time += t1 - t0
         truth = None

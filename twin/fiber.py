@@ -4,6 +4,10 @@ Conventions (docs/math.md §1): the fibre's material frame is (d1, d2, d3) with 
 core ``i`` sits at ``core_radii[i] * (cos θ_i, sin θ_i)`` in (d1, d2), with θ_i counted counter-clockwise about
 +d3 when ``handedness`` is +1. A vendor drawing that counts angles clockwise is entered as written with
 ``handedness = -1``; everything downstream then uses the effective CCW angles ``handedness * core_angles``.
+
+A *spun* fibre (``spin_rate`` ≠ 0, docs/spun-fibres.md) has its outer cores wound helically: core ``i`` sits at
+θ_i + Ω s in the material frame, Ω = 2π·``spin_rate`` (turns/m, in the same sense as the core angles). Zero, the
+default, is today's straight-core fibre.
 """
 
 from __future__ import annotations
@@ -48,6 +52,9 @@ class FiberModel:
         Arc length to reconstruct up to, m; None means the last grating.
     name : str
         Free text identifying the sensor.
+    spin_rate : float
+        Turns per metre of the cores about the axis in a spun fibre, counted in the sense of ``core_angles``
+        (negative: the other helix sense); 0 for straight cores.
     """
 
     core_angles: np.ndarray
@@ -60,6 +67,7 @@ class FiberModel:
     handedness: int = 1
     length: float | None = None
     name: str = ""
+    spin_rate: float = 0.0
 
     def __post_init__(self) -> None:
         angles = real_array(self.core_angles, "core_angles", shape=(None,), unit="rad", owner=_OWNER)
@@ -142,6 +150,7 @@ class FiberModel:
         object.__setattr__(self, "handedness", int(self.handedness))
         object.__setattr__(self, "length", length)
         object.__setattr__(self, "name", str(self.name))
+        object.__setattr__(self, "spin_rate", _check_spin_rate(self.spin_rate))
 
     # ---------------------------------------------------------------- derived quantities
     @property
@@ -172,6 +181,21 @@ class FiberModel:
         """g_i = r_i · S_ε per core, m: the only combination of radius and S_ε that shapes depend on."""
         return self.core_radii * self.strain_sensitivity
 
+    @property
+    def spin_omega(self) -> float:
+        """Ω, the cores' angular rate about +d3 counter-clockwise, rad/m (0 for straight cores)."""
+        return self.handedness * 2.0 * np.pi * self.spin_rate
+
+    @property
+    def helix_cos2(self) -> np.ndarray:
+        """cos²α per core, α = atan(r_i Ω) the helix angle (1 for straight cores and the central core)."""
+        return 1.0 / (1.0 + (self.core_radii * self.spin_omega) ** 2)
+
+    def core_phase(self, s) -> np.ndarray:
+        """Effective CCW angle of every core at arc lengths ``s``, θ_i + Ω s, rad, shape (*s.shape, n_cores)."""
+        s = np.asarray(s, dtype=np.float64)
+        return self.ccw_angles + self.spin_omega * s[..., None]
+
     def replace(self, **changes) -> FiberModel:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
@@ -199,6 +223,26 @@ class FiberModel:
             name="Al-Ahmad et al. 7-core MCF (centre + 3 adjacent outer cores)",
         )
 
+    @classmethod
+    def spun(cls, spin_rate: float = 50.0, radius: float = 35e-6) -> FiberModel:
+        """A spun 4-core fibre: a central core and 3 outer cores 120° apart at ``radius`` (m), wound at
+        ``spin_rate`` turns/m (Khan et al., Sens. Actuators A 317:112442 (2021): 50 turns/m, r ≈ 35 µm), with
+        the paper fibre's 18 gratings every 10 mm at 1510 + 5 n nm."""
+        n_g = 18
+        lam = np.repeat((1510.0 + 5.0 * np.arange(n_g))[:, None], 4, axis=1)
+        return cls(
+            core_angles=[0.0, 0.0, 2 * np.pi / 3, 4 * np.pi / 3],
+            core_radii=[0.0, radius, radius, radius],
+            grating_s=0.01 * np.arange(n_g),
+            lambda0=lam,
+            central_core=0,
+            strain_sensitivity=0.777,
+            temperature_sensitivity=6.6e-6,
+            handedness=1,
+            name=f"spun 4-core MCF (centre + 3 outer cores at 120°, {spin_rate:g} turns/m)",
+            spin_rate=spin_rate,
+        )
+
     # ---------------------------------------------------------------- files
     def to_dict(self) -> dict:
         """Plain TOML-ready mapping (SI units, wavelengths in nm)."""
@@ -211,6 +255,8 @@ class FiberModel:
         d["temperature_sensitivity"] = s_t.tolist() if isinstance(s_t, np.ndarray) else s_t
         if self.length is not None:
             d["length"] = self.length
+        if self.spin_rate != 0:
+            d["spin_rate"] = self.spin_rate
         d["core_angles"] = self.core_angles.tolist()
         d["core_radii"] = self.core_radii.tolist()
         d["grating_s"] = self.grating_s.tolist()
@@ -252,3 +298,20 @@ class FiberModel:
         except tomllib.TOMLDecodeError as exc:
             raise ValueError(f"{path}: not valid TOML ({exc})") from None
         return cls.from_dict(data, source=str(path))
+
+
+#: Largest accepted |spin rate|, turns/m: a 1 mm pitch, far tighter than any drawn spun fibre (≈ 6–50 mm).
+MAX_SPIN_RATE = 1000.0
+
+
+def _check_spin_rate(value) -> float:
+    """The spin rate as a float, turns/m, or a one-line error naming the field."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{_OWNER}.spin_rate: expected a number in turns/m (0 for straight cores), got {value!r}")
+    v = float(value)
+    if not np.isfinite(v) or abs(v) > MAX_SPIN_RATE:
+        raise ValueError(
+            f"{_OWNER}.spin_rate: expected turns/m with |spin_rate| <= {MAX_SPIN_RATE:g} (a pitch of 1 mm or more; "
+            f"spun fibres have 20–170 turns/m), got {v}"
+        )
+    return v

@@ -17,6 +17,8 @@ from twin.fiber import FiberModel
 from twin.frames import Frame, Shape
 from twin.strain import CurvatureSolver
 
+_QUADRATURE = {1: [1.0], 2: [0.5, 0.5], 3: [1 / 6, 4 / 6, 1 / 6]}  # weights of the m samples of one step
+
 __all__ = ["METHODS", "PAPER_KAPPA_MIN", "Reconstructor"]
 
 METHODS = ("material", "paper")
@@ -57,6 +59,12 @@ class Reconstructor:
         then zero there. Default 1 1/m (30 × the noise of κ at 1 pm). Our addition: the paper does not say
         what it does at near-zero curvature, and its literal transcription (``kappa_min=0``) rolls the frame by
         up to π wherever part of the length is nearly straight (math.md §3.6).
+    twist : bool, optional
+        Measure the mechanical twist rate at each grating and carry the material frame with it (a spun fibre,
+        docs/spun-fibres.md). Default: when the fibre is spun (``spin_rate`` ≠ 0) and the method is
+        ``material``; False reconstructs a spun fibre with the twist ignored.
+    wavelength_noise : float
+        1σ wavelength noise per peak assumed by the twist inversion's weights and reported uncertainties, nm.
 
     Calling the reconstructor on wavelengths of shape (..., n_gratings, n_cores) (nm; NaN for a missing peak),
     a :class:`~twin.frames.Frame` or a sequence of Frames returns a :class:`~twin.frames.Shape`. A grating
@@ -81,6 +89,8 @@ class Reconstructor:
         step: float = 1e-3,
         inversion: str | None = None,
         kappa_min: float | None = None,
+        twist: bool | None = None,
+        wavelength_noise: float = 1e-3,
     ):
         if not isinstance(fiber, FiberModel):
             raise TypeError(f"fiber must be a FiberModel, got {type(fiber).__name__}")
@@ -103,6 +113,16 @@ class Reconstructor:
         if not (np.isfinite(kappa_min) and kappa_min >= 0):
             raise ValueError(f"kappa_min must be a curvature >= 0 in 1/m, got {kappa_min}")
         self.kappa_min = kappa_min if method == "paper" else 0.0
+        if twist is None:
+            twist = bool(fiber.spin_rate) and method == "material"
+        if twist and not fiber.spin_rate:
+            raise ValueError("twist=True needs a spun fibre (FiberModel.spin_rate ≠ 0); straight cores cannot see it")
+        if twist and method != "material":
+            raise ValueError("twist is measured with method='material' only (the Frenet pipeline has no twist)")
+        if not (np.isfinite(wavelength_noise) and wavelength_noise > 0):
+            raise ValueError(f"wavelength_noise must be a positive number of nm, got {wavelength_noise}")
+        self.twist = bool(twist)
+        self.wavelength_noise = float(wavelength_noise)
         self.fiber = fiber
         self.calibration = calibration or Calibration()
         self.method = method
@@ -142,6 +162,11 @@ class Reconstructor:
         self._solver = CurvatureSolver(
             calibration.design_for(self.fiber), method=self.inversion, central_core=self.fiber.central_core
         )
+        if self.twist:
+            from twin.spun import TwistSolver, helix_of, twist_design
+
+            self._solver = TwistSolver(twist_design(self.fiber, calibration), self.wavelength_noise / self._lam0,
+                                       helix=helix_of(self.fiber, calibration), s=self.fiber.grating_s)
 
     def with_calibration(self, calibration: Calibration | None) -> Reconstructor:
         """The same reconstructor with another calibration (cheap: the interpolation operators are shared)."""
@@ -203,6 +228,8 @@ class Reconstructor:
     def __call__(self, wavelengths) -> Shape:
         sol = self.curvature(wavelengths)
         k, valid = sol.curvature, sol.valid
+        if self.twist:
+            k = np.concatenate([k, sol.twist_rate[..., None]], axis=-1)  # rates (k_x, k_y, γ)
         batch = k.shape[:-2]
         kf = k.reshape((-1, *k.shape[-2:]))
         vf = valid.reshape((-1, valid.shape[-1]))
@@ -225,7 +252,7 @@ class Reconstructor:
             s=self.s,
             positions=pos.reshape(batch + pos.shape[1:]),
             frames=frames.reshape(batch + frames.shape[1:]),
-            curvature=k,
+            curvature=k[..., :2],
             grating_s=self.fiber.grating_s,
             valid=valid,
         )
@@ -234,11 +261,11 @@ class Reconstructor:
         """Rates at the integrator's samples (F, 2, n_steps, m), initial frames and, for the Frenet pipeline,
         the bend-plane angle along the output points."""
         n_f = k.shape[0]
-        shape_r = (n_f, 2, self.s.size - 1, self._m)
+        shape_r = (n_f, k.shape[-1], self.s.size - 1, self._m)
         if self.method == "material":
             if "b_k" in prep:
-                # (k_x, k_y) per node as rows: one matrix product interpolates both components of every frame
-                kt = np.swapaxes(k, -1, -2).reshape(n_f * 2, -1)
+                # (k_x, k_y[, γ]) per node as rows: one matrix product interpolates every component of every frame
+                kt = np.swapaxes(k, -1, -2).reshape(n_f * k.shape[-1], -1)
                 rates = kt @ prep["b_k"]
             else:
                 kk = curve.interpolate(prep["s_nodes"], k, self._samples, self.interpolation)
@@ -271,6 +298,32 @@ class Reconstructor:
         c0, s0 = np.cos(theta_out[:, 0]), np.sin(theta_out[:, 0])
         r0 = _frenet_from_material(c0, s0)
         return rates, r0, theta_out
+
+    def twist_angle(self, wavelengths) -> np.ndarray:
+        """The measured twist ψ(s) = ∫ τ ds from the base to every output point, rad, shape (..., n_points).
+
+        The same interpolation and quadrature of τ as the frame integration; needs ``twist`` (a spun fibre).
+        """
+        if not self.twist:
+            raise ValueError("twist_angle needs a reconstructor that measures twist (a spun fibre, twist=True)")
+        sol = self.curvature(wavelengths)
+        tau, valid = sol.twist_rate, sol.valid
+        batch = tau.shape[:-1]
+        tf = tau.reshape(-1, tau.shape[-1])
+        vf = valid.reshape(-1, valid.shape[-1])
+        out = np.full((tf.shape[0], self.s.size), np.nan)
+        patterns, which = np.unique(vf, axis=0, return_inverse=True)
+        w = np.asarray(_QUADRATURE[self._m])
+        for p, nodes in enumerate(patterns):
+            if not nodes.any():
+                continue
+            sel = np.flatnonzero(which.ravel() == p)
+            prep = self._prepare(nodes)
+            samples = curve.interpolate(prep["s_nodes"], tf[sel][:, nodes, None], self._samples,
+                                        self.interpolation)[..., 0].reshape(sel.size, -1, self._m)
+            out[sel, 0] = 0.0
+            out[sel, 1:] = np.cumsum(self.h * (samples @ w), axis=1)
+        return out.reshape((*batch, self.s.size))
 
     def _integrate(self, rates, r0, theta):
         if self.method == "material":

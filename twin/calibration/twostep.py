@@ -9,6 +9,9 @@ A :class:`Calibration` refines a :class:`~twin.fiber.FiberModel` for one physica
   uncertainties (see :mod:`twin.calibration.identify`);
 * ``design`` — fitted per-grating design matrices (n_gratings, n_cores, 3) from a jig calibration, which
   replace the physical model entirely when present;
+* ``spin_rate``, ``spin_rate_std`` — a spun fibre's measured spin rate, turns/m, and its 1σ (the two-step
+  procedure fits it to the bend step's residual core angles; docs/spun-fibres.md); ``twist`` then holds what the
+  fitted helix leaves;
 * ``provenance`` — free-form record of how it was made.
 """
 
@@ -79,6 +82,8 @@ class Calibration:
     gain_std: float | None = None
     design: np.ndarray | None = None
     provenance: Mapping[str, object] = field(default_factory=dict)
+    spin_rate: float | None = None
+    spin_rate_std: float | None = None
 
     def __post_init__(self) -> None:
         if self.lambda0 is not None:
@@ -100,6 +105,8 @@ class Calibration:
             ("gain", 1e-9, 1e-3, "m (r·S_ε, e.g. 2.9e-05)"),
             ("delta_theta_std", 0.0, np.inf, "rad"),
             ("gain_std", 0.0, np.inf, "m"),
+            ("spin_rate", -1000.0, 1000.0, "turns/m"),
+            ("spin_rate_std", 0.0, np.inf, "turns/m"),
         ):
             v = getattr(self, name)
             if v is not None:
@@ -135,6 +142,8 @@ class Calibration:
         gains = None
         if self.gain is not None:
             gains = fiber.gains * (self.gain / nominal_gain(fiber))
+        if self.spin_rate is not None:
+            fiber = fiber.replace(spin_rate=self.spin_rate)
         return design_matrix(fiber, core_angles=angles, gains=gains, twist=self.twist)
 
     def replace(self, **changes) -> Calibration:
@@ -143,7 +152,7 @@ class Calibration:
     # ---------------------------------------------------------------- files
     def to_dict(self) -> dict:
         d: dict = {}
-        for name in ("delta_theta", "gain", "delta_theta_std", "gain_std"):
+        for name in ("delta_theta", "gain", "delta_theta_std", "gain_std", "spin_rate", "spin_rate_std"):
             v = getattr(self, name)
             if v is not None:
                 d[name] = v
@@ -214,6 +223,8 @@ class CalibrationReport:
         Frame-to-frame std of the curvature in each step, 1/m (high means the catheter moved).
     sign_changes : int
         Gratings where the bend direction flipped (an inflection), accepted only with ``allow_sign_change``.
+    spin_rate, spin_rate_std : float or None
+        A spun fibre's fitted spin rate and its 1σ, turns/m (None for straight cores).
     """
 
     n_straight: int
@@ -224,6 +235,8 @@ class CalibrationReport:
     twist_std: np.ndarray
     motion: tuple[float, float]
     sign_changes: int
+    spin_rate: float | None = None
+    spin_rate_std: float | None = None
 
 
 def _as_stack(frames, fiber: FiberModel, step: str) -> np.ndarray:
@@ -336,6 +349,9 @@ def two_step(
     kf = k_bend_frames
     across = (-kf[..., 0] * np.sin(theta) + kf[..., 1] * np.cos(theta))
     twist_std = np.nanstd(across, axis=0) / kappa / np.sqrt(wb.shape[0])
+    spin = spin_std = None
+    if fiber.spin_rate:
+        twist, spin, spin_std = _fit_spin(fiber, base, twist, twist_std)
     report = CalibrationReport(
         n_straight=ws.shape[0],
         n_bend=wb.shape[0],
@@ -345,6 +361,8 @@ def two_step(
         twist_std=twist_std,
         motion=motion,
         sign_changes=sign_changes,
+        spin_rate=spin,
+        spin_rate_std=spin_std,
     )
     provenance = dict(base.provenance)
     provenance.update(
@@ -357,5 +375,30 @@ def two_step(
             "twist_range_rad": float(np.ptp(twist)),
         }
     )
-    cal = base.replace(lambda0=lam0, twist=twist, design=None, provenance=provenance)
+    if spin is not None:
+        provenance["spin_rate_turns_per_m"] = spin
+    cal = base.replace(lambda0=lam0, twist=twist, design=None, provenance=provenance, spin_rate=spin,
+                       spin_rate_std=spin_std)
     return cal, report
+
+
+def _fit_spin(fiber: FiberModel, base: Calibration, residual: np.ndarray, std: np.ndarray):
+    """A spun fibre's spin rate from the bend step: the core angles left over by the nominal helix are fitted
+    with a phase and a rate, a + b s (weighted by their noise); the rate joins the calibration's spin rate and
+    ``twist`` keeps only what the line leaves, so the calibrated core angles reproduce the measured ones.
+
+    Returns (twist rad (n_gratings,), spin rate turns/m, its 1σ turns/m).
+    """
+    s = fiber.grating_s
+    nominal = fiber.spin_rate if base.spin_rate is None else base.spin_rate
+    w = 1.0 / np.maximum(std, 1e-6) ** 2  # a noise-free (simulated) step still weighs every grating
+    a = np.stack([np.ones_like(s), s], axis=1)
+    normal = (a.T * w) @ a
+    coef = np.linalg.solve(normal, (a.T * w) @ residual)
+    # the scatter about the line sets the rate's 1σ when it exceeds the per-grating noise (a non-helical twist)
+    dof = max(s.size - 2, 1)
+    chi2 = float(np.sum(w * (residual - a @ coef) ** 2) / dof)
+    rate_std = float(np.sqrt(np.linalg.inv(normal)[1, 1] * max(chi2, 1.0)))
+    b = float(coef[1])
+    spin = nominal + fiber.handedness * b / (2 * np.pi)
+    return residual - b * s, float(spin), rate_std / (2 * np.pi)
