@@ -12,7 +12,6 @@ a measurement window, as an experimenter averages a held position.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Callable
@@ -24,7 +23,7 @@ from scenarios.series import Series, collect
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.sheath import SheathSetup
 from sim_interrogator.sim import SimInterrogator
-from twin import Calibration, FiberModel, Reconstructor, Shape
+from twin import Calibration, FiberModel, Reconstructor, Shape, jsonout
 from twin.frames import Truth
 
 MODES = ("default", "paper")
@@ -210,7 +209,7 @@ def run_cli(name: str, args, module) -> int:
         return 1
     if args.report:
         stderr_progress(f"report: {module.write_report(result, args.report)}")
-    print(json.dumps(result.to_dict(), indent=2) if args.json else module.text_report(result))
+    print(jsonout.dumps(result.to_dict(), indent=2) if args.json else module.text_report(result))
     return 0
 
 

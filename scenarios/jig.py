@@ -17,14 +17,13 @@ direction within 1° for κ ≥ 0.8 1/m at every grating in the groove. The exit
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from sim_interrogator.optics import Optics, OpticsConfig
-from twin import FiberModel
+from twin import FiberModel, jsonout
 from twin.calibration.jig import MATCH_TOL, JigPoses, cross_validate, gauge_layout, match_orientations, write_poses
 
 __all__ = ["JigParams", "evaluate", "needle_fiber", "simulate"]
@@ -263,7 +262,7 @@ def run(args: argparse.Namespace) -> int:
     fiber = FiberModel.load(args.fiber) if args.fiber else None
     result = evaluate(params, fiber, out=args.out)
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(jsonout.dumps(result, indent=2))
         return 0 if result["acceptance"]["passes"] else 1
     out = sys.stdout
     fit_deg = ", ".join(f"{np.rad2deg(x):g}°" for x in result["fit_orientations_rad"])

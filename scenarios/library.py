@@ -9,12 +9,11 @@ after ICP and a ±0.5 mm translation search.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 import numpy as np
 
-from twin import FiberModel, Reconstructor, metrics, shapes, strain
+from twin import FiberModel, Reconstructor, jsonout, metrics, shapes, strain
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,7 +49,7 @@ def evaluate(noise_pm: float = 1.0, repeats: int = 5, seed: int = 0) -> dict:
 def run(args: argparse.Namespace) -> int:
     result = evaluate(args.noise_pm, args.repeats, args.seed)
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(jsonout.dumps(result, indent=2))
         return 0
     out = sys.stdout
     print(f"Shape library reconstructed from forward-model wavelengths: paper fibre (18 gratings × 4 cores), "

@@ -21,7 +21,6 @@ integrator comparison (HEM vs RK4, RMS of per-shape max errors) beside ours.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import asdict, dataclass
 
@@ -32,7 +31,7 @@ from scenarios.static_shapes import fixture_for, measure
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
-from twin import Calibration, FiberModel, Reconstructor, shapes
+from twin import Calibration, FiberModel, Reconstructor, jsonout, shapes
 from twin.calibration.identify import Observation, identify
 
 #: The paper's results (Al-Ahmad et al., §V-A; docs/simulation.md §7), mm.
@@ -177,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_experiment(params, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     if args.report:
         print(f"report: {write_report(result, args.report)}", file=sys.stderr)
-    print(json.dumps(result, indent=2) if args.json else report(result))
+    print(jsonout.dumps(result, indent=2) if args.json else report(result))
     return 0
 
 

@@ -28,7 +28,6 @@ inputs of ``twin identify``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -39,7 +38,7 @@ from scenarios.series import CALIBRATIONS, calibration_for
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
-from twin import FiberModel, Reconstructor, metrics, shapes
+from twin import FiberModel, Reconstructor, jsonout, metrics, shapes
 
 FIXTURES = ("connect", "tube", "paper")
 MODES = ("default", "paper")
@@ -215,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         print(f"report: {write_report(result, args.report)}", file=sys.stderr)
     if args.json:
-        print(json.dumps(result.to_dict(), indent=2))
+        print(jsonout.dumps(result.to_dict(), indent=2))
         return 0
     print(report(result))
     return 0

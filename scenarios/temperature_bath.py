@@ -36,7 +36,6 @@ temperature, shape error over time, tip scatter, curvature profiles at 60 and 30
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 import warnings
@@ -51,7 +50,7 @@ from scenarios.series import Series, calibration_for, collect
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.thermal import PROFILES, Bath
-from twin import FiberModel, Reconstructor, Shape, metrics, shapes
+from twin import FiberModel, Reconstructor, Shape, jsonout, metrics, shapes
 from twin.frames import Truth
 
 MODES = ("default", "paper")
@@ -575,7 +574,7 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         path = write_report(result, args.report)
         print(f"report: {path}", file=sys.stderr)
-    print(json.dumps(result.to_dict(), indent=2) if args.json else report_text(result))
+    print(jsonout.dumps(result.to_dict(), indent=2) if args.json else report_text(result))
     return 0
 
 

@@ -42,7 +42,6 @@ a calibration TOML. ``--report DIR`` writes DIR/report.md with trajectory, devia
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -56,7 +55,7 @@ from scenarios.series import Series, calibration_for, collect, to_world
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.tendon import Tendon
-from twin import FiberModel, Reconstructor, metrics
+from twin import FiberModel, Reconstructor, jsonout, metrics
 from twin.frames import Truth
 
 MODES = ("default", "paper")
@@ -477,7 +476,7 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         path = write_report(result, args.report)
         print(f"report: {path}", file=sys.stderr)
-    print(json.dumps(result.to_dict(), indent=2) if args.json else report_text(result))
+    print(jsonout.dumps(result.to_dict(), indent=2) if args.json else report_text(result))
     return 0
 
 

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from twin import jsonout
+
 #: section → "module:function"; each function takes ``quick: bool`` and returns a flat dict of figures.
 SECTIONS: dict[str, str] = {
     "reconstruct": "twin.bench:bench_reconstruct",
@@ -65,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         except json.JSONDecodeError as exc:
             raise ValueError(f"{args.compare}: not a JSON benchmark file ({exc})") from None
     result = measure_in_child(sections, quick=args.quick, cpu=args.cpu)
-    text = json.dumps(result, indent=2)
+    text = jsonout.dumps(result, indent=2)
     if args.out:
         args.out.write_text(text + "\n")
     if args.json:

@@ -21,10 +21,10 @@ one a recording carries, else none.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
+from twin import jsonout
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.io.source import open_source, parse_url
@@ -59,8 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.duration is not None and args.duration <= 0:
-        raise ValueError(f"--duration must be positive, got {args.duration}")
+    if args.duration is not None and not args.duration > 0:  # NaN too
+        raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--frames must be at least 1, got {args.frames}")
+    if not args.stale > 0:
+        raise ValueError(f"--stale must be a positive number of seconds, got {args.stale}")
     if args.viewer and not args.viewer_rate > 0:
         raise ValueError(f"--viewer-rate must be positive, got {args.viewer_rate}")
     fiber = FiberModel.load(args.fiber) if args.fiber else None
@@ -119,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         if viewer_sink.errors:
             print(f"twin live: viewer: {viewer_sink.errors} errors, last: {viewer_sink.last_error}", file=sys.stderr)
     if args.json:
-        print(json.dumps(out))
+        print(jsonout.dumps(out))
     else:
         print(format_summary(summary, out))
     return 1 if summary.sink_errors else 0

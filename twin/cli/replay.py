@@ -17,7 +17,6 @@ are given; a vendor log stores none, so ``--fiber`` is needed unless the sensor 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twin import jsonout
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.io.record import open_recording
@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     out = replay(args.file, fiber=fiber, calibration=calibration, method=args.method, register=args.register,
                  max_compare=args.max_compare, channels_as=args.channels, n_cores=args.cores)
     if args.json:
-        print(json.dumps(out))
+        print(jsonout.dumps(out))
         return 0
     span = "?" if out["time_span"] is None else f"{out['time_span']:.2f} s"
     rate = "" if out["rate_hz"] is None else f" ({out['rate_hz']:.1f} Hz)"
