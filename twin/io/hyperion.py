@@ -87,6 +87,7 @@ _PEAK_HEADER = struct.Struct("<HHIQII")
 HEADER_SIZE = _HEADER.size  # 8
 PEAK_HEADER_SIZE = _PEAK_HEADER.size  # 24
 DEFAULT_MAX_ARGUMENT = 1 << 20
+DEFAULT_MAX_COMMAND = 0xFFFF  # the u16 field's own limit
 DEFAULT_MAX_CONTENT = 1 << 24  # a full-spectrum response of 16 channels × 40k points is ~1.3 MB; ample room
 #: wavelengths a peak may have, nm (the range :class:`twin.fiber.FiberModel` accepts for λ0)
 WAVELENGTH_RANGE = (200.0, 3000.0)
@@ -136,7 +137,8 @@ def encode_request(command: str, argument: str = "", *, options: int = 0) -> byt
     return _HEADER.pack(options, 0, len(cmd), len(arg)) + cmd + arg
 
 
-def _request_header(data: bytes, offset: int, max_argument: int) -> tuple[int, int, int]:
+def _request_header(data: bytes, offset: int, max_argument: int,
+                    max_command: int = DEFAULT_MAX_COMMAND) -> tuple[int, int, int]:
     options, zero, n_cmd, n_arg = _HEADER.unpack_from(data, 0)
     if zero != 0:
         raise FramingError(
@@ -149,6 +151,13 @@ def _request_header(data: bytes, offset: int, max_argument: int) -> tuple[int, i
             expected="a command length > 0",
             protocol=PROTOCOL,
         )
+    if n_cmd > max_command:
+        raise OversizeFrameError(
+            f"command length {n_cmd}",
+            offset=offset + 2,
+            expected=f"at most {max_command} bytes",
+            protocol=PROTOCOL,
+        )
     if n_arg > max_argument:
         raise OversizeFrameError(
             f"argument length {n_arg}",
@@ -159,14 +168,15 @@ def _request_header(data: bytes, offset: int, max_argument: int) -> tuple[int, i
     return options, n_cmd, n_arg
 
 
-def decode_request(data: bytes, *, max_argument: int = DEFAULT_MAX_ARGUMENT) -> Request:
+def decode_request(data: bytes, *, max_argument: int = DEFAULT_MAX_ARGUMENT,
+                   max_command: int = DEFAULT_MAX_COMMAND) -> Request:
     """Decode exactly one request; FramingError unless ``data`` is exactly one well-formed request."""
     data = bytes(data)
     if len(data) < HEADER_SIZE:
         raise TruncatedFrameError(
             f"request of {len(data)} bytes", offset=len(data), expected="an 8-byte header", protocol=PROTOCOL
         )
-    options, n_cmd, n_arg = _request_header(data, 0, max_argument)
+    options, n_cmd, n_arg = _request_header(data, 0, max_argument, max_command)
     total = HEADER_SIZE + n_cmd + n_arg
     if len(data) != total:
         cls = TruncatedFrameError if len(data) < total else OversizeFrameError
@@ -365,18 +375,21 @@ class RequestDecoder(_Incremental):
     """Server side of port 51971: split the incoming bytes into :class:`Request` objects.
 
     Raises :class:`FramingError` (and stays failed until :meth:`reset`) on a bad header: close the connection.
+    A header announcing more than ``max_command`` / ``max_argument`` bytes is refused before they are buffered,
+    so a partial request never holds more than 8 + ``max_command`` + ``max_argument`` bytes.
     """
 
-    def __init__(self, *, max_argument: int = DEFAULT_MAX_ARGUMENT) -> None:
+    def __init__(self, *, max_argument: int = DEFAULT_MAX_ARGUMENT, max_command: int = DEFAULT_MAX_COMMAND) -> None:
         super().__init__()
         self.max_argument = max_argument
+        self.max_command = max_command
 
     def feed(self, data: bytes) -> list[Request]:
         """Consume bytes; return the complete requests among them."""
         return self._feed(
             data,
-            lambda head, offset: sum(_request_header(head, offset, self.max_argument)[1:]),
-            lambda message: decode_request(message, max_argument=self.max_argument),
+            lambda head, offset: sum(_request_header(head, offset, self.max_argument, self.max_command)[1:]),
+            lambda message: decode_request(message, max_argument=self.max_argument, max_command=self.max_command),
         )
 
 
@@ -707,7 +720,8 @@ def respond(request: Request, state: InstrumentState, *, frame: Frame | None = N
         return encode_response(np.asarray(s.available_scan_speeds, dtype="<i4").tobytes())
     if cmd == "#setlaserscanspeed":
         arg = request.argument.strip()
-        if not (arg.isascii() and arg.isdigit()) or int(arg) not in s.available_scan_speeds:
+        # bounded before int(): Python refuses to convert more than 4300 digits (and a speed has at most 6)
+        if not (len(arg) <= 9 and arg.isascii() and arg.isdigit()) or int(arg) not in s.available_scan_speeds:
             return encode_response(message=f"Invalid laser scan speed {arg[:20]!r}", status=2)
         s.laser_scan_speed = int(arg)
         return encode_response(message=f"Laser scan speed set to {s.laser_scan_speed} Hz")
