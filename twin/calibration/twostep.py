@@ -284,9 +284,9 @@ def two_step(
     """The paper's two-step calibration with the fixes of math.md §4.2.
 
     Step 1 (``straight``): the mean wavelengths of the straight, unloaded fibre become λ0 (rounded to 1e-9 nm,
-    far below any interrogator's resolution, so that files carry the mean and not its binary summation error). Step 2 (``bend``): a
-    single-sign in-plane bend; the bend angle measured at each grating departs from a constant by the cores'
-    intrinsic twist, which is unwrapped modulo π and stored relative to grating 0.
+    far below any interrogator's resolution, so that files carry the mean and not its binary summation error).
+    Step 2 (``bend``): a single-sign in-plane bend; the bend angle measured at each grating departs from a
+    constant by the cores' intrinsic twist, which is unwrapped modulo π and stored relative to grating 0.
 
     Parameters
     ----------

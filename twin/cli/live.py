@@ -139,7 +139,10 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
         f"stale {s.stale_events} times",
         f"  frames complete {s.frames_complete}, partial {s.frames_partial}, unusable {s.frames_unusable}, "
         f"with missing peaks {s.frames_missing_peaks}, rejected {s.frames_rejected}; invalid nodes "
-        f"{s.invalid_nodes}",
+        f"{s.invalid_nodes}; peaks outside their window {s.peaks_outside_window}",
+        f"  source rate {s.rate_hz:.1f} Hz (its timestamps)"
+        + (f"; fell behind real time {s.behind_events} times (last arrival rate {s.arrival_hz:.1f} Hz)"
+           if s.behind_events else ""),
     ]
     if s.tip is not None:
         lines.append("  last tip (" + ", ".join(f"{1e3 * x:.2f}" for x in s.tip) + ") mm")

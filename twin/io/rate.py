@@ -92,7 +92,8 @@ class RateMeter:
         arrived = self._arrived
         arrived.append((now, n))
         self._arrived_n += n
-        while arrived and arrived[0][0] <= now - self.window:
+        # keep one batch at or before the window's start as the anchor the time is measured from
+        while len(arrived) > 1 and arrived[1][0] <= now - self.window:
             self._arrived_n -= arrived.popleft()[1]
         return self._judge(now)
 
@@ -107,11 +108,14 @@ class RateMeter:
 
     @property
     def arrival_rate(self) -> float:
-        """Frames received per wall-clock second over the window (or since the first frame, if sooner), Hz."""
-        if not self._arrived or self._start is None:
+        """Frames received per wall-clock second over about the window, Hz: the frames of the batches after the
+        oldest one kept, over the time since that one arrived (a backlog delivered at once does not count as a
+        fast stream)."""
+        a = self._arrived
+        if len(a) < 2:
             return 0.0
-        span = min(self.window, self._arrived[-1][0] - self._start)
-        return self._arrived_n / span if span > 0 else 0.0
+        span = a[-1][0] - a[0][0]
+        return (self._arrived_n - a[0][1]) / span if span > 0 else 0.0
 
     @property
     def rate(self) -> float:
