@@ -545,6 +545,8 @@ def test_server_log_lines_from_many_threads_never_interleave(monkeypatch):
         for t in threads:
             t.join()
         assert wait_until(lambda: server.stats()["disconnects"] == 30 and server.stats()["clients"] == 0)
+        # lines still waiting for the lock (each write is slow) are written before the count is judged
+        assert wait_until(lambda: "".join(slow.parts).count("\n") >= 60)
     lines = "".join(slow.parts).split("\n")
     assert lines[-1] == ""
     pattern = re.compile(r"twin serve: illumisense: client 127\.0\.0\.1:\d+ (connected|disconnected)")
