@@ -572,3 +572,15 @@ def test_ctrl_c_at_start_up_is_one_line_and_exit_130(delay):
         assert stderr.strip() == "twin live: interrupted" and stdout == ""
     else:  # the loop was already running (a fast machine): it ends cleanly with its summary
         assert proc.returncode == 0 and "ended: interrupted" in stdout
+
+
+@pytest.mark.parametrize("bad, got", [([[1510.0, 1515.0], [1520.0]], "a ragged sequence of 2 rows"),
+                                      ("abc", "str 'abc'"),
+                                      (np.zeros((4, 18)), "got (4, 18)"),
+                                      (np.zeros(72), "got (72,)")])
+def test_wavelengths_of_the_wrong_shape_name_expected_and_got(bad, got):
+    """Issue 11 item 10: wavelengths of the wrong shape gave "not enough values to unpack" or numpy's text."""
+    with pytest.raises(ValueError) as err:
+        Reconstructor(FiberModel.paper())(bad)
+    msg = str(err.value)
+    assert "(..., 18, 4)" in msg and got in msg and "\n" not in msg
