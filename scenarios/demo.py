@@ -14,7 +14,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import threading
 import time
@@ -26,7 +25,7 @@ from scenarios.factory import identify_in_twin, two_step_in_twin
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.servers.illumisense import IllumisenseServer
 from sim_interrogator.source import open_sim
-from twin import FiberModel, Frame, Reconstructor, metrics
+from twin import FiberModel, Frame, Reconstructor, jsonout, metrics
 from twin.io.source import open_source
 from twin.live import LiveLoop
 
@@ -143,6 +142,8 @@ def _quiet_mujoco() -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
     fiber = FiberModel.paper()
     mujoco_warnings = _quiet_mujoco()
     t_start = time.monotonic()
@@ -184,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
     result = _result(errors, summary, fiber, cal, url, time.monotonic() - t_start, ident, true)
     result["mujoco_warnings"] = len(mujoco_warnings)
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(jsonout.dumps(result, indent=2))
     else:
         print(report(result))
     if viewer is not None:

@@ -22,14 +22,13 @@ acceptance verdict; `twin run real-jig` compares its statistics with the real ta
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from sim_interrogator.optics import Optics, OpticsConfig
-from twin import FiberModel
+from twin import FiberModel, jsonout
 from twin.calibration.jig import (
     MATCH_TOL,
     JigPoses,
@@ -443,7 +442,7 @@ def run(args: argparse.Namespace) -> int:
     result = evaluate(params, fiber, out=args.out, accept=accept)
     status = 0 if not accept or result["acceptance"]["passes"] else 1
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(jsonout.dumps(result, indent=2))
         return status
     out = sys.stdout
     fit_deg = ", ".join(f"{np.rad2deg(x):g}°" for x in result["fit_orientations_rad"])

@@ -18,13 +18,12 @@ real session would). ``ratio`` is twin / real; the twin reproduces the table whe
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import replace
 from pathlib import Path
 
 from scenarios.jig import AMIRO, MIN_CURVATURE, JigParams, amiro_fiber, loro
-from twin import FiberModel
+from twin import FiberModel, jsonout
 from twin.calibration.jig import leave_one_rotation_out, read_poses
 
 __all__ = ["DATA", "EFFECTS", "FACTOR", "KEYS", "budget", "compare", "real_statistics"]
@@ -112,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         result["budget"] = budget(params, amiro_fiber(), args.seeds)
     status = 0 if result["passes"] else 1
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(jsonout.dumps(result, indent=2))
         return status
     out = sys.stdout
     print(f"Real jig table {args.poses} beside its twin (median of {args.seeds} sessions); gratings {gratings}",

@@ -50,7 +50,7 @@ from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sheath import SheathRotate
 from sim_interrogator.sim import SimInterrogator
-from twin import FiberModel, Reconstructor, metrics, shapes
+from twin import FiberModel, Reconstructor, jsonout, metrics, shapes
 from twin.calibration import nominal_delta_theta
 
 AS_BUILT_SPACING = 1.039 / (math.pi / 3)  # the paper's identified Δθ relative to nominal, applied to any layout
@@ -409,7 +409,7 @@ def run(args: argparse.Namespace) -> int:
     params = params_from_args(args)
     FiberModel.spun(params.spin)  # a clear error for a nonsense spin rate before any physics
     result = run_experiment(params, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
-    print(json.dumps(result, indent=2) if args.json else text_report(result))
+    print(jsonout.dumps(result, indent=2) if args.json else text_report(result))
     return 0
 
 

@@ -114,3 +114,61 @@ def test_toml_round_trip_and_mismatch(tmp_path):
     (tmp_path / "bad.toml").write_text("gain = 29.1\n")
     with pytest.raises(ValueError, match=r"bad.toml: Calibration.gain: expected a value in .* m \(r·S_ε"):
         Calibration.load(tmp_path / "bad.toml")
+
+
+# ------------------------------------------------------------------ files (issue 11 item 10, issue 14: floats)
+
+
+def test_a_calibration_for_another_fibre_names_both_files(tmp_path, capsys):
+    from twin.cli import main
+
+    other = FiberModel.paper().replace(grating_s=0.01 * np.arange(3), lambda0=FiberModel.paper().lambda0[:3])
+    other.save(tmp_path / "other.toml")
+    Calibration(lambda0=other.lambda0).save(tmp_path / "cal.toml")
+    FiberModel.paper().save(tmp_path / "fibre.toml")
+    code = main(["live", "synthetic://?rate=1000&pace=max", "--fiber", str(tmp_path / "fibre.toml"),
+                 "--calibration", str(tmp_path / "cal.toml"), "--frames", "3", "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err
+    assert f"{tmp_path / 'cal.toml'}: calibration field lambda0 has shape (3, 4)" in err
+    assert f"fibre model ({tmp_path / 'fibre.toml'}) has 18 gratings × 4 cores" in err
+
+
+@pytest.mark.parametrize("line, field", [("delta_theta = true", "delta_theta"), ("twist = {a = 1}", "twist"),
+                                         ("gain = [2.9e-5]", "gain"), ("provenance = 3", "provenance")])
+def test_a_wrong_type_in_a_calibration_file_names_file_and_field(tmp_path, line, field):
+    path = tmp_path / "cal.toml"
+    path.write_text(line + "\n")
+    with pytest.raises(ValueError, match=rf"^{path}: {field}: expected "):
+        Calibration.load(path)
+
+
+def test_calibration_files_round_trip_exactly(tmp_path):
+    awkward = np.array([0.1 + 0.2, 1 / 3, 1e-300, 5e-324, -0.0, 1510.1080899999997, 2.0**-30, 1e16 + 2])
+    cal = Calibration(lambda0=np.abs(awkward[:, None]) + 1500.0, twist=awkward, delta_theta=1 / 3, gain=2.9e-5 / 3,
+                      provenance={"note": "round trip"})
+    cal.save(tmp_path / "cal.toml")
+    back = Calibration.load(tmp_path / "cal.toml")
+    for name in ("lambda0", "twist"):
+        a, b = getattr(cal, name), getattr(back, name)
+        assert a.tobytes() == b.tobytes()  # bit for bit, the sign of -0.0 included
+    assert back.delta_theta == cal.delta_theta and back.gain == cal.gain
+
+
+def test_two_step_lambda0_carries_the_mean_not_its_summation_error(tmp_path):
+    """Issue 14: cal.toml held values like 1510.1080899999997 — one ulp off the mean 1510.10809 of
+    wavelengths quantised at 1e-4 nm, left by summing in binary."""
+    fiber = FiberModel.paper()
+    rng = np.random.default_rng(3)
+    k_bend = np.tile([20.0, 3.0], (fiber.n_gratings, 1))
+    straight = np.round((strain.forward(fiber, np.zeros((18, 2))) + 1e-3 * rng.standard_normal((100, 18, 4))) * 1e4)
+    bend = np.round((strain.forward(fiber, k_bend) + 1e-3 * rng.standard_normal((100, 18, 4))) * 1e4)
+    cal, _ = two_step(fiber, straight / 1e4, bend / 1e4)
+    exact = straight.mean(axis=0, dtype=np.float64) / 1e4  # integers sum exactly: the true decimal mean
+    np.testing.assert_allclose(cal.lambda0, exact, rtol=0, atol=5e-10)  # 1e-9 nm resolution, nothing more lost
+    cal.save(tmp_path / "cal.toml")
+    import re
+
+    values = re.findall(r"\b1[5-6]\d\d\.(\d+)", (tmp_path / "cal.toml").read_text())
+    assert len(values) == 72 and max(len(v) for v in values) <= 9  # no 1510.1080899999997
+    assert Calibration.load(tmp_path / "cal.toml").lambda0.tobytes() == cal.lambda0.tobytes()

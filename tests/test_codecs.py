@@ -412,14 +412,24 @@ def test_fuzz_hyperion_peak_content(data):
     try:
         f = hyperion.decode_peaks(data)
     except FramingError:
+        try:
+            _, _, _, chans = reference_hyperion_peaks(data)
+        except (ValueError, struct.error):
+            return  # the reference reading refuses it too
+        # consistent framing: refused only for a value that is not a wavelength (checked whole)
+        assert not all(plausible(v) for vals in chans for v in vals)
         return
     serial, _, _, chans = reference_hyperion_peaks(data)
     assert f.sequence == serial and f.wavelengths.shape[1] == len(chans)
     for k, vals in enumerate(chans):
-        col = f.wavelengths[: len(vals), k]
-        good = np.array([math.isfinite(v) and v > 0 for v in vals], dtype=bool)
-        np.testing.assert_array_equal(col[good], np.array(vals)[good])
+        assert all(plausible(v) for v in vals)
+        np.testing.assert_array_equal(f.wavelengths[: len(vals), k], vals)
         assert np.all(np.isnan(f.wavelengths[len(vals) :, k]))
+
+
+def plausible(v: float) -> bool:
+    """A wavelength a Hyperion frame may carry (docs/protocols.md §3 decisions: 200–3000 nm)."""
+    return math.isfinite(v) and 200.0 <= v <= 3000.0
 
 
 def test_hyperion_truncated_messages_are_framing_errors():
@@ -444,14 +454,14 @@ def test_fuzz_hyperion_corrupted_peaks_and_requests(i, b, request_garbage):
     try:
         f = hyperion.decode_peaks(bad)
     except FramingError:
-        assert i < 28  # a wavelength byte cannot break the framing: only the header or the counts can
+        # a wavelength byte cannot break the framing (only the header or the counts can), but it can make the
+        # value implausible, and then the whole frame is refused
+        assert i < 28 or not all(plausible(v) for c in reference_hyperion_peaks(bad)[3] for v in c)
     else:
         serial, _, _, chans = reference_hyperion_peaks(bad)
-        reported = [
-            int(np.sum(~np.isnan(f.wavelengths[:, k])) + np.sum((f.status[:, k] & INVALID) != 0))
-            for k in range(f.wavelengths.shape[1])
-        ]
+        reported = [int(np.sum(~np.isnan(f.wavelengths[:, k]))) for k in range(f.wavelengths.shape[1])]
         assert f.sequence == serial and reported == [len(c) for c in chans]
+        assert not np.any(f.status & INVALID)
     req = (
         HYPERION_GETPEAKS[: i % len(HYPERION_GETPEAKS)]
         + bytes([b])
@@ -481,3 +491,46 @@ def test_fuzz_hyperion_stream_decoders(data, cuts):
             except FramingError:
                 assert dec.failed
             pos += c
+
+
+def test_hyperion_half_a_frame_then_a_good_one_is_refused_whole():
+    """Issue 11 item 5: the decoder took the good frame's headers as the half frame's wavelengths (3.9e-305 nm,
+    2.0e6 nm) and delivered it before noticing. A frame is checked whole: no frame with absurd peaks."""
+    w = 1510.0 + 5.0 * np.arange(18)[:, None] + np.zeros((1, 4))
+    frames = [Frame(w + 0.01 * k, timestamp=10.0 + k, sequence=k) for k in range(3)]
+    stream = [hyperion.encode_stream_frame(f) for f in frames]
+    cut = stream[1][: len(stream[1]) // 2]
+    dec = hyperion.ResponseDecoder(n_gratings=18)
+    got = dec.feed_frames(stream[0] + cut + stream[2])
+    assert [f.sequence for f in got] == [0]  # the frame before the damage is kept
+    for f in got:
+        assert np.all((f.wavelengths > 1500) & (f.wavelengths < 1600))
+    assert dec.failed and dec.framing_errors == 1
+    with pytest.raises(FramingError, match="nm"):
+        dec.feed_frames(b"")
+
+
+def test_hyperion_implausible_wavelength_refuses_the_frame():
+    f = hyperion.decode_peaks(HYPERION_PEAKS)
+    for value in (3.9e-305, 2.0e6, -1530.0, 0.0, math.inf, math.nan, 199.0, 3001.0):
+        content = bytearray(HYPERION_PEAKS)
+        content[-8:] = struct.pack("<d", value)
+        with pytest.raises(FramingError, match="wavelength in 200–3000 nm"):
+            hyperion.decode_peaks(bytes(content))
+    assert hyperion.decode_peaks(HYPERION_PEAKS).sequence == f.sequence
+
+
+def test_hyperion_stream_that_ends_inside_a_frame_is_one_framing_error():
+    """Issue 11 item 11: one meaning per counter; ILLumiSense counts a stream that ends mid-record."""
+    f = hyperion.decode_peaks(HYPERION_PEAKS)
+    good = hyperion.encode_stream_frame(f)
+    dec = hyperion.ResponseDecoder()
+    assert len(dec.feed_frames(good + good[:13])) == 1
+    dec.finish()
+    assert dec.framing_errors == 1 and dec.pending == 0
+    clean = hyperion.ResponseDecoder()
+    clean.feed_frames(good)
+    clean.finish()  # ended between frames: nothing to count
+    assert clean.framing_errors == 0
+    seq = hyperion.ResponseDecoder()
+    assert seq.sequence.count(2**64 - 1) == 0  # a u64 serial number beyond int64 is "unknown", not a crash

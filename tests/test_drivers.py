@@ -8,6 +8,7 @@ held plus float rounding); FiSpec carries integers of 1e-4 nm (exactly round(λ�
 
 from __future__ import annotations
 
+import re
 import socket
 import time
 
@@ -277,6 +278,15 @@ def test_hyperion_driver_reconnects_after_a_corrupt_stream():
     assert s["lost_samples"] == 2 and s["sequence_gaps"] == 1  # frames 2 and 3, across the reconnect
 
 
+def recv_all(sock: socket.socket, timeout: float = 5.0) -> bytes:
+    """Everything the peer sends until it closes the connection."""
+    sock.settimeout(timeout)
+    out = bytearray()
+    while chunk := sock.recv(65536):
+        out += chunk
+    return bytes(out)
+
+
 # ---------------------------------------------------------------------------------------------------- FiSpec
 
 
@@ -354,7 +364,8 @@ def test_servers_keep_serving_when_clients_disconnect():
         (host, port), sport = server.address, server.stream_address[1]
         garbage = socket.create_connection((host, port))
         garbage.sendall(b"\x00\x07" + b"\xff" * 30)  # a request header with a non-zero reserved byte
-        assert garbage.recv(100) == b""  # that connection is closed…
+        reply = hyperion.ResponseDecoder().feed(recv_all(garbage))
+        assert [(r.status, "reserved" in r.message) for r in reply] == [(4, True)]  # told why, then closed…
         garbage.close()
         src = HyperionSource(host, port, stream_port=sport, fiber=fiber)  # …the others are served
         try:
@@ -417,3 +428,128 @@ def test_a_server_that_accepts_and_closes_does_not_make_the_driver_spin():
     # backoff 0.1, 0.2, 0.4, 0.8 s…: a handful of attempts in a second, not thousands
     assert 2 <= server.accepted <= 8
     assert server.accepted - 1 <= src.stats()["disconnects"] <= server.accepted  # the last may be unseen
+
+
+# ------------------------------------------------------------------------------------- hostile clients (issue 11)
+
+
+def _ask(sock: socket.socket, command: str, argument: str = "") -> hyperion.Response:
+    sock.sendall(hyperion.encode_request(command, argument))
+    dec = hyperion.ResponseDecoder()
+    sock.settimeout(5.0)
+    while not (got := dec.feed(sock.recv(65536))):
+        pass
+    return got[0]
+
+
+def test_hyperion_server_answers_absurd_arguments_and_lives_on():
+    """A 5000-digit #SetLaserScanSpeed killed the command thread (int() refuses > 4300 digits): empty reply."""
+    fiber = multicore_fiber(4, 18)
+    with HyperionServer(SyntheticSource(rate=200, fiber=fiber), port=0) as server:
+        with socket.create_connection(server.address) as conn:
+            r = _ask(conn, "#SetLaserScanSpeed", "9" * 5000)
+            assert r.status == 2 and "Invalid laser scan speed" in r.message
+            assert _ask(conn, "#GetLaserScanSpeed").ok  # the same connection is still served
+        with socket.create_connection(server.address) as conn:
+            # a header announcing a 1 MiB argument is refused from the header, not buffered
+            conn.sendall(bytes.fromhex("00 00 12 00 00 00 10 00") + b"#SetLaserScanSpeed" + b"1" * 1000)
+            (r,) = hyperion.ResponseDecoder().feed(recv_all(conn))
+            assert r.status == 4 and "argument length 1048576" in r.message
+        assert server.stats()["bad_requests"] == 1 and server.stats()["failed_requests"] == 0
+
+
+def test_hyperion_server_caps_connections_and_counts_the_refused():
+    fiber = multicore_fiber(4, 18)
+    with HyperionServer(SyntheticSource(rate=200, fiber=fiber), port=0, max_clients=3) as server:
+        held = [socket.create_connection(server.address) for _ in range(3)]
+        assert all(_ask(c, "#isready").ok for c in held)  # served (and so registered) before more arrive
+        extra = [socket.create_connection(server.address) for _ in range(4)]
+        for c in extra:
+            assert recv_all(c) == b""  # closed at once
+        streams = [socket.create_connection(server.stream_address) for _ in range(5)]
+        assert wait_until(lambda: server.stats()["refused"] == 4 + 2)
+        assert server.stream.clients == 3
+        held[0].close()
+        assert wait_until(lambda: len(server._conns) == 2)
+        with socket.create_connection(server.address) as again:
+            assert _ask(again, "#isready").ok  # a freed place is taken again
+        for c in held[1:] + extra + streams:
+            c.close()
+
+
+def test_hyperion_driver_counts_a_server_that_closes_mid_frame():
+    """Issue 11 item 11: framing_errors stayed 0 where ILLumiSense counts 1."""
+    fiber = multicore_fiber(4, 18)
+    good = [hyperion.encode_stream_frame(f) for f in synthetic_frames(4, fiber=fiber)]
+
+    def command(conn):
+        decoder, state = hyperion.RequestDecoder(), hyperion.InstrumentState(channel_count=4, laser_scan_speed=100)
+        while data := conn.recv(4096):
+            for request in decoder.feed(data):
+                conn.sendall(hyperion.respond(request, state))
+
+    def stream_cut(conn):
+        conn.sendall(good[0] + good[1][: len(good[1]) // 2])
+        time.sleep(0.3)  # then the server closes, mid-frame
+
+    def stream_good(conn):
+        conn.sendall(good[2] + good[3])
+        time.sleep(5.0)
+
+    cmd_server, stream_server = ScriptedServer([command, command]), ScriptedServer([stream_cut, stream_good])
+    src = HyperionSource("127.0.0.1", cmd_server.port, stream_port=stream_server.port, fiber=fiber)
+    try:
+        got = read_n(src, 3, timeout=20)
+    finally:
+        src.close()
+        cmd_server.close()
+        stream_server.close()
+    assert [f.sequence for f in got] == [0, 2, 3]
+    s = src.stats()
+    assert s["framing_errors"] == 1 and s["disconnects"] == 1 and s["reconnects"] == 1
+
+
+class _SlowStream:
+    """A text stream whose every write takes a while, as a busy terminal's does: what one log line writes in
+    two pieces (text, then newline) other threads can write between."""
+
+    def __init__(self):
+        self.parts: list[str] = []
+
+    def write(self, text: str) -> int:
+        time.sleep(0.0005)
+        self.parts.append(text)
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+
+def test_server_log_lines_from_many_threads_never_interleave(monkeypatch):
+    import sys
+    import threading
+
+    slow = _SlowStream()
+    monkeypatch.setattr(sys, "stderr", slow)
+    fiber = multicore_fiber(4, 18)
+    with IllumisenseServer(SyntheticSource(rate=200, fiber=fiber), port=0, log=True) as server:
+        port = server.address[1]
+
+        def churn():
+            for _ in range(5):
+                socket.create_connection(("127.0.0.1", port)).close()
+
+        threads = [threading.Thread(target=churn) for _ in range(6)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert wait_until(lambda: server.stats()["disconnects"] == 30 and server.stats()["clients"] == 0)
+        # lines still waiting for the lock (each write is slow) are written before the count is judged
+        assert wait_until(lambda: "".join(slow.parts).count("\n") >= 60)
+    lines = "".join(slow.parts).split("\n")
+    assert lines[-1] == ""
+    pattern = re.compile(r"twin serve: illumisense: client 127\.0\.0\.1:\d+ (connected|disconnected)")
+    bad = [line for line in lines[:-1] if not pattern.fullmatch(line)]
+    assert len(bad) == 0, bad[:2]
+    assert len(lines) - 1 == 60

@@ -97,7 +97,64 @@ def test_malformed_files_name_the_file(tmp_path):
     d = FiberModel.paper().to_dict()
     d["core_radii"] = [0, 1e-5, "x", 1e-5]
     bad.write_text(tomli_w.dumps(d))
-    with pytest.raises(ValueError, match=r"bad.toml: FiberModel.core_radii: expected numbers"):
+    with pytest.raises(ValueError, match=r"bad.toml: core_radii: expected a list of numbers"):
         FiberModel.load(bad)
     with pytest.raises(FileNotFoundError, match="no such fibre model"):
         FiberModel.load(tmp_path / "missing.toml")
+
+
+# ------------------------------------------------------------------------------ bad files (issue 11 items 9, 10)
+
+_GOOD_TOML = """
+name = "probe"
+core_angles = [0.0, 0.0, 1.0471975511965976, 2.0943951023931953]
+core_radii = [0.0, 3.75e-05, 3.75e-05, 3.75e-05]
+grating_s = [0.0, 0.01, 0.02]
+lambda0 = [[1510.0, 1510.0, 1510.0, 1510.0], [1515.0, 1515.0, 1515.0, 1515.0], [1520.0, 1520.0, 1520.0, 1520.0]]
+central_core = 0
+strain_sensitivity = 0.777
+"""
+
+
+@pytest.mark.parametrize(
+    "line, field, kind",
+    [
+        ("strain_sensitivity = [0.7]", "strain_sensitivity", "a list"),
+        ("strain_sensitivity = {a = 1}", "strain_sensitivity", "a table"),
+        ("strain_sensitivity = 1979-05-27", "strain_sensitivity", "a date"),
+        ("strain_sensitivity = true", "strain_sensitivity", "a boolean"),
+        ("name = {first = 1}", "name", "a table"),
+        ("central_core = true", "central_core", "a boolean"),
+        ("handedness = 1.0", "handedness", "float"),
+        ("length = [0.2]", "length", "a list"),
+        ("temperature_sensitivity = {x = 1}", "temperature_sensitivity", "a table"),
+        ("core_radii = [0.0, true, 3.75e-05, 3.75e-05]", "core_radii", "a list"),
+        ("lambda0 = [1510.0, 1515.0, 1520.0]", "lambda0", "a list"),
+        ("grating_s = 0.1", "grating_s", "float"),
+    ],
+)
+def test_a_wrong_type_in_a_fibre_file_is_one_line_naming_file_and_field(tmp_path, line, field, kind):
+    key = line.split(" = ")[0]
+    text = "\n".join(x for x in _GOOD_TOML.splitlines() if not x.startswith(key + " ")) + "\n" + line + "\n"
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError) as err:
+        FiberModel.load(path)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: {field}: expected ") and kind in msg and "\n" not in msg
+
+
+def test_the_good_fibre_file_of_those_tests_loads(tmp_path):
+    (tmp_path / "good.toml").write_text(_GOOD_TOML)
+    f = FiberModel.load(tmp_path / "good.toml")
+    assert f.n_gratings == 3 and f.strain_sensitivity == 0.777 and f.name == "probe"
+
+
+def test_a_binary_fibre_file_is_one_line_naming_the_file(tmp_path):
+    path = tmp_path / "fibre.toml"
+    path.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(range(256)))
+    with pytest.raises(ValueError, match=rf"^{path}: not a fibre model file: byte 0 is not UTF-8 text"):
+        FiberModel.load(path)
+    with pytest.raises(ValueError, match=rf"^{path}: not valid TOML"):
+        path.write_text("name = 'x\n")
+        FiberModel.load(path)

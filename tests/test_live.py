@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from io_helpers import ScriptedServer, records, synthetic_frames, wait_until
 
-from twin import FiberModel, Reconstructor
+from twin import FiberModel, Reconstructor, strain
 from twin.frames import Frame
 from twin.io.record import Recorder, open_recording
 from twin.io.source import Source, SourceClosed, open_source
@@ -362,3 +362,225 @@ def test_sequence_counter_batch_equals_one_by_one():
     lost_one = [one.count(int(s)) for s in seqs]
     lost_many = np.concatenate([many.count_many(chunk) for chunk in np.array_split(seqs, 7)])
     assert lost_many.tolist() == lost_one and one.as_dict() == many.as_dict()
+
+
+# ------------------------------------------------------------------------------------ issue 11 and 14 regressions
+
+
+def test_frames_missing_peaks_counts_only_frames_with_missing_peaks():
+    """Issue 11 item 7: the sequence-gap flag was set on the same array before it was counted (gave 3)."""
+    f = FiberModel.paper()
+    loop = LiveLoop(lambda: None, Reconstructor(f))
+    _, _, flags = loop.process([Frame(f.lambda0.copy(), 0.0, s) for s in (0, 2, 4, 6)])
+    assert loop.c["frames_missing_peaks"] == 0 and loop.c["lost_samples"] == 3
+    assert list(flags) == [0, FrameFlag.SEQUENCE_GAP, FrameFlag.SEQUENCE_GAP, FrameFlag.SEQUENCE_GAP]
+    w = f.lambda0.copy()
+    w[3, 2] = np.nan
+    loop.process([Frame(w, 0.0, 9)])
+    assert loop.c["frames_missing_peaks"] == 1
+
+
+def test_an_absurd_peak_is_missing_not_a_nan_shape():
+    """Issue 11 item 4: a finite impossible peak (1e300 nm, 1.5 × its reference) gave valid gratings and NaN
+    positions; it is treated as missing, flagged and counted."""
+    f = FiberModel.paper()
+    rec = Reconstructor(f)
+    k = np.tile([15.0, -4.0], (f.n_gratings, 1))
+    good = strain.forward(f, k)
+    for value in (1e300, 1.5 * good[5, 1], -1e300, 0.0):
+        w = good.copy()
+        w[5, 1] = value
+        shape = rec(w)
+        assert shape.valid.all() and np.isfinite(shape.positions).all()
+        np.testing.assert_allclose(shape.positions, rec(good).positions, atol=1e-9)  # 3 cores remain: exact
+        assert rec.peaks_outside(w).sum() == 1
+    loop = LiveLoop(lambda: None, rec)
+    w = good.copy()
+    w[5, 1], w[7, 3] = 1e300, np.inf  # ±inf from a source is out of any window too
+    _, shapes, flags = loop.process([Frame(w, 0.0, 0), Frame(good, 0.0, 1)])
+    assert list(flags) == [FrameFlag.MISSING_PEAKS, 0] and np.isfinite(shapes.positions).all()
+    assert loop.c["peaks_outside_window"] == 2 and loop.c["frames_missing_peaks"] == 1
+    assert loop.c["frames_complete"] == 2
+    assert Reconstructor(f, peak_window=None).peaks_outside(w).sum() == 1  # no window: only the inf
+
+
+class _AbsurdSource(Source):
+    """Synthetic frames whose grating 5 of core 1 reads 1e300 nm, and whose stats hold a NaN."""
+
+    def __init__(self, url: str, **_):
+        self.inner = SyntheticSource(rate=1000, pace=False, frames=20)
+        self.url, self.fiber, self.rate = url, self.inner.fiber, 1000.0
+
+    def read(self, timeout=None):
+        f = self.inner.read(timeout)
+        w = f.wavelengths.copy()
+        w[5, 1] = 1e300
+        return Frame(w, f.timestamp, f.sequence)
+
+    def stats(self) -> dict:
+        return {"temperature_K": float("nan"), "gain": float("inf")}
+
+
+def open_absurd(url: str, **options) -> Source:
+    return _AbsurdSource(url, **options)
+
+
+def test_json_output_is_strict_json_even_with_absurd_peaks(capsys):
+    """Issue 11 item 4: `--json` printed "tip_m": [NaN, NaN, NaN], which is not JSON."""
+    from twin import registry
+    from twin.cli import main
+
+    registry.register("twin.sources", "absurd", "test_live:open_absurd")
+    try:
+        code = main(["live", "absurd://", "--json", "--quiet"])
+    finally:
+        registry.unregister("twin.sources", "absurd")
+    out = capsys.readouterr().out
+
+    def refuse(constant):
+        raise ValueError(f"not JSON: {constant}")
+
+    summary = json.loads(out, parse_constant=refuse)
+    assert code == 0 and summary["frames"] == 20 and summary["peaks_outside_window"] == 20
+    assert summary["frames_missing_peaks"] == 20 and summary["frames_complete"] == 20
+    assert all(isinstance(x, float) for x in summary["tip_m"])
+    assert summary["source"]["temperature_K"] is None and summary["source"]["gain"] is None
+
+
+def test_jsonout_maps_every_non_finite_number_to_null():
+    from twin import jsonout
+
+    obj = {"a": [1.0, float("nan"), np.float32("inf")], "b": np.array([[np.nan, 2.0]]), "c": np.int64(3),
+           "d": (np.bool_(True), -np.inf), "e": "NaN"}
+    assert json.loads(jsonout.dumps(obj)) == {"a": [1.0, None, None], "b": [[None, 2.0]], "c": 3,
+                                              "d": [True, None], "e": "NaN"}
+
+
+class _BurstySource(Source):
+    """A 100 Hz source whose frames reach the reader in irregular bursts (held back 0–0.3 s), as through a
+    network or a simulator stepping in chunks; timestamps are the source's own clock."""
+
+    def __init__(self, fiber, rate: float = 100.0, seed: int = 0):
+        self.fiber, self.rate = fiber, None  # no nominal rate: the readout must come from the timestamps
+        self.period = 1.0 / rate
+        self.t0 = time.monotonic()
+        self.next_release = self.t0
+        self.sent = 0
+        self.rng = np.random.default_rng(seed)
+        self.w = fiber.lambda0.copy()
+
+    def read_many(self, max_frames=1 << 30, timeout=None):
+        now = time.monotonic()
+        if now < self.next_release:
+            time.sleep(min(timeout or 0.0, self.next_release - now))
+            return []
+        due = int((now - self.t0) / self.period) + 1
+        out = [Frame(self.w, 1000.0 + i * self.period, i) for i in range(self.sent, min(due, self.sent + max_frames))]
+        self.sent += len(out)
+        self.next_release = now + self.rng.uniform(0.0, 0.3)
+        return out
+
+    def read(self, timeout=None):
+        got = self.read_many(1, timeout)
+        return got[0] if got else None
+
+
+def test_rate_readout_matches_the_source_whatever_the_bursts():
+    """Issue 14: the readout jumped between 122 and 246 Hz for a 100 Hz source."""
+    f = FiberModel.paper()
+    seen: list[tuple[float, float]] = []
+    loop = LiveLoop(_BurstySource(f), Reconstructor(f),
+                    [lambda frames, shapes, st: seen.append((st.elapsed, st.rate_hz)) if frames else None])
+    summary = loop.run(duration=3.0, handle_signals=False)
+    late = [r for t, r in seen if t > 0.5]
+    assert summary.status.frames > 250 and len(late) > 5
+    assert max(abs(r - 100.0) for r in late) < 0.01  # the source's clock: exact up to float rounding
+    assert not summary.status.behind and summary.status.behind_events == 0
+
+
+class _SlowSource(Source):
+    """Says 100 Hz, stamps frames 10 ms apart, but delivers only 60 a second: behind real time."""
+
+    def __init__(self, fiber, nominal: float | None = 100.0, actual: float = 60.0):
+        self.fiber, self.rate, self.actual = fiber, nominal, actual
+        self.t0, self.k = time.monotonic(), 0
+        self.w = fiber.lambda0.copy()
+
+    def read(self, timeout=None):
+        wait = self.t0 + self.k / self.actual - time.monotonic()
+        if wait > (timeout or 0.0):
+            time.sleep(timeout or 0.0)
+            return None
+        time.sleep(max(wait, 0.0))
+        self.k += 1
+        return Frame(self.w, self.k * 0.01, self.k)
+
+
+@pytest.mark.parametrize("nominal", [100.0, None])
+def test_a_source_behind_real_time_is_said_once_and_counted(capsys, nominal):
+    f = FiberModel.paper()
+    loop = LiveLoop(_SlowSource(f, nominal), Reconstructor(f), rate_window=1.0)
+    summary = loop.run(duration=2.5, handle_signals=False)
+    s = summary.status
+    err = capsys.readouterr().err
+    assert s.behind and s.behind_events == 1 and err.count("behind real time") == 1
+    assert abs(s.arrival_hz - 60.0) < 6.0 and abs(s.rate_hz - 100.0) < 0.01
+    assert "arrive at" in err and ("nominal rate" if nominal else "timestamps advance") in err
+    from twin.live import format_status
+
+    assert "behind real time" in format_status(s)
+
+
+def test_frame_pump_says_once_when_its_source_runs_behind(capsys):
+    from sim_interrogator.servers.common import FramePump
+
+    f = FiberModel.paper()
+    pump = FramePump(_SlowSource(f, 100.0))
+    pump.meter.window = 1.0
+    pump.start()
+    try:
+        assert wait_until(lambda: pump.meter.behind_events == 1, timeout=10)
+    finally:
+        pump.stop()
+    assert capsys.readouterr().err.count("runs behind real time") == 1
+
+
+@pytest.mark.parametrize("argv", [["live", "synthetic://", "--duration", "-1"],
+                                  ["live", "synthetic://", "--duration", "nan"],
+                                  ["live", "synthetic://", "--frames", "0"],
+                                  ["demo", "--duration", "-1", "--no-viewer"]])
+def test_bad_durations_are_one_line_and_exit_2(argv):
+    proc = subprocess.run([*TWIN, *argv], capture_output=True, text=True, env=ENV, timeout=120)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert len(proc.stderr.strip().splitlines()) == 1 and "must be" in proc.stderr
+
+
+@pytest.mark.parametrize("delay", [0.1, 0.25, 0.4, 0.6])
+def test_ctrl_c_at_start_up_is_one_line_and_exit_130(delay):
+    """Issue 11 item 9: Ctrl-C 0.1–0.6 s after start gave a KeyboardInterrupt traceback (rc −2)."""
+    twin = Path(sys.executable).parent / "twin"
+    proc = subprocess.Popen([str(twin), "live", "synthetic://?rate=100", "--duration", "20", "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    try:
+        time.sleep(delay)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert "Traceback" not in stderr
+    if proc.returncode == 130:  # still starting up
+        assert stderr.strip() == "twin live: interrupted" and stdout == ""
+    else:  # the loop was already running (a fast machine): it ends cleanly with its summary
+        assert proc.returncode == 0 and "ended: interrupted" in stdout
+
+
+@pytest.mark.parametrize("bad, got", [([[1510.0, 1515.0], [1520.0]], "a ragged sequence of 2 rows"),
+                                      ("abc", "str 'abc'"),
+                                      (np.zeros((4, 18)), "got (4, 18)"),
+                                      (np.zeros(72), "got (72,)")])
+def test_wavelengths_of_the_wrong_shape_name_expected_and_got(bad, got):
+    """Issue 11 item 10: wavelengths of the wrong shape gave "not enough values to unpack" or numpy's text."""
+    with pytest.raises(ValueError) as err:
+        Reconstructor(FiberModel.paper())(bad)
+    msg = str(err.value)
+    assert "(..., 18, 4)" in msg and got in msg and "\n" not in msg

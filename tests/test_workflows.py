@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from scenarios import paper_ablation
-from twin import Calibration
+from twin import Calibration, jsonout
 from twin.cli import main
 
 
@@ -158,7 +158,7 @@ def test_scenario_options_come_from_the_parameters():
     parser = argparse.ArgumentParser()
     sheath_motion.add_arguments(parser)
     assert entry.params_from_args(sheath_motion.Params, parser.parse_args(["--no-return"])).return_trip is False
-    assert entry.finite({"a": [1.0, float("nan")], "b": float("inf")}) == {"a": [1.0, None], "b": None}
+    assert jsonout.finite({"a": [1.0, float("nan")], "b": float("inf")}) == {"a": [1.0, None], "b": None}
 
 
 def test_calibration_choices_are_checked_and_described(tmp_path):

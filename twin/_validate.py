@@ -42,3 +42,59 @@ def real_array(
         idx = tuple(int(i) for i in bad)
         raise ValueError(f"{where}: expected finite numbers, got {a[idx]} at index {idx if len(idx) > 1 else idx[0]}")
     return a
+
+
+def _toml_kind(value) -> str:
+    """How a value read from TOML (or given to ``from_dict``) reads in an error message."""
+    import datetime
+
+    if isinstance(value, bool | np.bool_):
+        return f"a boolean ({str(value).lower()})"
+    if isinstance(value, str):
+        return f"text ({value[:40]!r})"
+    if isinstance(value, dict):
+        return "a table"
+    if isinstance(value, datetime.date | datetime.time):
+        return f"a date/time ({value})"
+    if isinstance(value, list | tuple | np.ndarray):
+        return f"a list ({str(list(value))[:40]})"
+    return f"{type(value).__name__} ({str(value)[:40]})"
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool | np.bool_)
+
+
+def _numbers(value, depth: int) -> bool:
+    """Whether ``value`` is a list nested ``depth`` deep whose leaves are all numbers (not booleans)."""
+    if isinstance(value, np.ndarray):
+        return value.ndim == depth and (value.dtype.kind in "iuf")
+    if depth == 0:
+        return _is_number(value)
+    return isinstance(value, list | tuple) and all(_numbers(v, depth - 1) for v in value)
+
+
+def check_field_types(data, kinds: dict[str, str], where: str = "") -> None:
+    """Check the types of a mapping read from a file before any is converted: one ValueError naming the field.
+
+    ``kinds`` maps a field to ``number``, ``integer``, ``text``, ``numbers`` (a list of numbers), ``rows`` (a
+    list of lists of numbers), ``number or numbers``, ``table``; fields not in ``data`` are skipped. Booleans,
+    dates and tables are never numbers (TOML's ``true`` is not 1.0).
+    """
+    tests = {
+        "number": lambda v: _is_number(v),
+        "integer": lambda v: isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_),
+        "text": lambda v: isinstance(v, str),
+        "numbers": lambda v: _numbers(v, 1),
+        "rows": lambda v: _numbers(v, 2),
+        "matrices": lambda v: _numbers(v, 3),
+        "number or numbers": lambda v: _is_number(v) or _numbers(v, 1),
+        "table": lambda v: isinstance(v, dict),
+    }
+    names = {"numbers": "a list of numbers", "rows": "a list of rows of numbers", "table": "a table",
+             "matrices": "a list of matrices of numbers",
+             "number or numbers": "a number or a list of numbers", "integer": "an integer", "text": "text",
+             "number": "a number"}
+    for field, kind in kinds.items():
+        if field in data and data[field] is not None and not tests[kind](data[field]):
+            raise ValueError(f"{where}{field}: expected {names[kind]}, got {_toml_kind(data[field])}")

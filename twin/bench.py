@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from twin import jsonout
+
 
 def sections() -> dict[str, str]:
     """Section → ``"module:function"``; each function takes ``quick: bool`` and returns a flat dict of figures."""
@@ -67,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         except json.JSONDecodeError as exc:
             raise ValueError(f"{args.compare}: not a JSON benchmark file ({exc})") from None
     result = measure_in_child(chosen, quick=args.quick, cpu=args.cpu)
-    text = json.dumps(result, indent=2)
+    text = jsonout.dumps(result, indent=2)
     if args.out:
         args.out.write_text(text + "\n")
     if args.json:

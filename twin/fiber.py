@@ -19,11 +19,25 @@ from pathlib import Path
 
 import numpy as np
 
-from twin._validate import frozen, real_array
+from twin._validate import check_field_types, frozen, real_array
 
 __all__ = ["FiberModel"]
 
 _OWNER = "FiberModel"
+
+#: what each field of a fibre file holds (checked before anything is converted)
+FIELD_KINDS = {
+    "core_angles": "numbers",
+    "core_radii": "numbers",
+    "grating_s": "numbers",
+    "lambda0": "rows",
+    "central_core": "integer",
+    "strain_sensitivity": "number",
+    "temperature_sensitivity": "number or numbers",
+    "handedness": "integer",
+    "length": "number",
+    "name": "text",
+}
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,6 +210,11 @@ class FiberModel:
         s = np.asarray(s, dtype=np.float64)
         return self.ccw_angles + self.spin_omega * s[..., None]
 
+    def with_origin(self, origin: str) -> FiberModel:
+        """This model, remembering where it came from (a file, a recording) for error messages."""
+        object.__setattr__(self, "_origin", str(origin))
+        return self
+
     def replace(self, **changes) -> FiberModel:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
@@ -221,7 +240,7 @@ class FiberModel:
             temperature_sensitivity=6.6e-6,
             handedness=1,
             name="Al-Ahmad et al. 7-core MCF (centre + 3 adjacent outer cores)",
-        )
+        ).with_origin("the reference fibre FiberModel.paper()")
 
     @classmethod
     def spun(cls, spin_rate: float = 50.0, radius: float = 35e-6) -> FiberModel:
@@ -265,8 +284,12 @@ class FiberModel:
 
     @classmethod
     def from_dict(cls, data: dict, *, source: str = "") -> FiberModel:
-        """Build from a mapping as written by :meth:`to_dict`; unknown or missing fields are errors."""
+        """Build from a mapping as written by :meth:`to_dict`; unknown or missing fields, and values of the wrong
+        type (a list, table, date or boolean where a number belongs), are errors naming ``source`` and the
+        field. The model remembers ``source`` (:func:`origin`) so later errors can name it too."""
         where = f"{source}: " if source else ""
+        if not isinstance(data, dict):
+            raise ValueError(f"{where}expected a table of fibre fields, got {type(data).__name__}")
         fields = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - fields)
         if unknown:
@@ -275,10 +298,12 @@ class FiberModel:
         missing = [k for k in required if k not in data]
         if missing:
             raise ValueError(f"{where}missing required field(s) {', '.join(missing)}")
+        check_field_types(data, FIELD_KINDS, where)
         try:
-            return cls(**data)
-        except ValueError as exc:
+            model = cls(**data)
+        except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}{exc}") from None
+        return model.with_origin(source) if source else model
 
     def save(self, path: str | Path) -> None:
         """Write the model as TOML."""
@@ -291,13 +316,32 @@ class FiberModel:
     def load(cls, path: str | Path) -> FiberModel:
         """Read a TOML fibre model, validating every field."""
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"{path}: no such fibre model file") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"{path}: not valid TOML ({exc})") from None
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(read_toml(path, "fibre model"), source=str(path))
+
+
+def origin(obj, default: str = "") -> str:
+    """The file (or recording attribute) a FiberModel or Calibration was read from, or ``default``."""
+    return getattr(obj, "_origin", "") or default
+
+
+def read_toml(path: Path, what: str) -> dict:
+    """Read a TOML file; one-line errors naming the file (missing, unreadable, not text, not TOML)."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no such {what} file") from None
+    except OSError as exc:
+        raise OSError(f"{path}: cannot read the {what} file ({exc.strerror or exc})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(
+            f"{path}: not a {what} file: byte {exc.start} is not UTF-8 text (a TOML file is expected)"
+        ) from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not valid TOML ({exc})") from None
 
 
 #: Largest accepted |spin rate|, turns/m: a 1 mm pitch, far tighter than any drawn spun fibre (≈ 6–50 mm).

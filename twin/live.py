@@ -8,8 +8,15 @@ that it keeps the books a live instrument needs:
   as a reset — a restarted acquisition — not as loss);
 - **partly missing peaks**: a frame whose peaks are partly missing is reconstructed from the gratings whose
   remaining cores still determine the curvature (the reconstructor interpolates over the others) and flagged
-  :attr:`FrameFlag.MISSING_PEAKS`, plus :attr:`FrameFlag.PARTIAL` when some gratings had to be dropped and
-  :attr:`FrameFlag.UNUSABLE` when none was left (its shape is all NaN and is never shown as current);
+  :attr:`FrameFlag.MISSING_PEAKS`; a peak outside the reconstructor's physical window around its reference
+  (:meth:`~twin.reconstruct.Reconstructor.peaks_outside`: a corrupted value such as 1e300 nm, or ±inf) counts
+  as missing too, and is counted in ``peaks_outside_window``. Then :attr:`FrameFlag.PARTIAL` when some
+  gratings had to be dropped and :attr:`FrameFlag.UNUSABLE` when none was left (its shape is all NaN and is
+  never shown as current);
+- **rate**: ``rate_hz`` is the source's sampling rate measured on its own timestamps (:mod:`twin.io.rate`), so
+  it reads 100 Hz for a 100 Hz source whatever the batching; when frames arrive slower than the source's
+  nominal rate (or than its timestamps advance), the loop says once on stderr that the source runs behind
+  real time, and counts it (``behind_events``; ``behind`` while it lasts);
 - **stale data**: no usable frame for ``stale_after`` s (0.5 by default) puts the loop in state ``stale``;
   sinks keep receiving status updates (``heartbeat``) so a display can mark its last shape as old;
 - **dropped connections**: drivers reconnect by themselves (:mod:`twin.io.drivers`); a source that raises
@@ -46,6 +53,7 @@ import numpy as np
 
 from twin.frames import Frame, Shape
 from twin.io.errors import SourceFailed
+from twin.io.rate import RateMeter
 from twin.io.sequence import SequenceCounter
 from twin.io.source import Source, SourceClosed
 from twin.io.transport import Backoff
@@ -98,7 +106,10 @@ class LiveStatus:
     frames : int
         Frames received and matching the fibre model.
     frames_complete, frames_partial, frames_unusable, frames_missing_peaks : int
-        Every grating solved / some dropped / none solved / some peak missing.
+        Every grating solved / some dropped / none solved / some peak missing (absent, or outside the
+        physical window).
+    peaks_outside_window : int
+        Peaks reported but outside the reconstructor's physical window (or infinite), treated as missing.
     frames_rejected : int
         Frames whose (n_gratings, n_cores) does not match the fibre model (not reconstructed, not recorded).
     lost_samples, sequence_gaps, sequence_resets : int
@@ -114,7 +125,15 @@ class LiveStatus:
     last_valid_age : float
         s since the last usable frame (inf before the first).
     rate_hz : float
-        Frames per second over the last second or so.
+        The source's sampling rate over the last 2 s of its timestamps (frames received per second when it
+        has none), Hz.
+    arrival_hz : float
+        Frames received per wall-clock second over the last 2 s, Hz.
+    behind : bool
+        Frames arrive slower than the source's nominal rate (or than its timestamps advance): it runs behind
+        real time.
+    behind_events : int
+        Times the source fell behind real time.
     tip : ndarray (3,) or None
         Tip of the latest usable shape, m.
     flags : ndarray of uint8 (n,)
@@ -131,6 +150,7 @@ class LiveStatus:
     frames_partial: int = 0
     frames_unusable: int = 0
     frames_missing_peaks: int = 0
+    peaks_outside_window: int = 0
     frames_rejected: int = 0
     lost_samples: int = 0
     sequence_gaps: int = 0
@@ -144,6 +164,9 @@ class LiveStatus:
     stale_events: int = 0
     last_valid_age: float = float("inf")
     rate_hz: float = 0.0
+    arrival_hz: float = 0.0
+    behind: bool = False
+    behind_events: int = 0
     tip: np.ndarray | None = None
     flags: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))
     source: dict = field(default_factory=dict)
@@ -153,6 +176,8 @@ class LiveStatus:
         out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("flags", "tip", "source")}
         out["tip_m"] = None if self.tip is None else [float(x) for x in self.tip]
         out["last_valid_age"] = None if not np.isfinite(self.last_valid_age) else round(self.last_valid_age, 6)
+        out["rate_hz"] = round(self.rate_hz, 3)
+        out["arrival_hz"] = round(self.arrival_hz, 3)
         out["source"] = {k: v for k, v in self.source.items() if isinstance(v, int | float | str | bool | None)}
         return out
 
@@ -247,17 +272,20 @@ class LiveLoop:
         Longest wait for frames in one iteration, s (bounds the latency of stopping and of heartbeats).
     heartbeat : float
         Sinks get a status at least this often, s.
+    rate_window : float
+        Window of the rate readout and of the behind-real-time check, s (:class:`~twin.io.rate.RateMeter`).
     """
 
     def __init__(self, source: Source | Callable[[], Source], reconstructor: Reconstructor,
                  sinks: Sequence[Sink] = (), *, stale_after: float = 0.5, max_batch: int = 256,
-                 poll: float = 0.05, heartbeat: float = 0.1):
+                 poll: float = 0.05, heartbeat: float = 0.1, rate_window: float = 2.0):
         self._factory = source if callable(source) and not isinstance(source, Source) else None
         self.source: Source | None = None if self._factory else source
         self.rec = reconstructor
         self.sinks = list(sinks)
         self.stale_after, self.max_batch = float(stale_after), int(max_batch)
         self.poll, self.heartbeat = float(poll), float(heartbeat)
+        self.rate_window = float(rate_window)
         self._shape = (reconstructor.fiber.n_gratings, reconstructor.fiber.n_cores)
         self._stop = threading.Event()
         self._stop_reason = "stopped"
@@ -267,8 +295,8 @@ class LiveLoop:
     def _reset_counters(self) -> None:
         self.c = dict.fromkeys(
             ("frames", "frames_complete", "frames_partial", "frames_unusable", "frames_missing_peaks",
-             "frames_rejected", "lost_samples", "sequence_gaps", "sequence_resets", "invalid_nodes",
-             "source_errors", "reconstruct_errors", "stale_events", "reopens"), 0)
+             "peaks_outside_window", "frames_rejected", "lost_samples", "sequence_gaps", "sequence_resets",
+             "invalid_nodes", "source_errors", "reconstruct_errors", "stale_events", "reopens"), 0)
         self._sequence = SequenceCounter()
         self._matched_any = False
         self._tip: np.ndarray | None = None
@@ -277,7 +305,7 @@ class LiveLoop:
         self._state = "starting"
         self._source_stats: dict = {}
         self._stats_at = -1.0
-        self._rate_window: list[tuple[float, int]] = []
+        self._meter = RateMeter(window=self.rate_window)
 
     # ---------------------------------------------------------------- the hot path
     def process(self, frames: Sequence[Frame]) -> tuple[list[Frame], Shape | None, np.ndarray]:
@@ -313,7 +341,13 @@ class LiveLoop:
             return good, None, np.zeros(0, np.uint8)
         self._matched_any = True
         w = np.stack([f.wavelengths for f in good]) if n > 1 else good[0].wavelengths[None]
+        outside = self._outside(w)
+        n_outside = int(np.count_nonzero(outside))
+        if n_outside:
+            w = np.where(outside, np.nan, w)  # missing, for the reconstruction and the flags alike
         flags = np.isnan(w.reshape(n, -1)).any(axis=1).astype(np.uint8)  # MISSING_PEAKS = 1
+        # counted before the sequence counter adds its own flag to the same array
+        n_missing = int(np.count_nonzero(flags))
         self._count_sequence([f.sequence for f in good], flags)
         try:
             shapes = self.rec(w)
@@ -324,7 +358,7 @@ class LiveLoop:
             shapes = None
         g = shape[0]
         c = self.c
-        n_missing = int(np.count_nonzero(flags))
+        c["peaks_outside_window"] += n_outside
         if shapes is None:
             n_valid = np.zeros(n, np.int64)
         else:
@@ -345,6 +379,16 @@ class LiveLoop:
             self._tip = shapes.positions[last, -1].copy()
         return good, shapes, flags
 
+    def _outside(self, w: np.ndarray) -> np.ndarray:
+        """Peaks outside the reconstructor's physical window, or infinite (reconstructors without a window)."""
+        outside = getattr(self.rec, "peaks_outside", None)
+        if outside is None:
+            return np.isinf(w)
+        try:
+            return np.asarray(outside(w), dtype=bool)
+        except Exception:  # a faulty check must not end the loop; the reconstruction reports its own errors
+            return np.isinf(w)
+
     def _count_sequence(self, seq: list[int], flags: np.ndarray) -> None:
         """Count gaps and resets of the sequence numbers; flag the frames that follow a gap."""
         counter = self._sequence
@@ -364,10 +408,7 @@ class LiveLoop:
             self._stats_at = now
         s = self._source_stats
         age = float("inf") if self._last_valid is None else now - self._last_valid
-        win = self._rate_window
-        rate = 0.0
-        if len(win) >= 2 and win[-1][0] > win[0][0]:
-            rate = (win[-1][1] - win[0][1]) / (win[-1][0] - win[0][0])
+        meter = self._meter
         return LiveStatus(
             state=self._state,
             connection=s.get("state") if isinstance(s.get("state"), str) else None,
@@ -377,7 +418,10 @@ class LiveLoop:
             reconnects=int(s.get("reconnects", 0)) + self.c["reopens"],
             disconnects=int(s.get("disconnects", 0)),
             last_valid_age=age,
-            rate_hz=rate,
+            rate_hz=meter.rate,
+            arrival_hz=meter.arrival_rate,
+            behind=meter.behind,
+            behind_events=meter.behind_events,
             tip=self._tip,
             flags=np.zeros(0, np.uint8) if flags is None else flags,
             source=s,
@@ -428,6 +472,7 @@ class LiveLoop:
         self._reset_counters()
         self._stop.clear()
         self._open()
+        self._meter.nominal = _nominal_rate(self.source)
         restore = self._install_signals() if handle_signals else None
         backoff = Backoff()
         reopen_at = None
@@ -486,9 +531,8 @@ class LiveLoop:
                 if frames:
                     good, shapes, flags = self.process(frames)
                     t = time.monotonic()
-                    self._rate_window.append((t, self.c["frames"]))
-                    while len(self._rate_window) > 2 and t - self._rate_window[0][0] > 1.0:
-                        self._rate_window.pop(0)
+                    if good and self._meter.add(np.fromiter((f.timestamp for f in good), float, len(good)), t):
+                        self._say_behind()
                     if self.c["frames"] and backoff.failures:
                         backoff.reset()
                     changed = self._update_state()
@@ -525,6 +569,15 @@ class LiveLoop:
             final = self.status()
         return LiveSummary(final, time.monotonic() - self._t0, reason, tuple(self.sink_errors))
 
+    def _say_behind(self) -> None:
+        m = self._meter
+        if m.behind_events != 1:
+            return  # said once; later episodes are counted
+        expected = m.expected_rate or 0.0
+        why = "its nominal rate" if m.nominal is not None else "its timestamps advance"
+        print(f"twin live: frames arrive at {m.arrival_rate:.0f} Hz, slower than {why} ({expected:.0f} Hz): the "
+              "source runs behind real time (said once; counted in behind_events)", file=sys.stderr, flush=True)
+
     def _install_signals(self) -> Callable[[], None] | None:
         if threading.current_thread() is not threading.main_thread():
             return None
@@ -546,6 +599,15 @@ class LiveLoop:
                 signal.signal(sig, h)
 
         return restore
+
+
+def _nominal_rate(source) -> float | None:
+    rate = getattr(source, "rate", None)
+    try:
+        rate = float(rate) if rate is not None else None
+    except (TypeError, ValueError):
+        return None
+    return rate if rate is not None and np.isfinite(rate) and rate > 0 else None
 
 
 def _close(obj) -> str | None:
@@ -593,8 +655,9 @@ def format_status(s: LiveStatus) -> str:
     tip = "—" if s.tip is None else "(" + ", ".join(f"{1e3 * x:7.2f}" for x in s.tip) + ") mm"
     if s.state == "stale" and s.tip is not None:
         tip += f" [stale {s.last_valid_age:.1f} s]"
+    rate = f"{s.rate_hz:.0f} Hz" + (f", arriving at {s.arrival_hz:.0f} Hz: behind real time" if s.behind else "")
     return (
-        f"{s.elapsed:7.1f} s  {s.state:8s}{conn}  frames {s.frames} ({s.rate_hz:.0f} Hz)  lost {s.lost_samples}  "
+        f"{s.elapsed:7.1f} s  {s.state:8s}{conn}  frames {s.frames} ({rate})  lost {s.lost_samples}  "
         f"framing errors {s.framing_errors}  reconnects {s.reconnects}  partial {s.frames_partial}  "
         f"unusable {s.frames_unusable}  invalid nodes {s.invalid_nodes}  tip {tip}"
     )

@@ -25,6 +25,8 @@ METHODS = ("material", "paper")
 #: The paper pipeline's default κ_min, 1/m: 30 × the noise of κ (≈ 0.03 1/m per component at 1 pm of wavelength
 #: noise on this fibre) and far below the bends a catheter is steered through (tens of 1/m).
 PAPER_KAPPA_MIN = 1.0
+#: default physical window of a peak, |optical strain| (see :class:`Reconstructor`)
+PEAK_WINDOW = 0.03
 
 
 class Reconstructor:
@@ -65,6 +67,12 @@ class Reconstructor:
         ``material``; False reconstructs a spun fibre with the twist ignored.
     wavelength_noise : float
         1σ wavelength noise per peak assumed by the twist inversion's weights and reported uncertainties, nm.
+    peak_window : float or None
+        Physical window around the reference wavelengths: a peak whose optical strain |Δλ/λ0| exceeds it is
+        treated as missing (see :meth:`peaks_outside`). Default :data:`PEAK_WINDOW` = 0.03, i.e. ±45 nm at
+        1510 nm: beyond the breaking strain of silica fibre (a few %) and ten times the largest bending
+        strain of a catheter fibre (g·κ ≈ 3e-3 at a 1 cm radius); only a corrupted or mis-assigned value lands
+        there. None: no window.
 
     Calling the reconstructor on wavelengths of shape (..., n_gratings, n_cores) (nm; NaN for a missing peak),
     a :class:`~twin.frames.Frame` or a sequence of Frames returns a :class:`~twin.frames.Shape`. A grating
@@ -91,6 +99,7 @@ class Reconstructor:
         kappa_min: float | None = None,
         twist: bool | None = None,
         wavelength_noise: float = 1e-3,
+        peak_window: float | None = PEAK_WINDOW,
     ):
         if not isinstance(fiber, FiberModel):
             raise TypeError(f"fiber must be a FiberModel, got {type(fiber).__name__}")
@@ -123,6 +132,9 @@ class Reconstructor:
             raise ValueError(f"wavelength_noise must be a positive number of nm, got {wavelength_noise}")
         self.twist = bool(twist)
         self.wavelength_noise = float(wavelength_noise)
+        if peak_window is not None and not (np.isfinite(peak_window) and peak_window > 0):
+            raise ValueError(f"peak_window must be a positive optical strain (|Δλ/λ0|) or None; got {peak_window}")
+        self.peak_window = None if peak_window is None else float(peak_window)
         self.fiber = fiber
         self.calibration = calibration or Calibration()
         self.method = method
@@ -160,7 +172,8 @@ class Reconstructor:
         self.calibration = calibration
         self._lam0 = calibration.reference_for(self.fiber)
         self._solver = CurvatureSolver(
-            calibration.design_for(self.fiber), method=self.inversion, central_core=self.fiber.central_core
+            calibration.design_for(self.fiber), method=self.inversion, central_core=self.fiber.central_core,
+            max_strain=self.peak_window,
         )
         if self.twist:
             from twin.spun import TwistSolver, helix_of, twist_design
@@ -210,7 +223,13 @@ class Reconstructor:
         elif isinstance(data, Sequence) and len(data) and isinstance(data[0], Frame):
             w = Frame.stack(data).wavelengths
         else:
-            w = np.asarray(data, dtype=np.float64)
+            try:
+                w = np.asarray(data, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"wavelengths must be numbers (nm) of shape (..., {self.fiber.n_gratings}, "
+                    f"{self.fiber.n_cores}) (gratings × cores); got {_describe(data)}"
+                ) from None
         n_g, n_c = self.fiber.n_gratings, self.fiber.n_cores
         if w.ndim < 2 or w.shape[-2:] != (n_g, n_c):
             raise ValueError(
@@ -221,9 +240,17 @@ class Reconstructor:
         return w
 
     def curvature(self, wavelengths):
-        """Calibrated curvature vectors at the gratings (a :class:`~twin.strain.StrainSolution`)."""
+        """Calibrated curvature vectors at the gratings (a :class:`~twin.strain.StrainSolution`).
+
+        Peaks outside the physical window (:meth:`peaks_outside`) count as missing."""
         w = self._wavelengths(wavelengths)
         return self._solver.solve((w - self._lam0) / self._lam0)
+
+    def peaks_outside(self, wavelengths) -> np.ndarray:
+        """Boolean (..., n_gratings, n_cores): peaks present but outside the physical window (``peak_window``)
+        around their reference wavelength, or infinite; the reconstruction treats them as missing."""
+        w = np.asarray(wavelengths, dtype=np.float64)
+        return self._solver.outside((w - self._lam0) / self._lam0)
 
     def __call__(self, wavelengths) -> Shape:
         sol = self.curvature(wavelengths)
@@ -332,6 +359,18 @@ class Reconstructor:
         # material frame of a twist-free fibre: R = F Q(θ)ᵀ (math.md §1)
         q = _frenet_from_material(np.cos(theta), np.sin(theta))
         return pos, f @ np.swapaxes(q, -1, -2)
+
+
+def _describe(data) -> str:
+    """A short description of what was given as wavelengths, for an error message."""
+    if isinstance(data, str | bytes):
+        return f"{type(data).__name__} {data[:40]!r}"
+    if isinstance(data, Sequence):
+        lengths = sorted({str(len(x)) if isinstance(x, Sequence | np.ndarray) else "scalar" for x in data})
+        if len(lengths) > 1:
+            return f"a ragged sequence of {len(data)} rows (row lengths {', '.join(lengths)})"
+        return f"a sequence of {len(data)} items that are not all numbers"
+    return type(data).__name__
 
 
 def _frenet_from_material(c: np.ndarray, s: np.ndarray) -> np.ndarray:

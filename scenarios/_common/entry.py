@@ -34,13 +34,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import inspect
-import json
 import math
 import sys
 import types
 from collections.abc import Mapping
 
-__all__ = ["DEG", "add_arguments", "finite", "main", "option", "params_from_args", "run", "say"]
+from twin import jsonout
+
+__all__ = ["DEG", "add_arguments", "main", "option", "params_from_args", "run", "say"]
 
 #: ``scale`` for an option given in degrees and held in radians.
 DEG = math.pi / 180.0
@@ -126,21 +127,10 @@ def run(name: str, module, args: argparse.Namespace) -> int:
     if getattr(args, "json", False):
         out = {k: v for k, v in result.items() if not k.startswith("_")} if isinstance(result, dict) else \
             result.to_dict()
-        print(json.dumps(finite(out), indent=2, allow_nan=False))
+        print(jsonout.dumps(out, indent=2))
     else:
         print(module.text_report(result))
     return 0
-
-
-def finite(value):
-    """``value`` (JSON-ready nesting of dicts, lists and numbers) with NaN and ±inf as None."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, Mapping):
-        return {k: finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [finite(v) for v in value]
-    return value
 
 
 def main(module) -> None:

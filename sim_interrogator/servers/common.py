@@ -1,5 +1,10 @@
-"""Plumbing shared by the protocol servers: a thread that pumps frames out of a Source, and a TCP server that
-pushes the same bytes to every connected client."""
+"""Plumbing shared by the protocol servers: a thread that pumps frames out of a Source, a TCP server that
+pushes the same bytes to every connected client, and the one log writer every server thread uses.
+
+Log lines go through :func:`log`: one ``write`` of the whole line under one lock, so lines from the pump, the
+accept threads and the client threads never interleave or leave blank lines (``print`` writes the text and the
+newline separately).
+"""
 
 from __future__ import annotations
 
@@ -11,9 +16,27 @@ import time
 from collections.abc import Callable
 
 from twin.frames import Frame
+from twin.io.rate import RateMeter
 from twin.io.source import Source, SourceClosed
 
-__all__ = ["FramePump", "TcpBroadcaster"]
+__all__ = ["MAX_CLIENTS", "FramePump", "TcpBroadcaster", "log"]
+
+#: most clients a server port accepts at once; more are refused (closed at once) and counted
+MAX_CLIENTS = 32
+
+_LOG_LOCK = threading.Lock()
+
+
+def log(message: str, stream=None) -> None:
+    """Write one line ``twin serve: message`` on stderr (or ``stream``), whole, under the servers' one lock."""
+    line = "twin serve: " + " ".join(str(message).split("\n")) + "\n"
+    with _LOG_LOCK:
+        out = stream if stream is not None else sys.stderr
+        try:
+            out.write(line)
+            out.flush()
+        except (OSError, ValueError):  # a closed stderr must not kill a server thread
+            pass
 
 
 class FramePump:
@@ -34,6 +57,10 @@ class FramePump:
         The most recent frame (what request/response protocols answer with).
     frames : int
         Frames pumped.
+    meter : RateMeter
+        Frames pumped per second against the source's nominal rate: when the source falls behind real time
+        (a simulator slower than the clock), the pump says so once on stderr and counts it
+        (``meter.behind_events``).
     ended : threading.Event
         Set when the source ended, failed or the pump was stopped.
     error : BaseException or None
@@ -51,6 +78,7 @@ class FramePump:
         self._stop = threading.Event()
         self._first = threading.Event()
         self._thread = threading.Thread(target=self._run, name="frame-pump", daemon=True)
+        self.meter = RateMeter(rate or getattr(source, "rate", None))
 
     def subscribe(self, fn: Callable[[Frame], None]) -> None:
         """Call ``fn(frame)`` (on the pump thread) for every frame from now on."""
@@ -86,12 +114,16 @@ class FramePump:
                     k += 1
                 self.latest = frame
                 self.frames += 1
+                if self.meter.add([frame.timestamp]) and self.meter.behind_events == 1:
+                    m = self.meter
+                    log(f"the source delivers {m.arrival_rate:.0f} frames/s, below its nominal {m.nominal:g} Hz: it "
+                        "runs behind real time (said once; counted in behind_events)")
                 self._first.set()
                 for fn in self._subscribers:
                     fn(frame)
         except Exception as exc:  # reported through .error; servers must not die silently
             self.error = exc
-            print(f"twin serve: source failed: {exc}", file=sys.stderr, flush=True)
+            log(f"source failed: {exc}")
         finally:
             self.ended.set()
 
@@ -137,6 +169,8 @@ class TcpBroadcaster:
 
     Each client has its own sender thread and queue, so a slow client delays nobody: when its queue holds
     ``max_queue`` messages (4096 records ≈ 4 s at 1 kHz) it is disconnected and counted in ``dropped_slow``.
+    At most ``max_clients`` clients are served at once (one thread each); a connection beyond them is closed at
+    once and counted in ``refused``.
 
     Parameters
     ----------
@@ -150,11 +184,15 @@ class TcpBroadcaster:
         ``on_connect(sock)`` runs in the accept thread before the client joins the broadcast.
     log : bool
         Print connects and disconnects on stderr.
+    max_clients : int
+        Most clients at once.
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, *, name: str = "tcp", max_queue: int = 4096,
-                 on_connect: Callable[[socket.socket], None] | None = None, log: bool = False):
+                 on_connect: Callable[[socket.socket], None] | None = None, log: bool = False,
+                 max_clients: int = MAX_CLIENTS):
         self.name, self.max_queue, self.on_connect, self.log = name, max_queue, on_connect, log
+        self.max_clients = int(max_clients)
         try:
             self._listener = socket.create_server((host, port), reuse_port=False)
         except OSError as exc:
@@ -167,6 +205,7 @@ class TcpBroadcaster:
         self.connections = 0
         self.disconnects = 0
         self.dropped_slow = 0
+        self.refused = 0
         self.published = 0
         self._thread = threading.Thread(target=self._accept, name=f"{name}-accept", daemon=True)
 
@@ -187,6 +226,12 @@ class TcpBroadcaster:
                 continue
             except OSError:
                 break
+            if self.clients >= self.max_clients:
+                self.refused += 1
+                sock.close()
+                if self.log and self.refused == 1:
+                    log(f"{self.name}: more than {self.max_clients} clients; refusing the others (counted)")
+                continue
             sock.settimeout(None)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             try:
@@ -201,7 +246,7 @@ class TcpBroadcaster:
                 self.connections += 1
             client.thread.start()
             if self.log:
-                print(f"twin serve: {self.name}: client {addr[0]}:{addr[1]} connected", file=sys.stderr, flush=True)
+                log(f"{self.name}: client {addr[0]}:{addr[1]} connected")
 
     def _remove(self, client: _Client, why: str) -> None:
         with self._lock:
@@ -211,8 +256,7 @@ class TcpBroadcaster:
             self.disconnects += 1
         client.close()
         if self.log and not self._closed.is_set():
-            print(f"twin serve: {self.name}: client {client.addr[0]}:{client.addr[1]} {why}", file=sys.stderr,
-                  flush=True)
+            log(f"{self.name}: client {client.addr[0]}:{client.addr[1]} {why}")
 
     def publish(self, data: bytes) -> None:
         """Queue ``data`` for every connected client."""

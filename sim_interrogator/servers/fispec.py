@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import os
 import select
-import sys
 import termios
 import threading
 import time
@@ -37,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim_interrogator.servers.common import FramePump
+from sim_interrogator.servers.common import FramePump, log
 from twin.frames import Frame
 from twin.io import fispec
 from twin.io.source import Source
@@ -209,7 +208,7 @@ class FispecPort:
                 try:
                     out = self.reply(cmd)
                 except (ValueError, OSError) as exc:
-                    print(f"twin serve: fispec core {self.core}: {cmd.name}: {exc}", file=sys.stderr, flush=True)
+                    log(f"fispec core {self.core}: {cmd.name}: {exc}")
                     continue
                 if out:
                     try:

@@ -2,8 +2,14 @@
 
 - Command port (51971 by default): each connection sends requests and gets one response each, from
   :func:`twin.io.hyperion.respond` with the server's :class:`~twin.io.hyperion.InstrumentState` and the latest
-  frame (``#GetPeaks``). A connection that sends a malformed request header is closed (a binary stream without
-  sync marker cannot be re-entered); other connections are unaffected.
+  frame (``#GetPeaks``). Requests are parsed defensively: a command longer than :data:`MAX_COMMAND` or an
+  argument longer than :data:`MAX_ARGUMENT` bytes is refused from its header, before anything is buffered, so a
+  partial request holds at most 8 + 256 + 8192 bytes; a request the responder cannot handle gets an error
+  status (never an empty reply, never a dead thread). A connection that sends a malformed or oversized request
+  header gets an error response and is closed (a binary stream without sync marker cannot be re-entered);
+  other connections are unaffected. At most :data:`~sim_interrogator.servers.common.MAX_CLIENTS` (32)
+  command connections and as many stream clients are served at once; more are closed at once and counted
+  (``refused``).
 - Peak stream (command port + 1 = 51972 by default): every frame is pushed to every connected client as one
   success response whose content is the peak data (:func:`twin.io.hyperion.encode_stream_frame`).
 
@@ -16,13 +22,22 @@ from __future__ import annotations
 import socket
 import threading
 
-from sim_interrogator.servers.common import FramePump, TcpBroadcaster
+from sim_interrogator.servers.common import MAX_CLIENTS, FramePump, TcpBroadcaster, log
 from twin.frames import Frame
 from twin.io import hyperion
 from twin.io.errors import FramingError
 from twin.io.source import Source
 
-__all__ = ["HyperionServer"]
+__all__ = ["MAX_ARGUMENT", "MAX_COMMAND", "HyperionServer"]
+
+#: longest command name accepted, bytes (the longest real one, #GetMaximumPeakCountPerDutChannel, has 33)
+MAX_COMMAND = 256
+#: longest argument accepted, bytes (the simulated instrument's commands take at most one short number)
+MAX_ARGUMENT = 8192
+#: status of the error response to a malformed request (the codec's responder uses 1–3)
+STATUS_BAD_REQUEST = 4
+#: status of the error response when handling a request failed
+STATUS_INTERNAL = 5
 
 
 class HyperionServer:
@@ -42,10 +57,13 @@ class HyperionServer:
         Extra pacing, Hz (see :class:`FramePump`).
     log : bool
         Print client connects and disconnects on stderr.
+    max_clients : int
+        Most command connections (and stream clients) at once.
     """
 
     def __init__(self, source: Source, host: str = "127.0.0.1", port: int = hyperion.COMMAND_PORT, *,
-                 stream_port: int | None = None, rate: float | None = None, log: bool = False):
+                 stream_port: int | None = None, rate: float | None = None, log: bool = False,
+                 max_clients: int = MAX_CLIENTS):
         self.source = source
         fiber = getattr(source, "fiber", None)
         speed = round(getattr(source, "rate", None) or rate or 1000)
@@ -62,14 +80,18 @@ class HyperionServer:
         except OSError as exc:
             raise OSError(f"hyperion: cannot listen on {host}:{port}: {exc.strerror or exc}") from None
         self._listener.settimeout(0.2)
-        self.stream = TcpBroadcaster(host, stream_port, name="hyperion-stream", log=log)
+        self.stream = TcpBroadcaster(host, stream_port, name="hyperion-stream", log=log, max_clients=max_clients)
         self.pump = FramePump(source, rate=rate)
         self.pump.subscribe(self._publish)
         self.log = log
+        self.max_clients = int(max_clients)
         self.requests = 0
         self.bad_requests = 0
+        self.failed_requests = 0
+        self.refused = 0
         self._closed = threading.Event()
         self._conns: list[socket.socket] = []
+        self._conns_lock = threading.Lock()
         self._thread = threading.Thread(target=self._accept, name="hyperion-commands", daemon=True)
 
     @property
@@ -93,12 +115,32 @@ class HyperionServer:
                 continue
             except OSError:
                 break
+            with self._conns_lock:
+                full = len(self._conns) >= self.max_clients
+                if not full:
+                    self._conns.append(conn)
+            if full:
+                self.refused += 1
+                conn.close()
+                if self.log and self.refused == 1:
+                    log(f"hyperion: more than {self.max_clients} command connections; refusing the others (counted)")
+                continue
             conn.settimeout(None)
-            self._conns.append(conn)
             threading.Thread(target=self._serve, args=(conn,), name="hyperion-command", daemon=True).start()
 
+    def _respond(self, req: hyperion.Request) -> bytes:
+        """The response to one request; an error status when handling it fails (the thread must live on)."""
+        try:
+            with self._lock:
+                return hyperion.respond(req, self.state, frame=self.pump.latest)
+        except Exception as exc:
+            self.failed_requests += 1
+            if self.log:
+                log(f"hyperion: {req.command[:40]!r} failed: {type(exc).__name__}: {str(exc)[:80]}")
+            return hyperion.encode_response(message=f"Request failed: {type(exc).__name__}", status=STATUS_INTERNAL)
+
     def _serve(self, conn: socket.socket) -> None:
-        decoder = hyperion.RequestDecoder()
+        decoder = hyperion.RequestDecoder(max_argument=MAX_ARGUMENT, max_command=MAX_COMMAND)
         try:
             while not self._closed.is_set():
                 data = conn.recv(65536)
@@ -106,23 +148,26 @@ class HyperionServer:
                     break
                 try:
                     requests = decoder.feed(data)
-                except FramingError:
-                    self.bad_requests += 1
-                    break
+                except FramingError as exc:
+                    requests, error = [], exc
+                else:
+                    error = decoder.last_error if decoder.failed else None
                 for req in requests:
                     self.requests += 1
-                    with self._lock:
-                        out = hyperion.respond(req, self.state, frame=self.pump.latest)
-                    conn.sendall(out)
-                if decoder.failed:
+                    conn.sendall(self._respond(req))
+                if error is not None:
+                    # the stream cannot be re-entered: say why, then close this connection only
                     self.bad_requests += 1
+                    conn.sendall(hyperion.encode_response(message=f"Bad request: {error.what}"[:200],
+                                                          status=STATUS_BAD_REQUEST))
                     break
         except OSError:
             pass
         finally:
             conn.close()
-            if conn in self._conns:
-                self._conns.remove(conn)
+            with self._conns_lock:
+                if conn in self._conns:
+                    self._conns.remove(conn)
 
     def start(self) -> HyperionServer:
         self.stream.start()
@@ -135,7 +180,9 @@ class HyperionServer:
             return
         self._closed.set()
         self._listener.close()
-        for c in list(self._conns):
+        with self._conns_lock:
+            conns = list(self._conns)
+        for c in conns:
             try:
                 c.shutdown(socket.SHUT_RDWR)
             except OSError:
@@ -146,7 +193,8 @@ class HyperionServer:
 
     def stats(self) -> dict:
         return {"frames": self.pump.frames, "requests": self.requests, "bad_requests": self.bad_requests,
-                "stream_clients": self.stream.clients}
+                "failed_requests": self.failed_requests, "refused": self.refused + self.stream.refused,
+                "stream_clients": self.stream.clients, "behind_events": self.pump.meter.behind_events}
 
     def __enter__(self) -> HyperionServer:
         return self.start()

@@ -19,21 +19,34 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from twin._validate import frozen, real_array
-from twin.fiber import FiberModel
+from twin._validate import check_field_types, frozen, real_array
+from twin.fiber import FiberModel, origin, read_toml
 from twin.frames import Frame
 from twin.strain import CurvatureSolver, design_matrix, optical_strain
 
 __all__ = ["Calibration", "CalibrationError", "CalibrationReport", "scaled_core_angles", "two_step"]
 
 _OWNER = "Calibration"
+
+#: what each field of a calibration file holds (checked before anything is converted)
+FIELD_KINDS = {
+    "lambda0": "rows",
+    "twist": "numbers",
+    "delta_theta": "number",
+    "gain": "number",
+    "delta_theta_std": "number",
+    "gain_std": "number",
+    "design": "matrices",
+    "provenance": "table",
+}
+#: resolution λ0 is stored at, nm (see :func:`two_step`)
+LAMBDA0_RESOLUTION_DECIMALS = 9
 
 
 class CalibrationError(ValueError):
@@ -118,14 +131,18 @@ class Calibration:
 
     # ---------------------------------------------------------------- applying it to a fibre
     def check(self, fiber: FiberModel) -> None:
-        """Raise a clear error when this calibration does not fit ``fiber``'s gratings and cores."""
+        """Raise a clear error when this calibration does not fit ``fiber``'s gratings and cores; it names the
+        calibration's file and the fibre model's when they were read from files (:func:`twin.fiber.origin`)."""
         n_g, n_c = fiber.n_gratings, fiber.n_cores
         for name, shape in (("lambda0", (n_g, n_c)), ("twist", (n_g,)), ("design", (n_g, n_c, 3))):
             v = getattr(self, name)
             if v is not None and v.shape != shape:
+                cal = origin(self)
+                fib = origin(fiber)
                 raise ValueError(
-                    f"{_OWNER}.{name} has shape {v.shape} but the fibre has {n_g} gratings × {n_c} cores "
-                    f"(expected {shape}); was it made for another sensor?"
+                    f"{cal + ': ' if cal else ''}calibration field {name} has shape {v.shape} but the fibre model"
+                    f"{' (' + fib + ')' if fib else ''} has {n_g} gratings × {n_c} cores (expected {shape}); "
+                    "was the calibration made for another sensor?"
                 )
 
     def reference_for(self, fiber: FiberModel) -> np.ndarray:
@@ -166,14 +183,20 @@ class Calibration:
     @classmethod
     def from_dict(cls, data: Mapping, *, source: str = "") -> Calibration:
         where = f"{source}: " if source else ""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{where}expected a table of calibration fields, got {type(data).__name__}")
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"{where}unknown field(s) {', '.join(unknown)}; known fields: {', '.join(sorted(known))}")
+        check_field_types(data, FIELD_KINDS, where)
         try:
-            return cls(**data)
+            cal = cls(**data)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{where}{exc}") from None
+        if source:
+            object.__setattr__(cal, "_origin", source)
+        return cal
 
     def save(self, path: str | Path) -> None:
         """Write as TOML (SI units; wavelengths in nm)."""
@@ -188,13 +211,7 @@ class Calibration:
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"{path}: no such calibration file") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"{path}: not valid TOML ({exc})") from None
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(read_toml(path, "calibration"), source=str(path))
 
     # ---------------------------------------------------------------- the paper's two-step procedure
     @classmethod
@@ -279,9 +296,10 @@ def two_step(
 ) -> tuple[Calibration, CalibrationReport]:
     """The paper's two-step calibration with the fixes of math.md §4.2.
 
-    Step 1 (``straight``): the mean wavelengths of the straight, unloaded fibre become λ0. Step 2 (``bend``): a
-    single-sign in-plane bend; the bend angle measured at each grating departs from a constant by the cores'
-    intrinsic twist, which is unwrapped modulo π and stored relative to grating 0.
+    Step 1 (``straight``): the mean wavelengths of the straight, unloaded fibre become λ0 (rounded to 1e-9 nm,
+    far below any interrogator's resolution, so that files carry the mean and not its binary summation error).
+    Step 2 (``bend``): a single-sign in-plane bend; the bend angle measured at each grating departs from a
+    constant by the cores' intrinsic twist, which is unwrapped modulo π and stored relative to grating 0.
 
     Parameters
     ----------
@@ -309,7 +327,11 @@ def two_step(
     ws = _as_stack(straight, fiber, "straight")
     wb = _as_stack(bend, fiber, "bend")
     base = base or Calibration()
-    lam0 = _mean_peaks(ws, "straight", fiber, max_missing)
+    # The mean of wavelengths quantised at 1e-4 nm is a decimal of a few more places; summing in binary leaves
+    # an error of an ulp or so (2.3e-13 nm at 1510 nm), which the file would then carry as 1510.1080899999997
+    # for 1510.10809. Rounding to 1e-9 nm removes that artefact and nothing measured: it is 5 orders of
+    # magnitude below the interrogators' 1e-4 nm resolution (an optical strain of 3e-13).
+    lam0 = np.round(_mean_peaks(ws, "straight", fiber, max_missing), LAMBDA0_RESOLUTION_DECIMALS)
     lam_b = _mean_peaks(wb, "bend", fiber, max_missing)
     nominal = base.replace(lambda0=None, twist=None, design=None)
     solver = CurvatureSolver(nominal.design_for(fiber), central_core=fiber.central_core)

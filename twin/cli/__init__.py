@@ -7,7 +7,10 @@ above the core (the demo, ``serve``, every ``twin run NAME``) come from the regi
 A command that needs an optional dependency which is not installed says which extra installs it.
 
 User mistakes (bad files, wrong options, unreachable sources) print one line on stderr and exit with status 2;
-set TWIN_DEBUG=1 to see the traceback instead.
+set TWIN_DEBUG=1 to see the traceback instead. Ctrl-C prints ``twin COMMAND: interrupted`` and exits with 130,
+whenever it comes: this module imports almost nothing at load time (the registry, the extras and every
+command are imported inside :func:`main`'s handler, and ``twin`` itself loads its names lazily), so the handler
+is in place within a few tens of milliseconds of start-up.
 """
 
 from __future__ import annotations
@@ -16,9 +19,10 @@ import argparse
 import importlib
 import os
 import sys
+from typing import TYPE_CHECKING
 
-from twin import registry
-from twin.extras import EXTRAS, MissingExtra
+if TYPE_CHECKING:  # pragma: no cover
+    from twin.extras import MissingExtra
 
 #: the core's commands: command → (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -45,6 +49,8 @@ class UserError(Exception):
 
 def commands() -> dict[str, tuple[str, str]]:
     """Every command: the core's and the registered ones, name → (module, one-line help)."""
+    from twin import registry
+
     found = {name: (module, PLUGIN_HELP.get(name, "")) for name, module in registry.entries("twin.commands").items()}
     found.update(COMMANDS)
     return found
@@ -52,10 +58,14 @@ def commands() -> dict[str, tuple[str, str]]:
 
 def scenarios() -> dict[str, str]:
     """Every registered scenario (``twin run NAME``): name → module."""
+    from twin import registry
+
     return registry.entries("twin.scenarios")
 
 
 def _command_module(name: str):
+    from twin import registry
+
     module = commands()[name][0]
     if name in COMMANDS:
         return importlib.import_module(module)
@@ -64,6 +74,8 @@ def _command_module(name: str):
 
 def missing_extra(exc: ImportError) -> MissingExtra | None:
     """The :class:`MissingExtra` behind an ImportError, or None when it is not a missing optional package."""
+    from twin.extras import EXTRAS, MissingExtra
+
     if isinstance(exc, MissingExtra):
         return exc
     root = (getattr(exc, "name", None) or "").split(".")[0]
@@ -104,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         return int(_command_module(args._command).run(args) or 0)
     except KeyboardInterrupt:
-        print("twin: interrupted", file=sys.stderr)
+        print(f"twin{' ' + command if command else ''}: interrupted", file=sys.stderr)
         return 130
     except ImportError as exc:
         extra = missing_extra(exc)

@@ -13,12 +13,12 @@ an inflection, a moving catheter, missing peaks — is refused with the reason.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from twin import jsonout
 from twin.calibration import Calibration, CalibrationError, two_step
 from twin.fiber import FiberModel
 from twin.io.source import Source, SourceClosed, open_source
@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     if "twist_rad" in truth:
         result["true_twist_rad"] = truth["twist_rad"]
     if args.json:
-        print(json.dumps(result, indent=2))
+        print(jsonout.dumps(result, indent=2))
         return 0
     print(report(fiber, result))
     return 0

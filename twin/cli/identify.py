@@ -20,11 +20,11 @@ saw has absorbed something else than Δθ and g.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
+from twin import jsonout
 from twin.calibration import Calibration
 from twin.calibration.identify import Observation, identify, paper_cost, read_truth
 from twin.fiber import FiberModel
@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         out |= {"radius_um": result.radius * 1e6, "strain_sensitivity": result.strain_sensitivity,
                 "degeneracy": result.degeneracy}
     if args.json:
-        print(json.dumps(out, indent=2))
+        print(jsonout.dumps(out, indent=2))
         return 0
     print(f"identified ({result.formulation}) from {len(observations)} shapes, written to {args.out}")
     if result.formulation == "lsq":

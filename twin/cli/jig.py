@@ -12,11 +12,11 @@ set by the router before ``add_arguments``) picks the one to build and run.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 import numpy as np
 
+from twin import jsonout
 from twin.calibration import Calibration, jig
 from twin.fiber import FiberModel
 
@@ -119,7 +119,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     check = jig.validate(result.calibration, used, fiber=fiber, min_curvature=args.min_curvature)
     result.calibration.save(args.out)
     if args.json:
-        print(json.dumps({"poses": args.poses, "fiber": args.fiber, "out": args.out, "fit": result.to_dict(),
+        print(jsonout.dumps({"poses": args.poses, "fiber": args.fiber, "out": args.out, "fit": result.to_dict(),
                           "in_sample": check.to_dict()}, indent=2))
         return 0
     out = sys.stdout
@@ -210,7 +210,7 @@ def _validate(args: argparse.Namespace) -> int:
         r["passes"] = r["validation"].passes(max_err, max_dir) if tolerances else None
     ok = all(r["passes"] for r in results) if tolerances else None
     if args.json:
-        print(json.dumps({
+        print(jsonout.dumps({
             "poses": args.poses,
             "calibration": args.calibration,
             "holdout_orientations_rad": None if args.holdout_orientations is None else
@@ -265,7 +265,7 @@ def _leave_one_rotation_out(args: argparse.Namespace, fiber: FiberModel | None, 
                                            trust_references=args.trust_references,
                                            min_curvature=args.min_curvature) for m in models}
     if args.json:
-        print(json.dumps({"poses": args.poses, "results": {m: st.to_dict() for m, st in stats.items()}}, indent=2))
+        print(jsonout.dumps({"poses": args.poses, "results": {m: st.to_dict() for m, st in stats.items()}}, indent=2))
         return 0
     for model, st in stats.items():
         big = st.levels >= st.min_curvature

@@ -28,10 +28,10 @@ one a recording carries, else none.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
+from twin import jsonout
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.io.source import open_source, parse_url
@@ -72,8 +72,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.duration is not None and args.duration <= 0:
-        raise ValueError(f"--duration must be positive, got {args.duration}")
+    if args.duration is not None and not args.duration > 0:  # NaN too
+        raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--frames must be at least 1, got {args.frames}")
+    if not args.stale > 0:
+        raise ValueError(f"--stale must be a positive number of seconds, got {args.stale}")
     if args.viewer and not args.viewer_rate > 0:
         raise ValueError(f"--viewer-rate must be positive, got {args.viewer_rate}")
     if args.igtl is not None and not args.igtl_rate > 0:
@@ -154,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         out["igtl_clients"] = igtl_sink.server.clients_seen
         out["igtl_errors"] = igtl_sink.errors
     if args.json:
-        print(json.dumps(out))
+        print(jsonout.dumps(out))
     else:
         print(format_summary(summary, out))
     if viewer_sink is not None and args.keep_open:
@@ -174,7 +178,10 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
         f"stale {s.stale_events} times",
         f"  frames complete {s.frames_complete}, partial {s.frames_partial}, unusable {s.frames_unusable}, "
         f"with missing peaks {s.frames_missing_peaks}, rejected {s.frames_rejected}; invalid nodes "
-        f"{s.invalid_nodes}",
+        f"{s.invalid_nodes}; peaks outside their window {s.peaks_outside_window}",
+        f"  source rate {s.rate_hz:.1f} Hz (its timestamps)"
+        + (f"; fell behind real time {s.behind_events} times (last arrival rate {s.arrival_hz:.1f} Hz)"
+           if s.behind_events else ""),
     ]
     if s.tip is not None:
         lines.append("  last tip (" + ", ".join(f"{1e3 * x:.2f}" for x in s.tip) + ") mm")

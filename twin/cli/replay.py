@@ -23,10 +23,10 @@ are given; a vendor log stores none, so ``--fiber`` is needed unless the sensor 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
+from twin import jsonout
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.io.replay import ReplaySummary, summarize
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
                         max_compare=args.max_compare, channels_as=args.channels, n_cores=args.cores,
                         salvage=args.salvage)
     if args.json:
-        print(json.dumps(summary.as_dict()))
+        print(jsonout.dumps(summary.as_dict()))
     else:
         print(format_summary(summary))
     for note in summary.notes:

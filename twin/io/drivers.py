@@ -439,6 +439,10 @@ class HyperionSource(Driver):
             self._stream.close()
             self._stream = None
         if self._decoder is not None:
+            # a connection that dropped inside a frame is a framing error, as on ILLumiSense; closing the
+            # source ourselves mid-frame is not
+            if not self._closed:
+                self._decoder.finish()
             self._framing_errors += self._decoder.framing_errors
             self._decoder = None
 

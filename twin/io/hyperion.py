@@ -25,9 +25,16 @@ Decisions where docs/protocols.md is silent:
 - **Serial number** in the peak header counts acquisitions (Luna's stream example asserts it increments by
   one), so it carries :attr:`Frame.sequence`; timestamp = seconds + nanoseconds·1e-9.
 - **Version** 1 in the peak header (only echoed). **Response type** 0 (only echoed).
-- A non-finite or non-positive wavelength in the content decodes to NaN with INVALID_VALUE.
+- **A frame is checked whole before any of it is used**: header length against the content, the peak counts
+  against the bytes that follow, and every wavelength finite and within :data:`WAVELENGTH_RANGE` (200–3000 nm,
+  the Bragg wavelengths a fibre model accepts; Luna's instruments sweep 1460–1620 nm). An instrument reports only
+  peaks it found, so a value outside that range is not a bad peak but bytes that are not a wavelength: the
+  frame is refused as a framing error. That is also how lost framing shows: half a frame followed by a good
+  one makes the decoder read the good frame's headers as wavelengths (denormals such as 3.9e-305 nm).
 - The reserved byte of both headers must be 0 and a timestamp's nanoseconds must be below 1e9: on a binary
-  stream without a sync marker those checks are the only way to notice lost framing.
+  stream without a sync marker those checks and the wavelength range are the only way to notice lost framing.
+- A connection that closes inside a frame is one framing error (:meth:`ResponseDecoder.finish`), as on the
+  ILLumiSense stream: one meaning per counter across drivers.
 
 **Resynchronisation**: none is attempted. A binary TCP stream without a sync marker cannot be re-entered
 reliably, so the stream decoders count the first bad header or content, set ``failed`` and raise
@@ -80,9 +87,11 @@ _PEAK_HEADER = struct.Struct("<HHIQII")
 HEADER_SIZE = _HEADER.size  # 8
 PEAK_HEADER_SIZE = _PEAK_HEADER.size  # 24
 DEFAULT_MAX_ARGUMENT = 1 << 20
+DEFAULT_MAX_COMMAND = 0xFFFF  # the u16 field's own limit
 DEFAULT_MAX_CONTENT = 1 << 24  # a full-spectrum response of 16 channels × 40k points is ~1.3 MB; ample room
+#: wavelengths a peak may have, nm (the range :class:`twin.fiber.FiberModel` accepts for λ0)
+WAVELENGTH_RANGE = (200.0, 3000.0)
 _MISSING = np.uint8(PeakStatus.MISSING)
-_INVALID = np.uint8(PeakStatus.INVALID_VALUE)
 
 
 def _ascii(data: bytes, what: str, offset: int) -> str:
@@ -128,7 +137,8 @@ def encode_request(command: str, argument: str = "", *, options: int = 0) -> byt
     return _HEADER.pack(options, 0, len(cmd), len(arg)) + cmd + arg
 
 
-def _request_header(data: bytes, offset: int, max_argument: int) -> tuple[int, int, int]:
+def _request_header(data: bytes, offset: int, max_argument: int,
+                    max_command: int = DEFAULT_MAX_COMMAND) -> tuple[int, int, int]:
     options, zero, n_cmd, n_arg = _HEADER.unpack_from(data, 0)
     if zero != 0:
         raise FramingError(
@@ -141,6 +151,13 @@ def _request_header(data: bytes, offset: int, max_argument: int) -> tuple[int, i
             expected="a command length > 0",
             protocol=PROTOCOL,
         )
+    if n_cmd > max_command:
+        raise OversizeFrameError(
+            f"command length {n_cmd}",
+            offset=offset + 2,
+            expected=f"at most {max_command} bytes",
+            protocol=PROTOCOL,
+        )
     if n_arg > max_argument:
         raise OversizeFrameError(
             f"argument length {n_arg}",
@@ -151,14 +168,15 @@ def _request_header(data: bytes, offset: int, max_argument: int) -> tuple[int, i
     return options, n_cmd, n_arg
 
 
-def decode_request(data: bytes, *, max_argument: int = DEFAULT_MAX_ARGUMENT) -> Request:
+def decode_request(data: bytes, *, max_argument: int = DEFAULT_MAX_ARGUMENT,
+                   max_command: int = DEFAULT_MAX_COMMAND) -> Request:
     """Decode exactly one request; FramingError unless ``data`` is exactly one well-formed request."""
     data = bytes(data)
     if len(data) < HEADER_SIZE:
         raise TruncatedFrameError(
             f"request of {len(data)} bytes", offset=len(data), expected="an 8-byte header", protocol=PROTOCOL
         )
-    options, n_cmd, n_arg = _request_header(data, 0, max_argument)
+    options, n_cmd, n_arg = _request_header(data, 0, max_argument, max_command)
     total = HEADER_SIZE + n_cmd + n_arg
     if len(data) != total:
         cls = TruncatedFrameError if len(data) < total else OversizeFrameError
@@ -306,8 +324,28 @@ class _Incremental:
         self._base += pos
         return out
 
+    def finish(self) -> None:
+        """Declare the end of the stream (the connection closed): bytes of an incomplete message left over are
+        one framing error (nothing is counted when the decoder had already failed or holds nothing)."""
+        left = len(self._buf)
+        if left and not self.failed:
+            self._fail(
+                TruncatedFrameError(
+                    f"stream ended inside a message ({left} bytes pending)",
+                    offset=self._base + left,
+                    expected="a complete message",
+                    protocol=PROTOCOL,
+                )
+            )
+            self._deferred = None  # nothing more will be fed; the count is what remains
+        self._base += left
+        self._buf.clear()
+
     def _fail(self, err: FramingError) -> None:
-        self.framing_errors += 1
+        # one loss of sync is one error: a frame found bad after the splitter already failed further on in the
+        # same bytes (it comes first in the stream) replaces that error instead of adding one
+        if not self.failed:
+            self.framing_errors += 1
         self.last_error = err
         self.failed = True
         self._deferred = err
@@ -337,18 +375,21 @@ class RequestDecoder(_Incremental):
     """Server side of port 51971: split the incoming bytes into :class:`Request` objects.
 
     Raises :class:`FramingError` (and stays failed until :meth:`reset`) on a bad header: close the connection.
+    A header announcing more than ``max_command`` / ``max_argument`` bytes is refused before they are buffered,
+    so a partial request never holds more than 8 + ``max_command`` + ``max_argument`` bytes.
     """
 
-    def __init__(self, *, max_argument: int = DEFAULT_MAX_ARGUMENT) -> None:
+    def __init__(self, *, max_argument: int = DEFAULT_MAX_ARGUMENT, max_command: int = DEFAULT_MAX_COMMAND) -> None:
         super().__init__()
         self.max_argument = max_argument
+        self.max_command = max_command
 
     def feed(self, data: bytes) -> list[Request]:
         """Consume bytes; return the complete requests among them."""
         return self._feed(
             data,
-            lambda head, offset: sum(_request_header(head, offset, self.max_argument)[1:]),
-            lambda message: decode_request(message, max_argument=self.max_argument),
+            lambda head, offset: sum(_request_header(head, offset, self.max_argument, self.max_command)[1:]),
+            lambda message: decode_request(message, max_argument=self.max_argument, max_command=self.max_command),
         )
 
 
@@ -510,7 +551,8 @@ def decode_peaks(content: bytes, *, n_gratings: int | None = None, max_channels:
     Raises
     ------
     FramingError
-        Inconsistent header, counts or length; a channel with more peaks than ``n_gratings``.
+        Inconsistent header, counts or length; a channel with more peaks than ``n_gratings``; a wavelength that
+        is not finite or outside :data:`WAVELENGTH_RANGE` (the bytes are not peak data).
     """
     if n_gratings is not None and n_gratings < 0:
         raise ValueError(f"n_gratings: expected >= 0, got {n_gratings}")
@@ -527,15 +569,22 @@ def decode_peaks(content: bytes, *, n_gratings: int | None = None, max_channels:
             protocol=PROTOCOL,
         )
     values = np.frombuffer(content, dtype="<f8", offset=h.header_length)
+    lo, hi = WAVELENGTH_RANGE
+    bad = ~((values >= lo) & (values <= hi))  # NaN too
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise FramingError(
+            f"peak {i} of the frame is {values[i]!r} nm",
+            offset=h.header_length + 8 * i,
+            expected=f"a wavelength in {lo:g}–{hi:g} nm (the whole frame is refused: lost framing or corrupt data)",
+            protocol=PROTOCOL,
+        )
     lam = np.full((n_ch, g), np.nan)
     # row of each value = its channel, column = its index within the channel; one scatter, no loop
     ch = np.repeat(np.arange(n_ch), counts)
     col = np.arange(values.size) - np.repeat(np.cumsum(counts) - counts, counts)
     lam[ch, col] = values
     st = np.where(np.arange(g)[None, :] < counts[:, None], np.uint8(0), _MISSING).astype(np.uint8)
-    bad = ~(np.isfinite(lam) & (lam > 0)) & (st == 0)
-    st[bad] |= _INVALID
-    lam[bad] = np.nan
     return Frame(
         wavelengths=np.ascontiguousarray(lam.T),
         timestamp=h.timestamp,
@@ -671,7 +720,8 @@ def respond(request: Request, state: InstrumentState, *, frame: Frame | None = N
         return encode_response(np.asarray(s.available_scan_speeds, dtype="<i4").tobytes())
     if cmd == "#setlaserscanspeed":
         arg = request.argument.strip()
-        if not (arg.isascii() and arg.isdigit()) or int(arg) not in s.available_scan_speeds:
+        # bounded before int(): Python refuses to convert more than 4300 digits (and a speed has at most 6)
+        if not (len(arg) <= 9 and arg.isascii() and arg.isdigit()) or int(arg) not in s.available_scan_speeds:
             return encode_response(message=f"Invalid laser scan speed {arg[:20]!r}", status=2)
         s.laser_scan_speed = int(arg)
         return encode_response(message=f"Laser scan speed set to {s.laser_scan_speed} Hz")

@@ -2,7 +2,8 @@
 and replay.
 
 A forward jump is a gap of lost samples; a backward or repeated number is a reset (a restarted acquisition), not
-loss; a negative number means "unknown" and is skipped (it neither counts nor moves the reference).
+loss; a negative number means "unknown" and is skipped (it neither counts nor moves the reference), and so is a
+number beyond int64.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ class SequenceCounter:
 
     def count(self, sequence: int) -> int:
         """Count one sample number; return how many samples were lost just before it."""
-        return int(self.count_many(np.array([sequence], dtype=np.int64))[0])
+        return int(self.count_many([sequence])[0])
 
     def count_many(self, sequences) -> np.ndarray:
         """Count a batch of sample numbers in order; return, per number, the samples lost just before it.
@@ -44,7 +45,13 @@ class SequenceCounter:
         ndarray of int64, shape (n,)
             0 for a number that follows its predecessor, for a reset and for an unknown (negative) number.
         """
-        seq = np.asarray(sequences, dtype=np.int64).reshape(-1)
+        try:
+            seq = np.asarray(sequences, dtype=np.int64).reshape(-1)
+        except OverflowError:
+            # a number beyond int64 (a u64 serial number of 2**63 or more: 29 million years at 10 kHz) is
+            # corrupt, not a count: unknown
+            seq = np.array([s if -(2**63) <= s < 2**63 else -1 for s in np.asarray(sequences, dtype=object).ravel()],
+                           dtype=np.int64)
         lost = np.zeros(seq.shape, dtype=np.int64)
         known = np.flatnonzero(seq >= 0)
         if known.size == 0:
