@@ -21,8 +21,8 @@ from collections import OrderedDict
 
 import numpy as np
 
-from scenarios.factory import identify_in_twin, two_step_in_twin
-from sim_interrogator.optics import OpticsConfig
+from scenarios._common.calibration import calibration_for
+from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.servers.illumisense import IllumisenseServer
 from sim_interrogator.source import open_sim
 from twin import FiberModel, Frame, Reconstructor, jsonout, metrics
@@ -147,12 +147,12 @@ def run(args: argparse.Namespace) -> int:
     fiber = FiberModel.paper()
     mujoco_warnings = _quiet_mujoco()
     t_start = time.monotonic()
-    _say("1/3 calibrating the simulated fibre: two-step calibration (straight, bend) …")
-    cal, _, true = two_step_in_twin(fiber, OpticsConfig(seed=11), frames=60)
-    _say("    identification of Δθ and g = r·S_ε on six shapes …")
-    ident = identify_in_twin(fiber, cal, repeats=3, progress=None)
-    cal = ident.calibration(cal)
-    _say(f"    Δθ = {ident.delta_theta:.4f} rad (true {true['delta_theta']:.4f}), g = {ident.gain * 1e6:.3f} µm "
+    _say("1/3 calibrating the simulated fibre as a lab would: two-step calibration (straight, bend), then Δθ and "
+         "g = r·S_ε identified against the fixtures' geometry on six shapes (cached after the first run) …")
+    used = calibration_for("lab", OpticsConfig(), fiber, progress=lambda msg: _say(f"    {msg}"))
+    cal = used.calibration
+    true = Optics(fiber, OpticsConfig()).describe()
+    _say(f"    Δθ = {cal.delta_theta:.4f} rad (true {true['delta_theta']:.4f}), g = {cal.gain * 1e6:.3f} µm "
          f"(true {true['gain_m'] * 1e6:.3f})")
 
     url = args.scenario or DEFAULT_SCENARIO
@@ -182,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         server.close()
     print(file=sys.stderr)
-    result = _result(errors, summary, fiber, cal, url, time.monotonic() - t_start, ident, true)
+    result = _result(errors, summary, fiber, cal, url, time.monotonic() - t_start, true)
     result["mujoco_warnings"] = len(mujoco_warnings)
     if args.json:
         print(jsonout.dumps(result, indent=2))
@@ -195,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _result(errors: ErrorSink, summary, fiber, cal, url, wall, ident, true) -> dict:
+def _result(errors: ErrorSink, summary, fiber, cal, url, wall, true) -> dict:
     st = summary.status
     out = {
         "scenario": url,
@@ -205,7 +205,8 @@ def _result(errors: ErrorSink, summary, fiber, cal, url, wall, ident, true) -> d
         "framing_errors": st.framing_errors,
         "frames_partial": st.frames_partial,
         "frames_per_s": round(summary.frames_per_s, 1),
-        "identified": {"delta_theta": ident.delta_theta, "g_um": ident.gain * 1e6},
+        "calibration": "lab (two-step in the twin, Δθ and g identified against the fixtures' geometry)",
+        "identified": {"delta_theta": cal.delta_theta, "g_um": cal.gain * 1e6},
         "true": {"delta_theta": true["delta_theta"], "g_um": true["gain_m"] * 1e6},
         "frames_compared": len(errors.max),
     }

@@ -28,10 +28,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from scenarios._common import entry
-from scenarios._common.calibration import fixture_observation
+from scenarios._common.calibration import fixture_observation, two_step_in_twin
 from scenarios._common.entry import option
 from scenarios._common.static import fixture_for, measure
-from scenarios.factory import two_step_in_twin
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator

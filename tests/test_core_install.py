@@ -5,6 +5,7 @@ of an ILLumiSense log written here by hand, `twin jig-validate` on the real AMIR
 command that needs the simulator names the extra in one line (exit status 2).
 """
 
+import shutil
 import subprocess
 import venv
 from pathlib import Path
@@ -20,10 +21,15 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def core(tmp_path_factory):
-    env_dir = tmp_path_factory.mktemp("core") / "venv"
+    base = tmp_path_factory.mktemp("core")
+    # a copy, so that the build leaves nothing in the checkout
+    src = base / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".venv", ".git", "build", "*.egg-info", "__pycache__",
+                                                             ".pytest_cache", ".ruff_cache", "tests"))
+    env_dir = base / "venv"
     venv.create(env_dir, with_pip=True)
     py = env_dir / "bin" / "python"
-    out = subprocess.run([str(py), "-m", "pip", "install", "--quiet", str(ROOT)], capture_output=True, text=True,
+    out = subprocess.run([str(py), "-m", "pip", "install", "--quiet", str(src)], capture_output=True, text=True,
                          timeout=900)
     assert out.returncode == 0, out.stderr[-3000:]
     return env_dir / "bin"

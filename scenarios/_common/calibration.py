@@ -36,9 +36,11 @@ from pathlib import Path
 import numpy as np
 
 from sim_interrogator.optics import Optics, OpticsConfig
-from sim_interrogator.setups import StaticShape
+from sim_interrogator.setups import CalibrationPoses, StaticShape
 from sim_interrogator.sim import SimInterrogator
 from twin import Calibration, FiberModel, shapes
+from twin.calibration import CalibrationReport
+from twin.calibration import two_step as calibration_two_step
 from twin.calibration.identify import Observation, identify
 
 __all__ = ["CALIBRATIONS", "LAB_SHAPES", "UsedCalibration", "cache_dir", "calibration_for", "check_calibration",
@@ -153,10 +155,20 @@ def cache_dir() -> Path:
     return Path(os.environ.get("TWIN_CACHE_DIR") or Path.home() / ".cache" / "catheter-twin")
 
 
+def two_step_in_twin(fiber: FiberModel, optics: OpticsConfig | None = None, frames: int = 100,
+                     ) -> tuple[Calibration, CalibrationReport, dict]:
+    """The two-step calibration in ``sim://calibration`` (straight, then the in-plane bend), the twin taking each
+    pose; returns (calibration, report, the true parameters)."""
+    sim = SimInterrogator(CalibrationPoses(), fiber, optics or OpticsConfig(), truth=False)
+    straight = np.stack([sim.read().wavelengths for _ in range(frames)])
+    sim.set_pose("bend")
+    bend = np.stack([sim.read().wavelengths for _ in range(frames)])
+    cal, report = calibration_two_step(fiber, straight, bend)
+    return cal.replace(provenance={**cal.provenance, "source": "sim://calibration"}), report, sim.describe()
+
+
 def two_step(fiber: FiberModel, optics: OpticsConfig, frames: int = 100) -> Calibration:
     """The two-step calibration in ``sim://calibration`` with the lab session's noise seed."""
-    from scenarios.factory import two_step_in_twin
-
     return two_step_in_twin(fiber, optics.replace(seed=_LAB_SEED), frames)[0]
 
 
