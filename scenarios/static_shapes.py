@@ -24,9 +24,9 @@ noise, drift, quantisation and the grating length; ``lambda0`` its as-built λ0 
 only; a path loads a calibration TOML. ``--json`` says which (``calibration``).
 
 ``--record DIR`` writes, per shape, the frames (``DIR/SHAPE.h5``, a twin recording) and the ground truth
-(``DIR/SHAPE_truth.csv``, arc length and points in m; ``--record-truth rod``: the catheter's own centreline,
-as a CT would give it; ``fixture``: the tube's or groove's centreline, as a mould's CAD model would): the
-inputs of ``twin identify``.
+(``DIR/SHAPE_truth.csv``, arc length and points in m; by default the tube's or groove's centreline, as a mould's
+CAD model gives it to a lab; ``--record-truth rod``: the catheter's own centreline, which no lab has): the inputs
+of ``twin identify``.
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ class Params:
     seed: int = field(default=0, metadata=option("noise seed"))
     record: str | None = field(default=None, metadata=option(
         "write each shape's frames and truth (twin identify's inputs) to this directory", metavar="DIR"))
-    record_truth: str = field(default="rod", metadata=option(
+    record_truth: str = field(default="fixture", metadata=option(
         "truth written by --record: the catheter's centreline or the fixture's", choices=("rod", "fixture")))
 
 
