@@ -165,7 +165,7 @@ class RodState:
 
     @property
     def curvature(self) -> np.ndarray:
-        """(k_x, k_y) = (κ2, −κ1) at the interior vertices, 1/m, shape (n_vertices − 2, 2) (math.md §1)."""
+        """(k_x, k_y) = (κ2, −κ1) at the interior vertices, 1/m, shape (n_vertices − 2, 2) (docs/math.md §1)."""
         return np.stack([self.darboux[:, 1], -self.darboux[:, 0]], axis=-1)
 
     @property

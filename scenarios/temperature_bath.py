@@ -6,7 +6,7 @@ constraints by default, or a 3 mm tube) while the bath follows a Newton cooling 
 (:mod:`sim_interrogator.thermal`; λ0 is referenced to room temperature, so the fibre sees ΔT = T − 22 °C, from
 38 K down to 8 K). The temperature affects only the optics: each core shifts by S_T,i·ΔT·λ0 (≈ 0.3 nm over the
 30 K at 1550 nm), a common mode that the central core removes; what leaks into the curvature comes from the per-core
-S_T mismatch (``OpticsConfig.thermal_mismatch``, default 0.3 %, math.md §6). The experiment therefore runs the
+S_T mismatch (``OpticsConfig.thermal_mismatch``, default 0.3 %, docs/math.md §6). The experiment therefore runs the
 same bath twice, with the default mismatch and with none, otherwise identical (same fibre, same noise and drift
 sequence, same static rod), so that their difference isolates the mismatch's effect.
 
@@ -14,7 +14,7 @@ Metrics (per run and pipeline; reconstructions in the fibre's base frame, which 
 no registration is needed or done):
 
 * the interrogator runs at ``--rate`` and its wavelengths are averaged over ``--average`` s windows (as one
-  averages a held reading; 1 pm of white noise alone would move the tip ≈ 0.1 mm per frame, math.md §6);
+  averages a held reading; 1 pm of white noise alone would move the tip ≈ 0.1 mm per frame, docs/math.md §6);
 * ``tip_variation_mm`` — the headline, compared with the paper's 0.29 mm: the largest distance of the (window)
   tip from its mean position over the run; ``tip_range_mm`` the largest distance between any two tip positions
   (max − min); ``tip_change_mm`` the distance from the first window's tip to the last one's (60 → 30 °C);

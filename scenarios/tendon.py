@@ -33,7 +33,7 @@ Two things the run shows beyond the paper's number:
 * the paper's pipeline reconstructs the *shape* as well (Kabsch error ≈ 0.44 mm) but places the steered section
   in the wrong bend plane — 9° off in the median, up to 170° — because its bend-plane angle θ_b = atan2(k_y, k_x)
   is undefined along the straight shaft (|k| is noise there) and its forward-difference torsion carries that
-  noise into the section (math.md §3.2, §3.6): with the true base pose its tip is off by up to ≈ 17 mm.
+  noise into the section (docs/math.md §3.2, §3.6): with the true base pose its tip is off by up to ≈ 17 mm.
 
 Calibration: ``true`` (default: the twin's true fibre parameters), ``lambda0`` (as-built λ0 only), ``nominal`` or
 a calibration TOML. ``--report DIR`` writes DIR/report.md with trajectory, deviation, curvature and load plots.

@@ -59,7 +59,7 @@ class OpticsConfig:
         Intrinsic twist: linear part reaching ``twist_total`` at the sensed length, and the amplitude of a
         sinusoid with one period over it, rad.
     thermal_mismatch : float
-        Relative std of the per-core S_T (0.3 % reproduces the paper's 0.29 mm over 30 K, simulation.md §6).
+        Relative std of the per-core S_T (0.3 % reproduces the paper's 0.29 mm over 30 K, docs/simulation.md §6).
     temperature : float
         Uniform temperature change, K, used when a call passes none.
     fiber_offset : float

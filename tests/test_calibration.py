@@ -1,4 +1,4 @@
-"""The two-step calibration (math.md §4.2): reference wavelengths, intrinsic twist, guard rails, files."""
+"""The two-step calibration (docs/math.md §4.2): reference wavelengths, intrinsic twist, guard rails, files."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,7 @@ from twin.calibration import nominal_gain, scaled_core_angles, two_step
 
 FIBRE = FiberModel.paper()
 S = FIBRE.grating_s
-PHI = np.deg2rad(25.0) * S / 0.17 + np.deg2rad(8.0) * np.sin(2 * np.pi * S / 0.17)  # math.md §4.2's twist
+PHI = np.deg2rad(25.0) * S / 0.17 + np.deg2rad(8.0) * np.sin(2 * np.pi * S / 0.17)  # docs/math.md §4.2's twist
 SPREAD = np.random.default_rng(7).normal(scale=0.3, size=(18, 4))  # as-built λ0 offsets, nm
 
 
@@ -31,7 +31,7 @@ def test_recovers_reference_and_twist_exactly_without_noise():
 
 
 def test_compensation_restores_accuracy_on_a_3d_shape():
-    """Uncompensated, 25°+8° of twist costs millimetres (math.md §4.1); compensated, the error is that of an
+    """Uncompensated, 25°+8° of twist costs millimetres (docs/math.md §4.1); compensated, the error is that of an
     untwisted fibre (≤ 0.05 mm noise-free)."""
     cal = Calibration.from_frames(FIBRE, pose(np.zeros((18, 2))), pose(arc()))
     c = shapes.get("mixed")
@@ -40,14 +40,14 @@ def test_compensation_restores_accuracy_on_a_3d_shape():
     raw = Reconstructor(FIBRE, Calibration(lambda0=cal.lambda0))(w)
     fixed = Reconstructor(FIBRE, cal)(w)
     assert np.linalg.norm(raw.positions - exact, axis=1).max() > 2e-3
-    # the remaining global roll is the twist at grating 0 (math.md §4.2): undo it before comparing
+    # the remaining global roll is the twist at grating 0 (docs/math.md §4.2): undo it before comparing
     c0, s0 = np.cos(PHI[0]), np.sin(PHI[0])
     rot = np.array([[c0, -s0, 0], [s0, c0, 0], [0, 0, 1]])
     assert np.linalg.norm(fixed.positions @ rot.T - exact, axis=1).max() < 0.05e-3
 
 
 def test_averaged_noisy_calibration_and_reported_noise():
-    """1 pm noise, 100 frames at κ_cal = 16 1/m: angle noise ≈ σ_k/κ/√100 ≈ 2e-4 rad (math.md §4.2, §6)."""
+    """1 pm noise, 100 frames at κ_cal = 16 1/m: angle noise ≈ σ_k/κ/√100 ≈ 2e-4 rad (docs/math.md §4.2, §6)."""
     cal, rep = two_step(FIBRE, pose(np.zeros((18, 2)), n=100, noise=1e-3, seed=1),
                         pose(arc(), n=100, noise=1e-3, seed=2))
     err = np.abs(cal.twist - (PHI - PHI[0]))

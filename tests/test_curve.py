@@ -1,4 +1,4 @@
-"""Integrators and interpolants (math.md §3): HEM closed form, limits, convergence orders, planarity."""
+"""Integrators and interpolants (docs/math.md §3): HEM closed form, limits, convergence orders, planarity."""
 
 import numpy as np
 import pytest
@@ -13,10 +13,10 @@ def hat(w):
 
 
 def hem_closed_form(kappa, tau, h):
-    """math.md §3.3 written out: (R_step, Δp) in the Frenet body frame."""
+    """docs/math.md §3.3 written out: (R_step, Δp) in the Frenet body frame."""
     w = np.hypot(kappa, tau)
     th = w * h
-    if th < 1e-3:  # the series of math.md §3.3 (the quotients cancel catastrophically there)
+    if th < 1e-3:  # the series of docs/math.md §3.3 (the quotients cancel catastrophically there)
         a, b, c_ = 1 - th**2 / 6 + th**4 / 120, 0.5 - th**2 / 24 + th**4 / 720, 1 / 6 - th**2 / 120 + th**4 / 5040
     else:
         a, b, c_ = np.sin(th) / th, (1 - np.cos(th)) / th**2, (th - np.sin(th)) / th**3
@@ -74,7 +74,7 @@ def test_helix_full_turn_returns_identity_and_advances_the_pitch():
     np.testing.assert_allclose(p, pitch * np.array([tau, 0, kappa]) / np.sqrt(w2), atol=1e-15)
 
 
-# ------------------------------------------------------------------ convergence orders (math.md §3.4)
+# ------------------------------------------------------------------ convergence orders (docs/math.md §3.4)
 L = 0.17
 
 
@@ -112,14 +112,14 @@ def reference_tip():
     ("rk4", 4, (5e-3, 2.5e-3, 1.25e-3)),
 ])
 def test_observed_convergence_order(integrator, order, hs, reference_tip):
-    """log2 of successive error ratios within ±0.1 of the order (math.md §7), on the §3.4 varying curve."""
+    """log2 of successive error ratios within ±0.1 of the order (docs/math.md §7.8), on the §3.4 varying curve."""
     errs = [np.linalg.norm(frenet_tip(h, integrator) - reference_tip) for h in hs]
     observed = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
     assert np.all(np.abs(observed - order) < 0.1), (errs, observed)
 
 
 def test_tip_errors_match_the_table(reference_tip):
-    """math.md §3.4 at h = 1.25 mm: HEM-left 4.79 mm, HEM-mid 0.033 mm, Magnus-4 4.0e-5 mm, RK4 2.5e-3 mm. Our
+    """docs/math.md §3.4 at h = 1.25 mm: HEM-left 4.79 mm, HEM-mid 0.033 mm, Magnus-4 4.0e-5 mm, RK4 2.5e-3 mm. Our
     κ(s) is the same profile in 1/m; agreement to ~5 % shows the same curve and schemes."""
     table = {"hem-left": 4.79e-3, "hem-mid": 3.3e-5, "magnus4": 4.0e-8, "rk4": 2.5e-6}
     for integrator, expected in table.items():
@@ -137,7 +137,7 @@ def test_frames_stay_orthonormal():
 
 
 def test_planar_material_curve_stays_planar():
-    """k_y ≡ 0 keeps the curve exactly in the x–z plane (|y| < 1e-12 m, math.md §7)."""
+    """k_y ≡ 0 keeps the curve exactly in the x–z plane (|y| < 1e-12 m, docs/math.md §7.8)."""
     s, h = curve.step_grid(0, L, 1e-3)
     smp = curve.sample_points(s, h, "magnus4")
     kx = 45 * np.sin(2 * np.pi * smp / L + 0.3)

@@ -69,7 +69,7 @@ def test_synthetic_frames_do_not_depend_on_pacing_and_match_their_truth():
     assert [f.sequence for f in a] == list(range(300)) == [f.sequence for f in b]
     np.testing.assert_array_equal(np.stack([f.wavelengths for f in a]), np.stack([f.wavelengths for f in b]))
     # the analytic arc is what the forward model's inverse reconstructs: constant curvature is reproduced by
-    # the spline exactly, so only the Magnus-4 step error remains (≪ 1 µm at 1 mm steps, math.md §3.4)
+    # the spline exactly, so only the Magnus-4 step error remains (≪ 1 µm at 1 mm steps, docs/math.md §3.4)
     shapes = Reconstructor(fast.fiber)(b)
     truth = np.stack([f.truth.positions for f in b])
     assert np.abs(shapes.positions - truth).max() < 1e-6

@@ -46,7 +46,7 @@ def server():
 @pytest.fixture
 def client_class():
     """The client with raw wavelengths (its default ``on_boradCalc`` must be switched off before construction,
-    protocols.md §2); the class default is restored afterwards."""
+    docs/protocols.md §2.3); the class default is restored afterwards."""
     old = fbg.FBGcom._default_value.on_boradCalc
     fbg.FBGcom._default_value.on_boradCalc = False
     yield fbg.FBGcom

@@ -1,4 +1,4 @@
-"""Parameter identification (math.md §5): recovers known [Δθ, g], the r–S_ε degeneracy, uncertainties."""
+"""Parameter identification (docs/math.md §5): recovers known [Δθ, g], the r–S_ε degeneracy, uncertainties."""
 
 import numpy as np
 import pytest
@@ -9,7 +9,7 @@ from twin.calibration import scaled_core_angles
 from twin.calibration.identify import Observation, identify, paper_cost, parameter_jacobian
 
 NOMINAL = FiberModel.paper()
-# The paper's identified fibre (math.md §5.3): Δθ = 1.039 rad, r = 38.0 µm, S_ε = 0.737 → g = 28.006 µm
+# The paper's identified fibre (docs/math.md §5.3): Δθ = 1.039 rad, r = 38.0 µm, S_ε = 0.737 → g = 28.006 µm
 TRUE = NOMINAL.replace(core_angles=scaled_core_angles(NOMINAL, 1.039), core_radii=[0, 38e-6, 38e-6, 38e-6],
                        strain_sensitivity=0.737)
 G_TRUE = 38e-6 * 0.737
@@ -40,7 +40,7 @@ def six():
 
 
 def test_recovers_delta_theta_and_gain(six):
-    """1 pm noise, 20 frames per shape: Δθ within 0.002 rad and g within 0.2 % (math.md §5.3 row D reached
+    """1 pm noise, 20 frames per shape: Δθ within 0.002 rad and g within 0.2 % (docs/math.md §5.3 row D reached
     1e-4 rad and 0.02 %), and the reported 1σ covers the error at 3σ."""
     res = identify(NOMINAL, six)
     assert abs(res.delta_theta - 1.039) < 0.002
@@ -56,12 +56,12 @@ def test_recovers_delta_theta_and_gain(six):
 def test_identified_parameters_cut_the_papers_metric(six):
     before = paper_cost(NOMINAL, six)
     after = paper_cost(NOMINAL, six, identify(NOMINAL, six, jackknife=False).calibration())
-    assert before.max() > 1e-3  # a 3.9 % gain error and 8 mrad of Δθ: millimetres (math.md §5.4)
+    assert before.max() > 1e-3  # a 3.9 % gain error and 8 mrad of Δθ: millimetres (docs/math.md §5.4)
     assert after.max() < 0.05e-3
 
 
 def test_r_and_strain_sensitivity_columns_coincide(six):
-    """The Jacobian columns w.r.t. ln r and ln S_ε are identical (math.md §0 item 2): only g = r·S_ε matters."""
+    """The Jacobian columns w.r.t. ln r and ln S_ε are identical (docs/math.md §0 item 2): only g = r·S_ε matters."""
     jac = parameter_jacobian(NOMINAL, six[3:], 1.047, 37.5e-6, 0.777)
     scale = np.linalg.norm(jac[:, 1])
     assert scale > 1e-3
@@ -85,7 +85,7 @@ def test_without_arc_lengths_uses_point_to_curve_distances():
 
 
 def test_planar_shapes_identify_delta_theta_poorly():
-    """From planar shapes Δθ is only weakly identifiable (math.md §5.1): its uncertainty is much larger."""
+    """From planar shapes Δθ is only weakly identifiable (docs/math.md §5.1): its uncertainty is much larger."""
     planar = identify(NOMINAL, observations(["arc", "s-curve", "hook"]))
     spatial = identify(NOMINAL, observations(["helix", "mixed", "two-plane"]))
     assert planar.delta_theta_std > 3 * spatial.delta_theta_std

@@ -187,7 +187,7 @@ def test_physical_fit_finds_the_as_built_sensor(twin_jig):
 
 
 def test_common_mode_is_an_unknown_not_the_mean_over_fibres():
-    """math.md §2.3: without a central core the common mode c is a third unknown of the least squares. The mean
+    """docs/math.md §2.3: without a central core the common mode c is a third unknown of the least squares. The mean
     over fibres is c − mean_i(g_i u_i)·k: it carries bending as soon as the fibres are not exactly symmetric.
     Fibres at 0°, 109°, 246° with radii 0.33/0.37/0.35 mm bent at 2.2 1/m: the mean reads the common mode 29 µε
     low (a 4.3 K temperature error), and the curvature solved from strains minus that mean (with the true
@@ -308,7 +308,7 @@ def test_gratings_outside_the_groove_are_reported_and_left_nominal():
 
 
 def test_reversed_orientation_sense_is_flagged():
-    """ψ counted clockwise makes the fit a mirror image of the sensor (math.md §1's handedness trap): the fit
+    """ψ counted clockwise makes the fit a mirror image of the sensor (docs/math.md §1's handedness trap): the fit
     says so."""
     poses = synthetic_poses(exact_truth(), roll=0.5)
     flipped = JigPoses(-poses.orientation, poses.curvature, poses.wavelengths)

@@ -2,7 +2,7 @@
 
 Tolerances and where they come from:
 
-* pure torsion: τ = T/GJ to 1e-7 relative (simulation.md §1). The floor is the constraint solver's tolerance
+* pure torsion: τ = T/GJ to 1e-7 relative (docs/simulation.md §1). The floor is the constraint solver's tolerance
   (MuJoCo's default 1e-8 leaves 4e-6 of noise, 1e-12 leaves 6e-10), so the test runs at 1e-12.
 * cantilever tip load: κ(s) = F·(z_tip − z(s))/EI with the deformed lever arm to 1e-4 (measured 2e-5), and the
   small-deflection F (L − s)/EI to 1 % at a load whose geometric nonlinearity is 0.1 %.
@@ -220,7 +220,7 @@ def test_helix_by_connect_constant_curvature_no_twist():
     state = RodReader(model).read(data)
     inner = _away_from_ends(state, spec)
     kappa = np.linalg.norm(state.curvature[inner], axis=1)
-    assert np.abs(kappa / 40.0 - 1).max() < 1e-3  # simulation.md §1: 25.002 vs 25.000 on its helix
+    assert np.abs(kappa / 40.0 - 1).max() < 1e-3  # docs/simulation.md §1: 2.9e-4 at 100 segments
     assert np.abs(state.twist[inner]).max() < 1e-5  # rad/m: free end, no torque → no material twist
     assert fx.errors(state).max() < 5e-5
 
@@ -396,7 +396,7 @@ def test_tube_keeps_rod_within_clearance():
     # Within the worst-direction clearance (between two rails, 180 µm) + soft-contact penetration (≤ 20 µm).
     assert off.max() < tube.max_clearance + 20e-6
     assert off.mean() > 0.3 * tube.clearance  # it does press against the walls (a stiff rod cuts corners)
-    # The rod's own curvature is close to, not equal to, the tube's (simulation.md §3: it cuts corners).
+    # The rod's own curvature is close to, not equal to, the tube's (docs/simulation.md §3: it cuts corners).
     g = np.linspace(0.0, 0.17, 18)
     diff = np.linalg.norm(state.curvature_at(g) - shape.curvature(g), axis=1)
     assert 0.05 < np.sqrt(np.mean(diff**2)) < 5.0

@@ -41,7 +41,7 @@ def test_default_mode_noise_free_within_0_05_mm(default, name):
 
 
 def test_default_mode_with_1pm_noise(default):
-    """Issue acceptance: mean over the 12 shapes of the max error ≤ 0.2 mm with 1 pm wavelength noise. math.md
+    """Issue acceptance: mean over the 12 shapes of the max error ≤ 0.2 mm with 1 pm wavelength noise. docs/math.md
     §6 predicts ≈ 0.1 mm tip noise per axis, so ~0.1 mm is expected; 20 noisy frames per shape."""
     per_shape = [max_error(default(synthetic(c, noise=1e-3, n=20, seed=i)), c).mean()
                  for i, c in enumerate(shapes.library())]
@@ -51,7 +51,7 @@ def test_default_mode_with_1pm_noise(default):
 
 def test_paper_mode_errors_are_the_papers_kind(default):
     """The paper pipeline is exact on an arc and a helix (constant κ, τ) but loses millimetres where torsion
-    varies or the bend passes an inflection (math.md §3.2, §3.6), which the default mode does not."""
+    varies or the bend passes an inflection (docs/math.md §3.2, §3.6), which the default mode does not."""
     paper = Reconstructor.paper(FIBRE)
     for name in ("arc", "helix"):
         c = shapes.get(name)
@@ -72,7 +72,7 @@ def test_better_torsion_schemes_beat_the_papers():
 
 def test_helix_handedness_is_not_mirrored():
     """A right-handed helix reconstructs right-handed; describing the same cores clockwise with handedness −1
-    gives the identical result; getting the handedness wrong mirrors the shape (math.md §1 handedness trap)."""
+    gives the identical result; getting the handedness wrong mirrors the shape (docs/math.md §1 handedness trap)."""
     c = shapes.get("helix")
     w = synthetic(c)
     good = Reconstructor(FIBRE)(w)

@@ -77,7 +77,7 @@ def test_sheath_url_and_settling():
 
 
 ROTATION_NOISE_MM = 0.15
-"""The interrogator's noise (1 pm → ≈ 0.1 mm tip std, math.md §6), averaged over a 0.5 s window of 10 frames, plus
+"""The interrogator's noise (1 pm → ≈ 0.1 mm tip std, docs/math.md §6), averaged over a 0.5 s window of 10 frames, plus
 the drift (0.2 pm/√s): what is left of the tip deviation without mechanical twist."""
 
 
@@ -103,7 +103,7 @@ def test_rotation_reduced():
     # servo error below 0.1° (0.17 mm over the sensed length)
     assert s["commanded_max_deviation_mm"] <= s["max_deviation_mm"] + 0.17
     # the paper's Frenet pipeline transcribed literally on a sheath shape with a straight shaft: θ_b is noise where
-    # κ ≈ 0 (math.md §3.6) and the bend rolls by centimetres; held through low curvature it stays within 1.5 mm
+    # κ ≈ 0 (docs/math.md §3.6) and the bend rolls by centimetres; held through low curvature it stays within 1.5 mm
     assert s["paper_literal_max_deviation_mm"] > 5 * s["paper_pipeline_max_deviation_mm"]
     assert s["paper_pipeline_max_deviation_mm"] <= 1.5
     # scored the paper's way (whole-curve registration onto the 0° shape) the default pipeline agrees with itself

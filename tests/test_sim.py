@@ -30,7 +30,7 @@ def test_uniform_temperature_shifts_all_cores_and_cancels():
     o = Optics(FIBRE, OpticsConfig.ideal())
     w0, _ = o.wavelengths(K[0])
     w30, _ = o.wavelengths(K[0], delta_T=30.0)
-    assert np.all(w30 - w0 > 0.29)  # S_T λ ΔT: 299–316 pm over 1510–1595 nm (math.md §6)
+    assert np.all(w30 - w0 > 0.29)  # S_T λ ΔT: 299–316 pm over 1510–1595 nm (docs/math.md §6)
     solver = CurvatureSolver.for_fiber(FIBRE)
     k0 = solver.solve(optical_strain(w0, FIBRE.lambda0)).curvature
     k30 = solver.solve(optical_strain(w30, FIBRE.lambda0)).curvature
@@ -139,7 +139,7 @@ here). Measured: ≤ 0.036 mm over all 12 shapes."""
 
 REALISTIC_BUDGET_MM = 0.15
 """Connect fixture, realistic optics, reconstructed with the twin's true parameters: the ideal budget plus the
-noise (1 pm → ≈ 0.1 mm tip std, math.md §6; max over 3 frames) and drift. Measured: ≤ 0.06 mm on these
+noise (1 pm → ≈ 0.1 mm tip std, docs/math.md §6; max over 3 frames) and drift. Measured: ≤ 0.06 mm on these
 shapes."""
 
 
@@ -151,7 +151,7 @@ def test_static_shapes_regression(optics):
     budget = IDEAL_BUDGET_MM if optics == "ideal" else REALISTIC_BUDGET_MM
     s = result.summary()
     assert s["max_error_mm"] <= budget
-    # the paper's pipeline, same data: its torsion discretisation costs millimetres (math.md §3.2)
+    # the paper's pipeline, same data: its torsion discretisation costs millimetres (docs/math.md §3.2)
     assert s["paper_max_error_mm"] > 1.0
     d = result.to_dict()
     assert {r["shape"] for r in d["shapes"]} == set(params.shapes)
@@ -166,7 +166,7 @@ def test_static_shapes_full_set_in_tubes():
     Against the rod: the realistic budget, widened for two things a fixture does that connect constraints do
     not. The catheter cuts corners within the clearance, at a scale the 10 mm gratings cannot resolve (measured
     ≤ 0.27 mm on the tube shapes). And contact friction twists it: up to 4.3° of mechanical twist over the
-    sensed length on "tightening" in the groove, which straight cores cannot observe (math.md §4.3) and which
+    sensed length on "tightening" in the groove, which straight cores cannot observe (docs/math.md §4.3) and which
     costs ≈ 0.1–0.2 mm per degree (§4.1); measured 0.56 mm there. Budget 0.8 mm. Against the fixture add the
     0.165 mm radial clearance."""
     result = static_shapes.run_experiment(static_shapes.Params(fixture="paper", calibration="true"))

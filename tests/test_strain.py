@@ -1,4 +1,4 @@
-"""Wavelengths ↔ curvature (math.md §2): exactness for any layout, the paper's eqs. 5–7 and their bias, missing
+"""Wavelengths ↔ curvature (docs/math.md §2): exactness for any layout, the paper's eqs. 5–7 and their bias, missing
 peaks, bad input."""
 
 import numpy as np
@@ -31,7 +31,7 @@ LAYOUTS = {
 
 
 def test_eq4_sign_convention():
-    """The core facing the centre of curvature (θ_i = θ_b) is compressed by κ r (math.md §2.2)."""
+    """The core facing the centre of curvature (θ_i = θ_b) is compressed by κ r (docs/math.md §2.2)."""
     f = FiberModel.paper()
     k = np.zeros((18, 2))
     k[:, :] = 20.0 * np.array([np.cos(np.pi / 3), np.sin(np.pi / 3)])  # bend toward core 2 (θ = π/3)
@@ -42,7 +42,7 @@ def test_eq4_sign_convention():
 
 @pytest.mark.parametrize("name", LAYOUTS)
 def test_forward_inverse_exact_for_any_layout(name):
-    """LS inversion is exact for every layout, with an unknown common mode of ~300 µε (math.md §2.3)."""
+    """LS inversion is exact for every layout, with an unknown common mode of ~300 µε (docs/math.md §2.3)."""
     f = LAYOUTS[name]
     rng = np.random.default_rng(3)
     k = rng.uniform(-70, 70, size=(7, f.n_gratings, 2))
@@ -65,7 +65,7 @@ def test_paper_equations_exact_at_pi_over_3():
 
 def test_paper_equations_biased_at_fitted_spacing():
     """With the paper's fitted Δθ = 1.039 rad, eqs. 5–7 err by 0.95 % in κ and 9.5 mrad in θ_b; LS stays exact
-    (math.md §0 item 1 and the table of §2.3)."""
+    (docs/math.md §0 item 1 and the table of §2.3)."""
     f = FiberModel.paper().replace(core_angles=[0.0, 0.0, 1.039, 2 * 1.039])
     theta_b = np.linspace(-np.pi, np.pi, 721)
     k = 30.0 * np.stack([np.cos(theta_b), np.sin(theta_b)], -1)
@@ -80,7 +80,7 @@ def test_paper_equations_biased_at_fitted_spacing():
 
 
 def test_common_mode_leak_of_adjacent_cores_in_paper_mode():
-    """A residual common mode of 1 µε leaks into eq. 5–6 as 4/3·ε/r = 0.0356 1/m (math.md §0)."""
+    """A residual common mode of 1 µε leaks into eq. 5–6 as 4/3·ε/r = 0.0356 1/m (docs/math.md §0)."""
     f = FiberModel.paper()
     e = np.zeros((18, 4))
     e[:, 1:] = 1e-6 * f.strain_sensitivity  # outer cores only: the centre does not remove it
@@ -131,7 +131,7 @@ def test_no_central_core_needs_three_noncollinear_cores():
 
 def test_noise_gain_matches_the_table():
     """Per-node curvature noise, in units of σ_ε/r, for the paper's layout with the joint LS: 1.000 / 1.291
-    (math.md §2.3 noise table). Computed exactly from the pseudo-inverse, no sampling."""
+    (docs/math.md §2.3 noise table). Computed exactly from the pseudo-inverse, no sampling."""
     f = FiberModel.paper()
     solver = CurvatureSolver.for_fiber(f)
     p = solver._p[0] * f.gains[1]  # k in units of 1/g per unit optical strain
@@ -184,7 +184,7 @@ def test_temperature_cancels_with_central_core_and_per_core_mismatch_leaks():
     k = np.zeros((18, 2))
     w = strain.forward(f, k, delta_T=30.0)
     assert np.abs(strain.curvature(f, w)).max() < 1e-9
-    # a 1 % S_T mismatch on one core leaves ≈ 0.07 1/m at 30 K (math.md §6 "Systematic errors")
+    # a 1 % S_T mismatch on one core leaves ≈ 0.07 1/m at 30 K (docs/math.md §6 "Systematic errors")
     g = f.replace(temperature_sensitivity=6.6e-6 * np.array([1, 1.01, 1, 1]))
     leak = np.hypot(*strain.curvature(f, strain.forward(g, k, delta_T=30.0))[0])
     assert 0.03 < leak < 0.12

@@ -20,7 +20,7 @@ from sim_interrogator.thermal import Bath
 from twin import FiberModel
 
 FIBRE = FiberModel.paper()
-TIP_NOISE_RMS = 0.144e-3  #: m, 3D RMS tip error from 1 pm of wavelength noise (math.md §6)
+TIP_NOISE_RMS = 0.144e-3  #: m, 3D RMS tip error from 1 pm of wavelength noise (docs/math.md §6)
 
 
 # ------------------------------------------------------------------------------------------------ tendon load

@@ -44,7 +44,7 @@ def exp_chain(rates, frenet, h, r0, pos, frames):
     pos : (F, n + 1, 3) output positions.
     frames : (F, n + 1, 3, 3) output frames.
 
-    Per step (math.md §3.5): φ = h/2 (u1 + u2) + √3h²/12 (u1 × u2), ρ = h e_T + √3h²/12 (u1 − u2) × e_T,
+    Per step (docs/math.md §3.5): φ = h/2 (u1 + u2) + √3h²/12 (u1 × u2), ρ = h e_T + √3h²/12 (u1 − u2) × e_T,
     R⁺ = R exp(φ̂), p⁺ = p + R V(φ) ρ with V = I + B φ̂ + C φ̂².
     """
     n_f, _, n, m = rates.shape

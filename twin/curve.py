@@ -182,7 +182,7 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 
 
 def torsion_nodes(theta: np.ndarray, s_nodes: np.ndarray, scheme: str) -> tuple[np.ndarray, np.ndarray]:
-    """Torsion samples from bend angles θ_b at the nodes (the paper's Frenet pipeline, math.md §3.2).
+    """Torsion samples from bend angles θ_b at the nodes (the paper's Frenet pipeline, docs/math.md §3.2).
 
     Parameters
     ----------
@@ -217,7 +217,7 @@ def hold_bend_angle(theta: np.ndarray, kappa: np.ndarray, kappa_min: float) -> n
     """Bend-plane angles held through low curvature: where κ < ``kappa_min`` the last reliable θ_b is kept,
     and gratings before the first reliable one take that one's angle.
 
-    The paper's pipeline (math.md §3.2) is silent about near-zero curvature, where θ_b = atan2(k_y, k_x) is
+    The paper's pipeline (docs/math.md §3.2) is silent about near-zero curvature, where θ_b = atan2(k_y, k_x) is
     noise (atan2(0, 0) = 0 even without noise). Its wrapped differences there become torsion spikes that carry
     the Frenet frame into the next bend rolled by up to π. Holding θ_b gives zero torsion through the
     unreliable stretch, so the frame is carried through straight parts unchanged and the whole change of bend

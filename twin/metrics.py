@@ -1,4 +1,4 @@
-"""Registration and error metrics between a reconstructed centreline and a ground-truth curve (math.md §5.2, §7).
+"""Registration and error metrics between a reconstructed centreline and a ground-truth curve (docs/math.md §5.2, §7.6).
 
 * :func:`kabsch`: closed-form rigid registration on paired points (arc-length correspondences).
 * :func:`point_to_polyline`: exact distance from points to a polyline (closest points on the segments).
@@ -161,7 +161,7 @@ def point_to_polyline(points, polyline, *, return_closest: bool = False) -> np.n
     """Exact distance from points to a polyline (its segments, not just its vertices).
 
     The nearest vertices are found with a k-d tree and the segments on both sides of each are tested: the
-    distance to the nearest vertex alone is biased up by as much as half a segment (math.md §5.2). The nearest
+    distance to the nearest vertex alone is biased up by as much as half a segment (docs/math.md §5.2). The nearest
     vertex need not neighbour the nearest segment where the polyline folds back closely on itself, so several
     vertices are tested, and their number is doubled for any point where a nearer segment cannot be ruled out
     (a segment nearer than d has an endpoint within √(d² + h_max²/4)). The result is therefore exact up to
@@ -203,7 +203,7 @@ def icp(
     Each iteration finds the closest point on the polyline's segments (:func:`point_to_polyline`) to every
     registered point and re-solves :func:`kabsch` from the original points to those closest points, so it
     descends Σ_i d_i², the squared point-to-polyline distances. ICP finds the nearest local minimum: start it
-    from Kabsch on arc-length correspondences (math.md §5.2), since arcs can slide along themselves.
+    from Kabsch on arc-length correspondences (docs/math.md §5.2), since arcs can slide along themselves.
 
     Convergence is linear. It is fast where the curve's shape pins the motion, but motions that slide the
     curve along itself (for arcs and helices, opposed only by the two ends) shrink by just a few per cent per
@@ -268,7 +268,7 @@ def _best_on_grid(x: np.ndarray, index: _Polyline, centre: np.ndarray, radius: f
 def translation_search(
     points, polyline, radius: float = 0.5e-3, n: int = 5, *, refine: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Brute-force translation minimising the max point-to-polyline distance (the paper's metric, math.md §5.2).
+    """Brute-force translation minimising the max point-to-polyline distance (the paper's metric, docs/math.md §5.2).
 
     Tries every translation of an n³ grid over ±``radius`` on each axis (the paper: 5³ over ±0.5 mm, after
     ICP) and keeps the one with the smallest max distance. ``n`` is odd, so the grid holds the zero
@@ -431,7 +431,7 @@ def shape_error(
     truth_polyline=None,
     split_plane: bool = False,
 ) -> ErrorStats:
-    """Error of reconstructed centrelines against the truth, after a rigid registration (math.md §7.6).
+    """Error of reconstructed centrelines against the truth, after a rigid registration (docs/math.md §7.6).
 
     1. **Correspondences.** With ``truth_s``, the truth is interpolated linearly at the reconstruction's arc
        lengths ``s`` (fine for a dense truth). Without it, ``truth_positions`` must already be sampled at the
@@ -468,7 +468,7 @@ def shape_error(
     register : {"none", "kabsch", "icp", "icp+translation"}
     truth_polyline : array_like, shape (k, 3) or (..., k, 3), optional
         Dense truth for the distances, m; ``truth_positions`` by default. Pass it when ``truth_positions`` is
-        sampled only at the reconstructed points: a coarse polyline cuts corners by up to h²κ/8 (math.md
+        sampled only at the reconstructed points: a coarse polyline cuts corners by up to h²κ/8 (docs/math.md
         §5.2).
     split_plane : bool
         Also report in-plane and out-of-plane errors against the plane of a planar truth.

@@ -39,8 +39,8 @@ class Reconstructor:
         Reference wavelengths, intrinsic twist, identified parameters or jig design matrices.
     method : {"material", "paper"}
         ``material`` (default): least-squares curvature vectors, interpolated and integrated as a material
-        (Bishop) frame — no κ = |k|, no angle unwrapping (math.md §3.5). ``paper``: Al-Ahmad et al.'s Frenet
-        pipeline: κ = |k|, θ_b = atan2, torsion from θ_b (math.md §3.2).
+        (Bishop) frame — no κ = |k|, no angle unwrapping (docs/math.md §3.5). ``paper``: Al-Ahmad et al.'s Frenet
+        pipeline: κ = |k|, θ_b = atan2, torsion from θ_b (docs/math.md §3.2).
     interpolation : {"spline", "pchip", "knn", "linear"}
         How node values are interpolated along the fibre (not-a-knot cubic spline, PCHIP, nearest node, linear).
     integrator : {"magnus4", "hem-mid", "hem-left", "rk4"}, optional
@@ -60,7 +60,7 @@ class Reconstructor:
         value, leading gratings taking the first reliable one (:func:`twin.curve.hold_bend_angle`); torsion is
         then zero there. Default 1 1/m (30 × the noise of κ at 1 pm). Our addition: the paper does not say
         what it does at near-zero curvature, and its literal transcription (``kappa_min=0``) rolls the frame by
-        up to π wherever part of the length is nearly straight (math.md §3.6).
+        up to π wherever part of the length is nearly straight (docs/math.md §3.6).
     twist : bool, optional
         Measure the mechanical twist rate at each grating and carry the material frame with it (a spun fibre,
         docs/spun-fibres.md). Default: when the fibre is spun (``spin_rate`` ≠ 0) and the method is
@@ -356,7 +356,7 @@ class Reconstructor:
         if self.method == "material":
             return curve.integrate(rates, self.h, self.integrator)
         pos, f = curve.integrate(rates, self.h, self.integrator, frenet=True, r0=r0)
-        # material frame of a twist-free fibre: R = F Q(θ)ᵀ (math.md §1)
+        # material frame of a twist-free fibre: R = F Q(θ)ᵀ (docs/math.md §1)
         q = _frenet_from_material(np.cos(theta), np.sin(theta))
         return pos, f @ np.swapaxes(q, -1, -2)
 

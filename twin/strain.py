@@ -1,7 +1,7 @@
 """Wavelengths ↔ strain ↔ curvature vectors (docs/math.md §2).
 
 Everything works in *optical strain* e = Δλ/λ0, which is free of S_ε and of the core radius. At each grating n
-the cores see (math.md §2.2, with g_i = r_i S_ε)
+the cores see (docs/math.md §2.2, with g_i = r_i S_ε)
 
     e_i = c − g_i (k_x cos θ_i + k_y sin θ_i),        c = S_ε ε_axial + S_T ΔT  (the common mode),
 
@@ -89,7 +89,7 @@ def forward(
     lambda0=None,
     design=None,
 ) -> np.ndarray:
-    """Bragg wavelengths for given curvature vectors (math.md §2.1–2.2).
+    """Bragg wavelengths for given curvature vectors (docs/math.md §2.1–2.2).
 
     Parameters
     ----------

@@ -18,7 +18,7 @@ frame of the Source:
 - every setter (``a``, ``LED``, ``iz``, ``Ke``, ``KA``, ``m``, ``OBsTyp``, ``OBN``, ``OBsaT0``, ``PeM``, ``OBB``)
   is applied and gets no reply at all.
 
-The pty follows the harness of protocols.md: ``master, slave = os.openpty(); tty.setraw(master)``; the server
+The pty follows the harness of docs/protocols.md §2.5: ``master, slave = os.openpty(); tty.setraw(master)``; the server
 keeps ``slave`` open for its whole life, so clients may open and close the port path (``os.ttyname(slave)``)
 as often as they like. ``link`` adds a stable symlink to the pty path (like socat's ``link=``), which survives
 server restarts for clients that reconnect by path.

@@ -1,9 +1,9 @@
 """Parameter identification from shapes of known geometry (docs/math.md §5).
 
 The shape depends on the fibre parameters only through the outer-core spacing Δθ and the gain g = r·S_ε
-(math.md §5.1), so the default fits Θ = [Δθ, g] by trust-region least squares on a smooth residual: for each
+(docs/math.md §5.1), so the default fits Θ = [Δθ, g] by trust-region least squares on a smooth residual: for each
 shape, the reconstruction at the ground truth's arc lengths, rigidly registered to it (Kabsch), minus the
-ground truth (math.md §5.3, formulation D). Ground truths without arc lengths use point-to-curve distances after
+ground truth (docs/math.md §5.3, formulation D). Ground truths without arc lengths use point-to-curve distances after
 ICP (formulation B). The paper's formulation — Θ = [Δθ, r, S_ε] minimising Σ_shapes max distance — is available
 and reports the r–S_ε degeneracy instead of returning an arbitrary point of the valley r·S_ε = const.
 """
@@ -170,7 +170,7 @@ class _Problem:
 
     def _icp_start(self, shape, i: int):
         """Initial registration of truth ``i`` onto its reconstruction: Kabsch on arc-length correspondences, or
-        on equally spaced samples of both curves when the truth has no arc lengths (math.md §5.2)."""
+        on equally spaced samples of both curves when the truth has no arc lengths (docs/math.md §5.2)."""
         o = self.obs[i]
         if o.truth_s is not None:
             return metrics.kabsch(o.truth, shape[i].positions_at(np.clip(o.truth_s, 0.0, self.rec.s[-1])))
@@ -214,7 +214,7 @@ def identify(
     fiber : FiberModel
         Nominal fibre (its core layout fixes what Δθ means: :func:`twin.calibration.scaled_core_angles`).
     observations : sequence of Observation
-        Include 3D shapes: from planar shapes alone Δθ is only weakly identifiable (math.md §5.1).
+        Include 3D shapes: from planar shapes alone Δθ is only weakly identifiable (docs/math.md §5.1).
     calibration : Calibration, optional
         Reference wavelengths and twist to keep (calibrate before identifying).
     formulation : {"lsq", "paper"}
@@ -226,7 +226,7 @@ def identify(
         In the same units as ``x0``; default Δθ ± 0.15 rad, g (or r) ± 30 %, S_ε in [0.6, 0.95].
     reconstructor_options : dict, optional
         Passed to :class:`~twin.reconstruct.Reconstructor` (identify with the best forward model: the default
-        material pipeline; model errors are absorbed into the parameters otherwise, math.md §5.3).
+        material pipeline; model errors are absorbed into the parameters otherwise, docs/math.md §5.3).
     jackknife : bool
         Also estimate the uncertainty by refitting without each shape in turn (needs ≥ 3 shapes).
 
@@ -333,7 +333,7 @@ def parameter_jacobian(fiber: FiberModel, observations: Sequence[Observation], d
                        rel_step: float = 1e-6) -> np.ndarray:
     """Jacobian of the smooth residual (m) w.r.t. (Δθ, ln r, ln S_ε), by central differences.
 
-    The ln r and ln S_ε columns coincide: the shape depends on r·S_ε only (math.md §5.1).
+    The ln r and ln S_ε columns coincide: the shape depends on r·S_ε only (docs/math.md §5.1).
     """
     return _jacobian(_Problem(fiber, observations, calibration, None), delta_theta, radius, strain_sensitivity,
                      rel_step)

@@ -294,7 +294,7 @@ def two_step(
     max_missing: float = 0.2,
     allow_sign_change: bool = False,
 ) -> tuple[Calibration, CalibrationReport]:
-    """The paper's two-step calibration with the fixes of math.md §4.2.
+    """The paper's two-step calibration with the fixes of docs/math.md §4.2.
 
     Step 1 (``straight``): the mean wavelengths of the straight, unloaded fibre become λ0 (rounded to 1e-9 nm,
     far below any interrogator's resolution, so that files carry the mean and not its binary summation error).
@@ -356,7 +356,7 @@ def two_step(
             f"{min_curvature} 1/m; bend the whole sensed length more (≈ 16 1/m, the paper's 0.16 1/cm)"
         )
     theta = np.arctan2(k[:, 1], k[:, 0])
-    theta_pi = 0.5 * np.unwrap(2 * theta)  # mod-π unwrapping (math.md §4.2)
+    theta_pi = 0.5 * np.unwrap(2 * theta)  # mod-π unwrapping (docs/math.md §4.2)
     # theta_pi − theta is a multiple of π; an odd multiple marks a grating whose bend direction is reversed
     flips = np.abs(np.round((theta_pi - theta) / np.pi)) % 2 == 1
     sign_changes = int(np.count_nonzero(np.diff(flips.astype(int))))

@@ -1,4 +1,4 @@
-"""Sources of frames, opened by URL (architecture.md "Sources, by URL").
+"""Sources of frames, opened by URL (docs/architecture.md "Sources, by URL").
 
 Every source — the simulator in-process, an interrogator over TCP or serial, a recording — is a :class:`Source`:
 ``read(timeout)`` returns the next :class:`~twin.frames.Frame` (or None when nothing arrived in time), and

@@ -16,7 +16,7 @@ Conventions (docs/math.md §1, docs/jig.md)
   with α, the *roll*, the bend direction in the fibre frame at ψ = 0 (a property of how the sensor is mounted
   in the jig; fitted).
 * Optical strain relative to the reference of the SAME orientation: e = (λ − λ_ref)/λ_ref, λ_ref the mean of
-  that orientation's curvature-0 rows. Per grating and core (math.md §2.2)
+  that orientation's curvature-0 rows. Per grating and core (docs/math.md §2.2)
 
       e_i = c − p_i · k,      p_i = g_i (cos θ_i, sin θ_i),   g_i = r_i S_ε,
 
@@ -37,7 +37,7 @@ to 0 and fits the bent poses only.
   g_i and the roll α follow from β, with uncertainties by the delta method from the fit covariance scaled by
   the residual variance. This is the maximum-likelihood fit for independent wavelength noise.
 * ``matrix``: a general linear calibration k = M e (M: 2 × n_cores, M·1 = 0 so that the common mode is
-  rejected, math.md §5.1), fitted in curvature space by ordinary least squares with one curvature intercept per
+  rejected, docs/math.md §5.1), fitted in curvature space by ordinary least squares with one curvature intercept per
   orientation (the image of δ_o). It minimises the curvature error directly and needs no physical model. Its
   design for :class:`~twin.strain.CurvatureSolver` is [1, M⁺], which the solver inverts back to exactly M. With
   more than 3 cores, directions of M that only noise determines are taken at minimum norm. Its frame (roll), the
