@@ -22,7 +22,7 @@ CPU; docs/protocols-illumisense.md for the layout):
     block (curvature, angle, 171 shape points × 3; ≈ 6.9 kB).
 ``loopback_frames_per_s``
     The same through a real loopback TCP connection: a sender process pushes the records as fast as the
-    socket takes them and :class:`twin.io.drivers.IllumisenseSource` + ``LiveLoop.process`` consume them.
+    socket takes them and :class:`twin.io.illumisense_driver.IllumisenseSource` + ``LiveLoop.process`` consume them.
 ``latency_us_p50`` / ``latency_us_p99`` / ``latency_us_max``
     From a frame's send to its shape, at a realistic 1 kHz on loopback: the sender process writes the wall
     clock into each record's time field (microseconds) just before ``sendall``; the receiver reads with
@@ -141,7 +141,7 @@ def _start_sender(mode: str, seconds: float, rate: float = 0.0) -> tuple[subproc
 
 
 def _loopback(fiber, seconds: float) -> dict:
-    from twin.io.drivers import IllumisenseSource
+    from twin.io.illumisense_driver import IllumisenseSource
     from twin.live import LiveLoop
     from twin.reconstruct import Reconstructor
 
@@ -165,7 +165,7 @@ def _loopback(fiber, seconds: float) -> dict:
 
 
 def _latency(fiber, seconds: float, rate: float = 1000.0) -> dict:
-    from twin.io.drivers import IllumisenseSource
+    from twin.io.illumisense_driver import IllumisenseSource
     from twin.live import LiveLoop
     from twin.reconstruct import Reconstructor
 
