@@ -42,6 +42,9 @@ Example
 >>> scene = Scene("demo")
 >>> rod = scene.add_rod(CatheterSpec(n_segments=50))
 >>> model, data = scene.build()
+
+Why one module of this size: the catheter's spec, the MJCF it generates and the helpers that read and place
+the rod are one description of one body; each piece is meaningless without the others.
 """
 
 from __future__ import annotations

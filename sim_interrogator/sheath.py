@@ -32,6 +32,9 @@ Simplifications (what the model leaves out, and why it is enough):
 
 The fibre's arc length s (s = 0 at the first grating) moves through the sheath: at hub insertion d the fibre
 point s sits near the sheath arc length u = hub_start + d + base_length + s.
+
+Why one module of this size: the sheath's geometry, its rails and the three motions through it (rotate, cycle,
+path) share one model and one drive; they are one setup family.
 """
 
 from __future__ import annotations

@@ -36,6 +36,9 @@ list of frames of the batch, ``shapes`` the batched :class:`~twin.frames.Shape` 
 ``frames[i]``; None when the batch could not be reconstructed), ``status`` a :class:`LiveStatus`. Between
 batches sinks get ``sink([], None, status)`` heartbeats (at least every ``heartbeat`` s and on every state
 change).
+
+Why one module of this size: the loop, its status and counters and its summary are one state machine; split,
+the counters' one meaning would be spread over files.
 """
 
 from __future__ import annotations

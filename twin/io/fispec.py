@@ -40,6 +40,9 @@ found**; :func:`synthetic_spectrum` therefore draws one extra leading reference 
 than 50 pixels. The default pixel table (:func:`default_pixel_wavelengths`) has **2048 pixels spanning
 1500.0–1600.0 nm** (≈ 0.0489 nm per pixel, values quantised to the protocol's 1e-4 nm), which holds the
 reference fibre's gratings (1510–1595 nm, 5 nm ≈ 102 pixels apart) with room for the reference peak.
+
+Why one module of this size: the codec holds both directions of one protocol (the simulator's server encodes
+with it, the driver decodes), so that the two cannot drift apart.
 """
 
 from __future__ import annotations

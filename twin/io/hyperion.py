@@ -41,6 +41,9 @@ reliably, so the stream decoders count the first bad header or content, set ``fa
 :class:`~twin.io.errors.FramingError` — at once when the call completed nothing, otherwise from the next call,
 after delivering the messages completed before the bad bytes — and refuse further data until
 :meth:`ResponseDecoder.reset`: the caller must reconnect.
+
+Why one module of this size: the codec holds both directions of one protocol (the simulator's server encodes
+with it, the driver decodes), so that the two cannot drift apart.
 """
 
 from __future__ import annotations

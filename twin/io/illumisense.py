@@ -53,6 +53,9 @@ already received for it hold a NUL or an early LF, and accepts it only when the 
 of sync counts once in :attr:`StreamDecoder.framing_errors`; skipped bytes in ``bytes_discarded``. The channel
 layout is learned from a consensus (:class:`LayoutConsensus`), not from the first record alone: records of
 another layout are counted in ``odd_records`` and dropped, and a new layout that persists is re-learned.
+
+Why one module of this size: the record layout is written once, for both directions (the simulator's server
+encodes with it, the driver and the log reader decode), so that the two cannot drift apart.
 """
 
 from __future__ import annotations
