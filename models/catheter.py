@@ -64,6 +64,7 @@ __all__ = [
     "RodHandle",
     "Scene",
     "apply_runtime_settings",
+    "collect_warnings",
     "rod_vertex_qpos_addresses",
     "set_rod_positions",
 ]
@@ -655,6 +656,18 @@ def _vertex_dofadr(model: mujoco.MjModel, name: str) -> np.ndarray:
             j0 = model.body_jntadr[b]
             out.extend(model.jnt_dofadr[j0 : j0 + 3])
     return np.array(out, dtype=np.int64)
+
+
+def collect_warnings() -> list[str]:
+    """Collect MuJoCo's solver warnings in the returned list instead of letting it print them mid-line.
+
+    The flex rod's "ill-conditioned stiffness" and "inertia matrix is too close to singular" notes when a scene is
+    built or first stepped are expected (docs/simulation.md §1: results are unaffected); callers report how many
+    there were.
+    """
+    caught: list[str] = []
+    mujoco.set_mju_user_warning(lambda msg: caught.append(str(msg).strip()))
+    return caught
 
 
 def apply_runtime_settings(model: mujoco.MjModel) -> None:

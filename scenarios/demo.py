@@ -21,6 +21,7 @@ from collections import OrderedDict
 
 import numpy as np
 
+from models.catheter import collect_warnings
 from scenarios._common.calibration import calibration_for
 from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.servers.illumisense import IllumisenseServer
@@ -131,21 +132,11 @@ def _open_viewer(enabled: bool):
     return viewer
 
 
-def _quiet_mujoco() -> list[str]:
-    """Collect MuJoCo's solver warnings instead of printing them mid-line (the flex rod's "ill-conditioned
-    stiffness" notes at start-up are expected: docs/simulation.md §5); returns the list they go to."""
-    import mujoco
-
-    caught: list[str] = []
-    mujoco.set_mju_user_warning(lambda msg: caught.append(str(msg).strip()))
-    return caught
-
-
 def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
     fiber = FiberModel.paper()
-    mujoco_warnings = _quiet_mujoco()
+    mujoco_warnings = collect_warnings()
     t_start = time.monotonic()
     _say("1/3 calibrating the simulated fibre as a lab would: two-step calibration (straight, bend), then Δθ and "
          "g = r·S_ε identified against the fixtures' geometry on six shapes (cached after the first run) …")

@@ -78,6 +78,11 @@ def run(args: argparse.Namespace) -> int:
     if args.rate is not None and not args.rate > 0:
         raise ValueError(f"--rate must be a positive frequency in Hz, got {args.rate}")
     url = source_url(args)
+    warnings = None
+    if url.startswith("sim://"):
+        from models.catheter import collect_warnings
+
+        warnings = collect_warnings()
     source = open_source(url)
     if args.save_fiber:
         if source.fiber is None:
@@ -115,6 +120,9 @@ def run(args: argparse.Namespace) -> int:
         server.close()
     stats = ", ".join(f"{k} {v}" for k, v in server.stats().items())
     print(f"twin serve: stopped ({reason[0]}) after {time.monotonic() - t0:.1f} s: {stats}", flush=True)
+    if warnings:
+        print(f"twin serve: {len(warnings)} MuJoCo solver warning(s), expected at the flex rod's start-up "
+              f"(docs/simulation.md §1); the first: {warnings[0]}", flush=True)
     return 1 if reason[0] == "source failed" else 0
 
 
