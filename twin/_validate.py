@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import dataclasses
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -98,3 +99,14 @@ def check_field_types(data, kinds: dict[str, str], where: str = "") -> None:
     for field, kind in kinds.items():
         if field in data and data[field] is not None and not tests[kind](data[field]):
             raise ValueError(f"{where}{field}: expected {names[kind]}, got {_toml_kind(data[field])}")
+
+
+def check_table(data, cls, what: str, where: str = "") -> None:
+    """``data`` is a mapping whose keys are all fields of the dataclass ``cls``, else one ValueError naming
+    ``where`` (a file, with ": ") and the unknown fields; ``what`` names the table ("fibre", "calibration")."""
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{where}expected a table of {what} fields, got {type(data).__name__}")
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"{where}unknown field(s) {', '.join(unknown)}; known fields: {', '.join(sorted(known))}")

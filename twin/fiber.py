@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twin._validate import check_field_types, frozen, real_array
+from twin._validate import check_field_types, check_table, frozen, real_array
 
 __all__ = ["FiberModel"]
 
@@ -288,12 +288,7 @@ class FiberModel:
         type (a list, table, date or boolean where a number belongs), are errors naming ``source`` and the
         field. The model remembers ``source`` (:func:`origin`) so later errors can name it too."""
         where = f"{source}: " if source else ""
-        if not isinstance(data, dict):
-            raise ValueError(f"{where}expected a table of fibre fields, got {type(data).__name__}")
-        fields = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - fields)
-        if unknown:
-            raise ValueError(f"{where}unknown field(s) {', '.join(unknown)}; known fields: {', '.join(sorted(fields))}")
+        check_table(data, cls, "fibre", where)
         required = ("core_angles", "core_radii", "grating_s", "lambda0")
         missing = [k for k in required if k not in data]
         if missing:

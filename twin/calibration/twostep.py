@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twin._validate import check_field_types, frozen, real_array
+from twin._validate import check_field_types, check_table, frozen, real_array
 from twin.fiber import FiberModel, origin, read_toml
 from twin.frames import Frame
 from twin.strain import CurvatureSolver, design_matrix, optical_strain
@@ -183,12 +183,7 @@ class Calibration:
     @classmethod
     def from_dict(cls, data: Mapping, *, source: str = "") -> Calibration:
         where = f"{source}: " if source else ""
-        if not isinstance(data, Mapping):
-            raise ValueError(f"{where}expected a table of calibration fields, got {type(data).__name__}")
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"{where}unknown field(s) {', '.join(unknown)}; known fields: {', '.join(sorted(known))}")
+        check_table(data, cls, "calibration", where)
         check_field_types(data, FIELD_KINDS, where)
         try:
             cal = cls(**data)
