@@ -23,10 +23,13 @@ from pathlib import Path
 import numpy as np
 
 #: section → "module:function"; each function takes ``quick: bool`` and returns a flat dict of figures.
+#: ``registry:GROUP/NAME:function`` takes the module a registry entry names (:mod:`twin.registry`), so the core
+#: names no module above it.
 SECTIONS: dict[str, str] = {
     "reconstruct": "twin.bench:bench_reconstruct",
     "sim": "sim_interrogator.bench:bench_sim",
     "stream": "twin.io.bench:bench_stream",
+    "study": "registry:twin.commands/study:bench_study",  # design-study tasks per minute on 1 and 2 workers
 }
 
 #: (section, key) → (comparison, goal, unit) for the report
@@ -123,10 +126,18 @@ def machine() -> dict:
 def _child(spec: dict) -> dict:
     result: dict = {"machine": machine()}
     for name in spec["sections"]:
-        module, func = SECTIONS[name].split(":")
+        target = SECTIONS[name]
         try:
-            fn = getattr(importlib.import_module(module), func)
-        except ImportError as exc:
+            if target.startswith("registry:"):
+                from twin import registry
+
+                entry, func = target[len("registry:"):].rsplit(":", 1)
+                group, _, entry_name = entry.partition("/")
+                fn = getattr(registry.load(group, entry_name), func)
+            else:
+                module, func = target.split(":")
+                fn = getattr(importlib.import_module(module), func)
+        except (ImportError, KeyError) as exc:
             print(f"bench: skipping {name} ({exc})", file=sys.stderr)
             continue
         print(f"bench: {name} …", file=sys.stderr, flush=True)
