@@ -11,8 +11,8 @@ Model (the choices and the measurements behind them are in docs/integration.md):
 * **The lumen** is the curve L(σ) = x(σ) + offset · d1(σ) of the catheter rod (its centreline x and the
   material director d1 of the edge at catheter arc length σ), of radial ``clearance`` around the fibre.
   MuJoCo cannot put one rod's collision geometry inside another's (its contacts are between solids), so the
-  wall is a penalty force computed in numpy before every step (:class:`LumenCoupler`): on each fibre vertex farther than the clearance from the lumen's axis, a normal spring and
-  damper, and regularised Coulomb friction of coefficient ``friction`` (a low-friction lining is a lower
+  wall is a penalty force computed in numpy before every step (:class:`LumenCoupler`): on each fibre vertex
+  farther than the clearance from the lumen's axis, a normal spring and damper, and regularised Coulomb friction of coefficient ``friction`` (a low-friction lining is a lower
   coefficient) against the fibre's velocity relative to the lumen. Each vertex keeps its own lumen coordinate
   σ, updated by projection every step, so the fibre can slide along the lumen.
 * **One-way coupling**: the wall forces act on the fibre only. The fibre's bending stiffness is 1/200 of the
@@ -359,10 +359,10 @@ class LumenCoupler:
         v_f = np.einsum("nj,nji->ni", data.qvel[self._dof], axes_w)
         # lumen coordinate by projection (one step per call: the fibre slides far less than an edge per step)
         free = self._free
-        p, t, d1 = self.lumen(x_c, self.sigma)
+        p, t, _ = self.lumen(x_c, self.sigma)
         a = np.einsum("ni,ni->n", x_f - p, t)
         self.sigma[free] = np.clip(self.sigma[free] + a[free], self._cs0, self._cs0 + self._l * (x_c.shape[0] - 1))
-        p, t, d1 = self.lumen(x_c, self.sigma)
+        p, t, _d1 = self.lumen(x_c, self.sigma)
         # lumen velocity and acceleration by differences over steps (the catheter is a quasi-static rod)
         tnow = float(data.time)
         if self._prev_t is not None and tnow > self._prev_t:
@@ -378,16 +378,20 @@ class LumenCoupler:
         r -= np.einsum("ni,ni->n", r, t)[:, None] * t
         d = np.linalg.norm(r, axis=1)
         pen = d - spec.clearance
-        contact = free & (pen > 0.0) & (d > 1e-12)
-        n_hat = np.where(contact[:, None], r / np.where(d > 1e-12, d, 1.0)[:, None], 0.0)
+        contact = free & (pen > 0.0)
+        n_hat = r / np.maximum(d, 1e-12)[:, None]
         v_rel = v_f - v_l
-        vn = np.einsum("ni,ni->n", v_rel, n_hat)
-        normal = np.where(contact, np.maximum(spec.wall_stiffness * pen + spec.wall_damping * vn, 0.0), 0.0)
-        v_t = v_rel - vn[:, None] * n_hat
-        speed = np.sqrt(np.einsum("ni,ni->n", v_t, v_t) + spec.slip_speed**2)
-        # friction as a viscosity μN/|v_t| (regularised): explicit, so capped at half the stability limit m/dt
-        visc = np.minimum(spec.friction * normal / speed, 0.5 * spec.vertex_mass / model.opt.timestep)
-        force += -normal[:, None] * n_hat - visc[:, None] * v_t
+        v_ax = np.einsum("ni,ni->n", v_rel, t)
+        v_cross = v_rel - v_ax[:, None] * t
+        # the wall: a spring along the radius and a damper over the whole cross-section (not along the radius
+        # only: at zero clearance the radius' direction is noise and a damper along it went unstable)
+        normal = np.where(contact, spec.wall_stiffness * pen, 0.0)
+        force += -normal[:, None] * n_hat - (spec.wall_damping * contact)[:, None] * v_cross
+        # friction against sliding along the lumen, as a viscosity μN/|v| (regularised): explicit, so capped
+        # at half the stability limit m/dt
+        visc = np.minimum(spec.friction * normal / np.sqrt(v_ax**2 + spec.slip_speed**2),
+                          0.5 * spec.vertex_mass / model.opt.timestep)
+        force -= (visc * v_ax)[:, None] * t
         self.normal = normal
         # the lumen's end pushes the tip back
         gap = h.lumen_end - self.sigma[-1]

@@ -13,12 +13,12 @@ import pytest
 
 pytest.importorskip("mujoco")
 
-from models.catheter import CatheterSpec, Scene  # noqa: E402
-from models.fibre import FibreSpec, add_fibre  # noqa: E402
-from sim_interrogator.fibre_setups import FIBRE_BASE_LENGTH, FibreStatic  # noqa: E402
-from sim_interrogator.optics import Optics, OpticsConfig  # noqa: E402
-from sim_interrogator.sim import SimInterrogator  # noqa: E402
-from twin import FiberModel  # noqa: E402
+from models.catheter import CatheterSpec, Scene
+from models.fibre import FibreSpec, add_fibre
+from sim_interrogator.fibre_setups import FIBRE_BASE_LENGTH, FibreStatic
+from sim_interrogator.optics import Optics, OpticsConfig
+from sim_interrogator.sim import SimInterrogator
+from twin import FiberModel
 
 
 def _fibre_curvature(sim, setup, s):

@@ -62,7 +62,8 @@ def sensor_design_study(seeds: int = 3, quick: bool = False) -> Study:
     grid = {"noise_pm": (0.5, 1.0, 5.0), "n_gratings": (9, 18, 35), "core_angle_error_deg": (0.0, 1.0, 3.0),
             "temperature_k": (0.0, 20.0)}
     if quick:
-        grid = {"noise_pm": (1.0, 5.0), "n_gratings": (18,), "core_angle_error_deg": (0.0, 2.0), "temperature_k": (0.0,)}
+        grid = {"noise_pm": (1.0, 5.0), "n_gratings": (18,), "core_angle_error_deg": (0.0, 2.0),
+                "temperature_k": (0.0,)}
     tasks = []
     for noise, n_g, ang, temp in itertools.product(*grid.values()):
         spacing = 170.0 / (n_g - 1)  # the same 170 mm sensed length: more gratings, closer together
