@@ -191,27 +191,36 @@ def guidelines(rows: list[dict]) -> list[str]:
                 r["label"])
     if len(cl) >= 2 and "max_error_mm" in cl[0][1]:
         lo, hi = cl[0][1], cl[-1][1]
+        grows = hi["max_error_mm"] > 1.2 * lo["max_error_mm"] or hi["mean_error_mm"] > 1.2 * lo["mean_error_mm"]
         out.append(f"(a) clearance: max error {lo['max_error_mm']:.2f} mm at {cl[0][0]:g} mm → "
                    f"{hi['max_error_mm']:.2f} mm at {cl[-1][0]:g} mm (mean {lo['mean_error_mm']:.3f} → "
-                   f"{hi['mean_error_mm']:.3f} mm): keep the clearance minimal.")
+                   f"{hi['mean_error_mm']:.3f} mm): " + ("the error grows with the clearance — keep it minimal."
+                                                          if grows else "no clear growth over this range."))
     lin, base = val("clearance 0.1 mm, lining μ 0.05", "repeat_std_mm"), val("clearance 0.1 mm", "repeat_std_mm")
     if lin is not None and base is not None:
-        out.append(f"(a) lining: repeatability std {base:.3f} mm at μ 0.2 vs {lin:.3f} mm at μ 0.05.")
+        out.append(f"(a) lining: repeatability std {base:.3f} mm at μ 0.2 vs {lin:.3f} mm at μ 0.05 "
+                   + ("(the lining helps)." if lin < 0.9 * base else "(no clear gain from the lining here)."))
     fx = [(n, val(f"{n} fixation(s)", "repeat_std_mm")) for n in (0, 1)] + [(2, base)]
     slides = [val(f"{n} fixation(s)", "cycle_slide_max_mm") for n in (0, 1)] + [
         val("clearance 0.1 mm", "cycle_slide_max_mm")]
     if all(v is not None for _, v in fx) and all(v is not None for v in slides):
+        best = min(fx, key=lambda nv: nv[1])[0]
         out.append("(b) fixations: repeatability std " + ", ".join(f"{v:.3f} mm with {n}" for n, v in fx)
-                   + "; largest slide along the lumen " + ", ".join(f"{v:.2f} mm" for v in slides) + ".")
+                   + "; largest slide along the lumen " + ", ".join(f"{v:.2f} mm" for v in slides)
+                   + f" — best with {best}.")
     dp = [(d, val(f"dx_prox {d:g} mm", "max_error_mm")) for d in (0, 5, 25)]
     dp.insert(2, (15, val("clearance 0.1 mm", "max_error_mm")))
     if all(v is not None for _, v in dp):
-        out.append("(b) Δx_prox: max error " + ", ".join(f"{v:.2f} mm at {d} mm" for d, v in dp) + ".")
+        best = min(v for _, v in dp)
+        ok = [d for d, v in dp if v <= 1.1 * best]
+        out.append("(b) Δx_prox: max error " + ", ".join(f"{v:.2f} mm at {d} mm" for d, v in dp)
+                   + f" — within 10 % of the best at Δx_prox ∈ {ok} mm.")
     c_lost = val("dx_dist 0 (contact)", "static_lost_peaks")
     if c_lost is not None:
         cf = (val("dx_dist 0 (contact)", "static_contact_frames") or 0) + (
             val("dx_dist 0 (contact)", "cycle_contact_frames") or 0)
-        out.append(f"(c) tip: with Δx_dist = 0 the tip touched the lumen's end in {cf} frames "
+        out.append(f"(c) tip: with Δx_dist = 0 the tip touched the lumen's end in {cf} frames, flagging the distal "
+                   "grating's peaks "
                    f"({c_lost} peaks lost in the static shapes, max error "
                    f"{val('dx_dist 0 (contact)', 'max_error_mm'):.2f} mm) against "
                    f"{(val('clearance 0.1 mm', 'static_contact_frames') or 0)} contact frames at 2 mm.")

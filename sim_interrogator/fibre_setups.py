@@ -104,7 +104,7 @@ class _FibreMixin:
         row += tc.shift * self._rng.standard_normal(row.shape)
         lost = self._rng.random(row.shape) < tc.loss
         row[lost] = np.nan
-        status[g, lost] |= PeakStatus.MISSING
+        status[g, lost] |= np.uint8(PeakStatus.MISSING)
 
     def fibre_describe(self) -> dict:
         d = {"fibre": self.fibre.describe()}
