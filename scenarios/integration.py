@@ -108,7 +108,7 @@ def _fibre_kw(point: dict) -> dict:
 
 def static_part(point: dict, params: Params, fiber: FiberModel) -> dict:
     """Max/mean error over the static shapes (m), lost peaks, tip contacts and the largest slide."""
-    maxima, means, lost, contact, slide = [], [], 0, 0, 0.0
+    maxima, means, lost, contact, slide, unsettled = [], [], 0, 0, 0.0, 0
     for i, name in enumerate(params.shapes):
         setup = FibreStatic(name, "connect", segments=params.segments, seed=params.seed + i, **_fibre_kw(point))
         sim = SimInterrogator(setup, fiber, OpticsConfig(seed=params.seed + i))
@@ -122,8 +122,9 @@ def static_part(point: dict, params: Params, fiber: FiberModel) -> dict:
         lost += int(sum(np.isnan(f.wavelengths).sum() for f in frames))
         contact += setup.contact_frames
         slide = max(slide, float(np.abs(setup.coupler.slide()).max()))
+        unsettled += not setup.settled
     return {"max_error": max(maxima), "mean_error": float(np.mean(means)), "per_shape_max": maxima,
-            "lost_peaks": lost, "contact_frames": contact, "slide_max": slide}
+            "lost_peaks": lost, "contact_frames": contact, "slide_max": slide, "unsettled": unsettled}
 
 
 def cycle_part(point: dict, params: Params, fiber: FiberModel) -> dict:
@@ -167,7 +168,7 @@ def run_point(point: dict, params: Params | None = None) -> dict:
         s = static_part(point, params, fiber)
         row |= {"max_error_mm": s["max_error"] * 1e3, "mean_error_mm": s["mean_error"] * 1e3,
                 "static_lost_peaks": s["lost_peaks"], "static_contact_frames": s["contact_frames"],
-                "static_slide_max_mm": s["slide_max"] * 1e3}
+                "static_slide_max_mm": s["slide_max"] * 1e3, "static_still_sliding": s["unsettled"]}
     if params.cycles:
         c = cycle_part(point, params, fiber)
         row |= {"repeat_std_mm": c["repeat_std"] * 1e3, "repeat_max_mm": c["repeat_max"] * 1e3,

@@ -95,7 +95,7 @@ REPEATABILITY_POINTS = ("clearance 0.1 mm", "0 fixation(s)", "1 fixation(s)", "c
 
 
 def integration_study(seeds: int = 1, quick: bool = False, light: bool = False) -> Study:
-    """The integration study; ``light``: two static shapes, and two sheath cycles only at
+    """The integration study; ``light``: two static shapes, and three sheath cycles only at
     :data:`REPEATABILITY_POINTS` (what a loaded 2-core machine finishes in half an hour)."""
     from scenarios.integration import DEFAULT_SHAPES, design_points
 
@@ -112,7 +112,7 @@ def integration_study(seeds: int = 1, quick: bool = False, light: bool = False) 
         if light and pt["label"] not in REPEATABILITY_POINTS:
             cyc = {"cycles": 0}  # light: the sheath cycles only where repeatability is the question
         elif light:
-            cyc = {"cycles": 2}
+            cyc = {"cycles": 3}
         tasks += [{**pt, **extra, **cyc, "seed": s} for s in range(seeds)]
     tasks = tuple(tasks)
     return Study("integration", "scenarios.studies.definitions:integration_task", tasks,
