@@ -12,9 +12,10 @@ Model (the choices and the measurements behind them are in docs/integration.md):
   material director d1 of the edge at catheter arc length σ), of radial ``clearance`` around the fibre.
   MuJoCo cannot put one rod's collision geometry inside another's (its contacts are between solids), so the
   wall is a penalty force computed in numpy before every step (:class:`LumenCoupler`): on each fibre vertex
-  farther than the clearance from the lumen's axis, a normal spring and damper, and regularised Coulomb friction of coefficient ``friction`` (a low-friction lining is a lower
-  coefficient) against the fibre's velocity relative to the lumen. Each vertex keeps its own lumen coordinate
-  σ, updated by projection every step, so the fibre can slide along the lumen.
+  farther than the clearance from the lumen's axis, a radial spring and a damper over the cross-section, and
+  regularised Coulomb friction of coefficient ``friction`` (a low-friction lining is a lower coefficient)
+  against the fibre's sliding along the lumen. Each vertex keeps its own lumen coordinate σ, updated by
+  projection every step, so the fibre can slide along the lumen.
 * **One-way coupling**: the wall forces act on the fibre only. The fibre's bending stiffness is 1/200 of the
   catheter's and the wall forces are millinewtons, so the catheter's shape is that of the welded model.
   Glue spots, being MuJoCo ``connect`` constraints, act on both bodies.
