@@ -8,13 +8,15 @@
 (:meth:`conditions`), and to disturb the distal grating's peaks while the tip touches the lumen's end
 (:meth:`disturb_peaks`). The truth stays the catheter's centreline.
 
-The catheter's base is 40 mm here (10 mm elsewhere) so that two glue spots 25 mm before the first grating fit
-on it; the sheath's hub is moved back by the difference, so the sensed region sits where ``sheath-cycle`` puts it.
+The catheter's base is 40 mm here (10 mm elsewhere; 45 mm when two glue spots 25 mm before the first grating
+need it at 50 segments) so that the glue spots fit on it; the sheath's hub is moved back by the difference, so
+the sensed region sits where ``sheath-cycle`` puts it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import mujoco
 import numpy as np
@@ -115,6 +117,14 @@ class _FibreMixin:
         return d
 
 
+def base_length_for(fibre: FibreSpec, segments: int) -> float:
+    """The catheter's base length, m: :data:`FIBRE_BASE_LENGTH`, or longer when the glue spots need it (the
+    catheter's first two vertices are clamped, so the fibre's base must lie beyond two edges)."""
+    rest = CatheterSpec().sensed_length + CatheterSpec().tip_length
+    need = (-fibre.base_s() + 2 * rest / segments) / (1 - 2 / segments) + 1e-4
+    return max(FIBRE_BASE_LENGTH, math.ceil(need * 200) / 200)  # in whole 5 mm
+
+
 def _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued) -> FibreSpec:
     return FibreSpec(clearance=float(clearance), friction=float(friction), n_fixations=int(fixations),
                      dx_prox=float(dx_prox), dx_dist=float(dx_dist), offset=float(offset), glued=bool(glued))
@@ -148,7 +158,7 @@ class FibreStatic(_FibreMixin, Setup):
         self.curve = shapes.get(shape)
         self.fixture_kind = fixture
         self.fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued)
-        self.spec = CatheterSpec(n_segments=int(segments), base_length=FIBRE_BASE_LENGTH)
+        self.spec = CatheterSpec(n_segments=int(segments), base_length=base_length_for(self.fibre, int(segments)))
         self.settle_time = float(settle_time)
         self._rng = np.random.default_rng(seed)
         self.fixture = None
@@ -206,12 +216,14 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
                  dwell: float = 0.5, clearance: float = 0.0, friction: float = 0.2, fixations: int = 2,
                  dx_prox: float = 0.015, dx_dist: float = 0.002, offset: float = 0.0, glued: bool = False,
                  sheath_friction: float = 0.2, segments: int = 100, settle_time: float = 10.0, seed: int = 0):
-        extra = FIBRE_BASE_LENGTH - CatheterSpec().base_length
+        fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued)
+        base = base_length_for(fibre, int(segments))
+        extra = base - CatheterSpec().base_length
         super().__init__(cycles=cycles, protrusion=protrusion - extra, withdraw=withdraw, speed=speed, dwell=dwell,
                          friction=sheath_friction, segments=segments, settle_time=settle_time, seed=seed)
-        self.spec = dataclasses.replace(self.spec, base_length=FIBRE_BASE_LENGTH)
+        self.spec = dataclasses.replace(self.spec, base_length=base)
         self.protrusion = float(protrusion)
-        self.fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued)
+        self.fibre = fibre
         self._rng = np.random.default_rng(seed)
 
     def extend_scene(self, scene, rod) -> None:
