@@ -300,6 +300,7 @@ class LumenCoupler:
         edge_glued = h.glued[:-1] & h.glued[1:]
         if spec.n_fixations and not edge_glued.any():
             edge_glued[np.flatnonzero(h.glued)[0] - (1 if np.flatnonzero(h.glued)[0] == nf - 1 else 0)] = True
+        self.glued_edges = np.flatnonzero(edge_glued)  #: fibre edges whose roll the glue holds
         self._roll_edges = np.flatnonzero(edge_glued & (tw >= 0))
         self._roll_dof = model.jnt_dofadr[tw[self._roll_edges]] if self._roll_edges.size else np.zeros(0, int)
         self._glue_eq = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, f"{spec.name}_glue_{k}")

@@ -133,8 +133,10 @@ class SimInterrogator(Source):
         delta_t, axial = self.setup.conditions(t, self.fiber.grating_s)
         d = self._grating_average @ self._darboux_buf  # (κ1, κ2, τ) averaged over each grating
         if self._optics_roll is not None:
-            c, s = np.cos(r := self._optics_roll()), np.sin(r)
-            d[:, :2] = d[:, :2] @ np.array([[c, -s], [s, c]])  # (κ1, κ2) in the frame rolled by r about d3
+            r = self._optics_roll()  # rad, one angle or one per grating
+            c, s = np.cos(r), np.sin(r)
+            k1, k2 = d[:, 0].copy(), d[:, 1].copy()
+            d[:, 0], d[:, 1] = c * k1 + s * k2, c * k2 - s * k1  # (κ1, κ2) in the frame rolled by r about d3
         k = d[:, 1::-1] * self._sign  # (k_x, k_y) = (κ2, −κ1)
         w, status = self.optics.wavelengths(k, axial, delta_t, t=t)
         if self._disturb is not None:

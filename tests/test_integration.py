@@ -24,10 +24,10 @@ from twin import FiberModel
 def _fibre_curvature(sim, setup, s):
     """The fibre's curvature (k_x, k_y) at ``s`` in the catheter's roll convention, 1/m."""
     d = sim.optics_reader.read(sim.data).darboux_at(s)
-    r = setup.optics_roll()
+    r = setup.optics_roll(np.asarray(s))
     c, si = np.cos(r), np.sin(r)
-    d2 = d[:, :2] @ np.array([[c, -si], [si, c]])
-    return np.stack([d2[:, 1], -d2[:, 0]], axis=-1)
+    k1, k2 = c * d[:, 0] + si * d[:, 1], c * d[:, 1] - si * d[:, 0]
+    return np.stack([k2, -k1], axis=-1)
 
 
 # ------------------------------------------------------------------------------------------------------ fast
