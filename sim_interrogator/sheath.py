@@ -480,7 +480,7 @@ class SheathSetup(Setup):
                       dampratio="1")
         ET.SubElement(scene.actuators, "position", name="hub_rotate", joint="hub_roll", kp=f"{self.kp_roll:g}",
                       dampratio="1")
-        scene.add_rod(spec, Pose(), parent="hub")
+        rod = scene.add_rod(spec, Pose(), parent="hub")
         lo, hi = self.hub_range
         s_range = (max(0.0, lo - 5e-3), min(geo.length, hi + spec.length + 5e-3))
         self.rails = add_rails(
@@ -495,12 +495,16 @@ class SheathSetup(Setup):
             set_rod_positions(model, data, targets, spec.name)
 
         scene.on_build(place)
+        self.extend_scene(scene, rod)
         model, data = scene.build()
         self._act = (mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "hub_insert"),
                      mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "hub_rotate"))
         self._joints = tuple(int(model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n)])
                              for n in ("hub_slide", "hub_roll"))
         return model, data
+
+    def extend_scene(self, scene: Scene, rod) -> None:
+        """Add to the scene before it compiles, after the rod is placed (e.g. a fibre in its lumen)."""
 
     def prepare(self, model: mujoco.MjModel, data: mujoco.MjData,
                 progress: Callable[[float, float], None] | None = None) -> None:

@@ -69,9 +69,15 @@ class SimInterrogator(Source):
         self._wall0: float | None = None
         self._closed = False
         self._fixture = setup.fixture_centreline() if truth else None
+        # A setup with the fibre as its own body (models/fibre.py) names the fibre's rod: the optics read its
+        # curvature (in the catheter's roll convention, setup.optics_roll()); the truth stays the catheter's.
+        optics_rod = getattr(setup, "optics_rod_name", None) or setup.rod_name
+        self.optics_reader = self.reader if optics_rod == setup.rod_name else RodReader(self.model, optics_rod)
+        self._optics_roll = getattr(setup, "optics_roll", None)
+        self._disturb = getattr(setup, "disturb_peaks", None)
         # Darboux vectors (κ1, κ2, τ) at the interior vertices → (k_x, k_y) = (κ2, −κ1) averaged over each
         # grating's length (models/rod_state.py), as one fixed matrix (2, n_g, n_interior)
-        basis = self.reader.interpolation_matrix(self.optics.sample_s)
+        basis = self.optics_reader.interpolation_matrix(self.optics.sample_s)
         n_g = self.fiber.n_gratings
         avg = np.einsum("gsv,s->gv", basis.reshape(n_g, -1, basis.shape[-1]), self.optics.sample_weights)
         self._darboux_buf = np.empty((basis.shape[-1], 3))
@@ -123,11 +129,18 @@ class SimInterrogator(Source):
 
     def _frame(self, t: float) -> Frame:
         t0 = time.perf_counter()
-        self.reader.compute(self.data, self._frames_buf, self._darboux_buf)
+        self.optics_reader.compute(self.data, self._frames_buf, self._darboux_buf)
         delta_t, axial = self.setup.conditions(t, self.fiber.grating_s)
         d = self._grating_average @ self._darboux_buf  # (κ1, κ2, τ) averaged over each grating
+        if self._optics_roll is not None:
+            r = self._optics_roll()  # rad, one angle or one per grating
+            c, s = np.cos(r), np.sin(r)
+            k1, k2 = d[:, 0].copy(), d[:, 1].copy()
+            d[:, 0], d[:, 1] = c * k1 + s * k2, c * k2 - s * k1  # (κ1, κ2) in the frame rolled by r about d3
         k = d[:, 1::-1] * self._sign  # (k_x, k_y) = (κ2, −κ1)
         w, status = self.optics.wavelengths(k, axial, delta_t, t=t, twist_rate=d[:, 2])
+        if self._disturb is not None:
+            self._disturb(t, w, status)
         t1 = time.perf_counter()
         self.optics_time += t1 - t0
         truth = None

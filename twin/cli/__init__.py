@@ -40,6 +40,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 PLUGIN_HELP: dict[str, str] = {
     "demo": "the main job: reconstruct shapes from (simulated) interrogator data and compare",
     "serve": "serve a simulated interrogator over illumisense, fispec or hyperion",
+    "study": "run a design study (a sweep over parameters and seeds) on Dask distributed",
 }
 
 

@@ -1,0 +1,455 @@
+"""The sensing fibre as its own body in the catheter's lumen (docs/integration.md).
+
+Elsewhere in the twin the fibre is welded to the catheter's centreline: its strains are the catheter's
+curvature. Here it is a second MuJoCo rod — a thin ``<flexcomp dim="1">`` discrete elastic rod with the
+fibre's own bending and torsional stiffness — lying in a lumen of the catheter, so that the clearance,
+the friction with the lumen, the fixations at its base and the gap at its tip show up in its own
+curvature, twist and axial position, and from there in the wavelengths.
+
+Model (the choices and the measurements behind them are in docs/integration.md):
+
+* **The lumen** is the curve L(σ) = x(σ) + offset · d1(σ) of the catheter rod (its centreline x and the
+  material director d1 of the edge at catheter arc length σ), of radial ``clearance`` around the fibre.
+  MuJoCo cannot put one rod's collision geometry inside another's (its contacts are between solids), so the
+  wall is a penalty force computed in numpy before every step (:class:`LumenCoupler`): on each fibre vertex
+  farther than the clearance from the lumen's axis, a radial spring and a damper over the cross-section, and
+  regularised Coulomb friction of coefficient ``friction`` (a low-friction lining is a lower coefficient)
+  against the fibre's sliding along the lumen. Each vertex keeps its own lumen coordinate σ, updated by
+  projection every step, so the fibre can slide along the lumen.
+* **One-way coupling**: the wall forces act on the fibre only. The fibre's bending stiffness is 1/200 of the
+  catheter's and the wall forces are millinewtons, so the catheter's shape is that of the welded model.
+  Glue spots, being MuJoCo ``connect`` constraints, act on both bodies.
+* **Fixations** (``n_fixations`` glue spots of ``glue_length`` at the fibre's base, the most distal one
+  ``dx_prox`` before the first grating, ``fixation_spacing`` apart): MuJoCo connect constraints tie each fibre
+  vertex of a spot to its point on the lumen (the anchor on the catheter's side is moved with d1 every step
+  when the lumen is off-axis), and a torsional spring holds the fibre's roll to the catheter's there.
+  ``glued`` glues the whole fibre (the welded reference).
+* **The tip** ends ``tail`` beyond the last grating, ``dx_dist`` short of the lumen's end; at or beyond the end
+  a stiff axial spring pushes it back, and :meth:`LumenCoupler.tip_contact` reports the contact.
+* **Quasi-static scaling**: like the catheter, the fibre carries a simulated mass far above its real one
+  (its real ≈ 60 µg/m would need microsecond steps); its weight is cancelled (``gravcomp``) because the real
+  weight is negligible against its stiffness. It hangs from the catheter's parent body (the world or the
+  sheath's hub), so the hub carries it rigidly; a small viscous drag against the lumen settles it.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from models.catheter import CatheterSpec, Pose, RodHandle, Scene, _fmt, set_rod_positions
+from models.rod_state import RodReader
+
+__all__ = ["FibreHandle", "FibreSpec", "LumenCoupler", "add_fibre", "place_fibre", "settle_fibre"]
+
+
+@dataclass(frozen=True)
+class FibreSpec:
+    """A sensing fibre in a lumen of the catheter (SI units).
+
+    Parameters
+    ----------
+    name : str
+        The fibre rod's flexcomp name.
+    clearance : float
+        Radial clearance between fibre and lumen wall, m (lumen radius − fibre radius).
+    friction : float
+        Coulomb coefficient fibre–lumen (≈ 0.05 with a PTFE lining, 0.2–0.3 against a polymer wall).
+    n_fixations : int
+        Glue spots at the fibre's base (0, 1 or 2 in the reference paper's guideline).
+    dx_prox : float
+        Distance from the most distal fixation to the first grating (fibre s = 0), m.
+    fixation_spacing : float
+        Distance between consecutive glue spots, m.
+    glue_length : float
+        Length of each glue spot, m (at least one fibre vertex is always glued).
+    dx_dist : float
+        Gap between the fibre's tip and the lumen's end, m (≤ 0: the tip is pressed against it).
+    tail : float
+        Fibre beyond the last grating, m.
+    offset : float
+        Distance of the lumen's axis from the catheter's neutral axis along d1, m.
+    glued : bool
+        Glue the fibre along its whole length (the welded reference; needs ``offset == 0``).
+    bending_stiffness, torsional_stiffness : float
+        EI and GJ of the fibre, N·m² (a 125 µm silica fibre with a polyimide/ormocer coat: EI ≈ 1e-6).
+    diameter : float
+        Outer diameter of the coated fibre, m.
+    vertex_mass : float
+        Simulated mass per fibre vertex, kg (quasi-static; see the module docstring).
+    wall_stiffness : float
+        Normal penalty stiffness per vertex, N/m. Bounded by the explicit-force stability limit
+        ``vertex_mass / timestep²`` (2500 N/m at the defaults); 600 N/m lets ≈ 10 µm into the wall.
+    wall_damping : float
+        Normal damping per vertex, N·s/m. 0.3 let the fibre in a 25 1/m arc with 0.1 mm clearance oscillate
+        against the wall with growing amplitude (unstable after ≈ 0.5 s); 2.0 (c·dt/m = 0.4) settles it.
+    slip_speed : float
+        Regularisation speed of the Coulomb friction, m/s (below it friction is viscous). The friction's
+        viscosity μN/|v| is applied explicitly and capped at 0.5·m/dt (2.5 N·s/m at the defaults): uncapped,
+        μN/slip_speed reached 10 N·s/m at 50 mN of wall force and the fibre went unstable within a second;
+        with the cap a load below μN creeps at ≤ F / 2.5 N·s/m instead of sticking.
+    roll_stiffness : float
+        Torsional spring holding the fibre's roll at each glued edge, N·m/rad. Explicit, so bounded by the
+        twist body's inertia (≈ m r²/2 = 5e-11 kg·m² at the defaults): k·dt² / I < 1 needs k < 1.2e-5;
+        2e-4 went unstable within a second.
+    drag : float
+        Viscous drag per vertex against the lumen's motion, N·s/m: numerical, it settles the fibre where
+        nothing else holds it (0.1 mN at 1 mm/s of sliding, below the friction at a loaded contact).
+    """
+
+    name: str = "fibre"
+    clearance: float = 0.0
+    friction: float = 0.2
+    n_fixations: int = 2
+    dx_prox: float = 0.015
+    fixation_spacing: float = 0.005
+    glue_length: float = 0.002
+    dx_dist: float = 0.002
+    tail: float = 0.003
+    offset: float = 0.0
+    glued: bool = False
+    bending_stiffness: float = 1.0e-6
+    torsional_stiffness: float = 0.8e-6
+    diameter: float = 0.2e-3
+    vertex_mass: float = 0.01
+    wall_stiffness: float = 600.0
+    wall_damping: float = 2.0
+    slip_speed: float = 1e-3
+    roll_stiffness: float = 5e-6
+    drag: float = 0.1
+
+    def __post_init__(self) -> None:
+        for k in ("clearance", "friction", "dx_prox", "fixation_spacing", "glue_length", "tail", "offset",
+                  "bending_stiffness", "torsional_stiffness", "diameter", "vertex_mass", "wall_stiffness",
+                  "wall_damping", "slip_speed", "roll_stiffness", "drag"):
+            v = getattr(self, k)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"FibreSpec.{k}: expected a finite number >= 0, got {v!r}")
+        if not math.isfinite(self.dx_dist):
+            raise ValueError(f"FibreSpec.dx_dist: expected a finite number, got {self.dx_dist!r}")
+        if self.n_fixations not in (0, 1, 2, 3):
+            raise ValueError(f"FibreSpec.n_fixations: expected 0–3, got {self.n_fixations!r}")
+        if self.glued and self.offset:
+            raise ValueError("FibreSpec: a glued fibre off the axis would have to stretch (an inextensible rod "
+                             "cannot); use the welded model's OpticsConfig.fiber_offset instead")
+
+    @property
+    def radius(self) -> float:
+        return 0.5 * self.diameter
+
+    def fixation_s(self) -> np.ndarray:
+        """Fibre arc length of the distal end of each glue spot, m, distal first (empty without fixations)."""
+        return -self.dx_prox - self.fixation_spacing * np.arange(self.n_fixations)
+
+    def base_s(self) -> float:
+        """Fibre arc length of the fibre's proximal end, m: the last glue spot's start (or where it would be)."""
+        n = max(self.n_fixations, 1)
+        return -self.dx_prox - self.fixation_spacing * (n - 1) - self.glue_length
+
+    def describe(self) -> dict:
+        return {"clearance_m": self.clearance, "friction": self.friction, "n_fixations": self.n_fixations,
+                "dx_prox_m": self.dx_prox, "dx_dist_m": self.dx_dist, "offset_m": self.offset,
+                "glued": self.glued}
+
+
+@dataclass(frozen=True)
+class FibreHandle:
+    """What :func:`add_fibre` put into a scene: the fibre's rest grid on the catheter's vertex grid.
+
+    Attributes
+    ----------
+    spec : FibreSpec
+    catheter : CatheterSpec
+    s : ndarray (n,)
+        Fibre arc length of the fibre's vertices at rest, m (a subset of the catheter's vertex arc lengths).
+    first : int
+        Index of the catheter vertex the fibre's first vertex sits on at rest.
+    glued : ndarray of bool (n,)
+        Vertices held by glue.
+    lumen_end : float
+        Catheter arc length of the lumen's end, m.
+    """
+
+    spec: FibreSpec
+    catheter: CatheterSpec
+    s: np.ndarray
+    first: int
+    glued: np.ndarray
+    lumen_end: float
+
+
+def add_fibre(scene: Scene, rod: RodHandle, spec: FibreSpec | None = None, world_pose: Pose | None = None
+              ) -> FibreHandle:
+    """Add the fibre rod in a lumen of ``rod`` (before :meth:`Scene.build`); returns its :class:`FibreHandle`.
+
+    The fibre hangs from the same body as the catheter, or — when that body moves (a hub with joints, from
+    which MuJoCo lets hang only a rod pinned to it) — from the world at ``world_pose``, the catheter's base pose
+    in the world at ``qpos0``; the caller then gives :func:`install_coupler` the hub's acceleration.
+
+    The fibre's vertices sit on the catheter's vertex grid (same edge length) so that at rest each fibre vertex
+    has a catheter vertex beside it; the catheter needs a base long enough for the fixations and a tip long
+    enough for the tail and gap.
+    """
+    spec = spec or FibreSpec()
+    cath = rod.spec
+    l = cath.segment_length
+    cs = cath.vertex_s
+    lo = spec.base_s()
+    if lo < cs[0] + 2 * l - 1e-12:  # the catheter's first two vertices are clamped: no bodies to glue to
+        raise ValueError(f"add_fibre: the fixations reach s = {lo * 1e3:.1f} mm but the catheter starts at "
+                         f"{cs[0] * 1e3:.1f} mm; lengthen CatheterSpec.base_length")
+    first = int(np.floor((lo - cs[0]) / l + 1e-9))
+    tip = cath.sensed_length + spec.tail
+    last = int(np.ceil((tip - cs[0]) / l - 1e-9))
+    lumen_end = cs[last] + spec.dx_dist
+    if lumen_end > cs[-1] + 1e-12:
+        raise ValueError(f"add_fibre: the lumen would end {lumen_end * 1e3:.1f} mm beyond the catheter's tip "
+                         f"({cs[-1] * 1e3:.1f} mm); lengthen CatheterSpec.tip_length or reduce dx_dist")
+    s = cs[first:last + 1]
+    glued = np.zeros(s.size, bool)
+    if spec.glued:
+        glued[:] = True
+    else:
+        for sf in spec.fixation_s():
+            spot = (s <= sf + 1e-9) & (s >= sf - spec.glue_length - 1e-9)
+            if not spot.any():  # a glue spot shorter than an edge: glue the vertex nearest to it
+                spot[np.argmin(np.abs(s - (sf - 0.5 * spec.glue_length)))] = True
+            glued |= spot
+    n = s.size - 1
+    points = np.zeros((n + 1, 3))
+    points[:, 0] = spec.offset
+    points[:, 2] = s - cs[0]
+    i_rod = math.pi * spec.radius**4 / 4
+    parent = scene._parent(rod.parent if world_pose is None else None)
+    base = rod.pose if world_pose is None else world_pose
+    parent.append(ET.Comment(f" fibre {spec.name!r} in a lumen of {cath.name!r}: {s[0] * 1e3:.1f} to {s[-1] * 1e3:.1f}"
+                             f" mm, clearance {spec.clearance * 1e6:.0f} um, {spec.n_fixations} fixation(s) "))
+    fc = ET.SubElement(parent, "flexcomp", name=spec.name, type="direct", dim="1", radius=_fmt(spec.radius),
+                       mass=_fmt(spec.vertex_mass * (n + 1)), pos=_fmt(base.pos), quat=_fmt(base.quat),
+                       rgba="0.2 0.5 0.95 1", point=_fmt(points),
+                       element=_fmt(np.repeat(np.arange(n + 1), 2)[1:-1]))
+    solref = _fmt(cath.solref)
+    ET.SubElement(fc, "edge", equality="true", solref=solref, solimp=_fmt(cath.solimp))
+    ET.SubElement(fc, "elasticity", young=_fmt(spec.bending_stiffness / i_rod),
+                  shear=_fmt(spec.torsional_stiffness / (2 * i_rod)), poisson="0.3", damping=_fmt(cath.damping))
+    ET.SubElement(fc, "contact", contype="0", conaffinity="0")  # the lumen wall is LumenCoupler's
+    for k in np.flatnonzero(glued):
+        # Fibre vertex k beside catheter vertex first + k (both bodies translate only): the connect's anchor on
+        # the catheter's side is the lumen offset, rewritten by the coupler when the lumen is off-axis.
+        scene.add_equality("connect", name=f"{spec.name}_glue_{k}", body1=f"{spec.name}_{k}",
+                           body2=f"{cath.name}_{first + k}", anchor="0 0 0", solref=solref, solimp=_fmt(cath.solimp))
+    scene.add_numeric(f"{spec.name}_s0", s[0])
+    scene.add_numeric(f"{spec.name}_sensed_length", cath.sensed_length)
+    scene.add_numeric(f"{spec.name}_vertex_damping", cath.dof_damping)
+    return FibreHandle(spec, cath, s, first, glued, float(lumen_end))
+
+
+def place_fibre(model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle) -> None:
+    """Put the fibre on the lumen's axis of the catheter as it is now, at rest and untwisted (calls
+    ``mj_forward``). Run it after the catheter has been placed (e.g. as a later :meth:`Scene.on_build` hook)."""
+    state = RodReader(model, handle.catheter.name).read(data)
+    pts = state.positions_at(handle.s)
+    if handle.spec.offset:
+        pts = pts + handle.spec.offset * state.frames_at(handle.s)[:, :, 0]
+    set_rod_positions(model, data, pts, handle.spec.name)
+
+
+class LumenCoupler:
+    """The lumen's wall, friction, end and roll fixations acting on the fibre: :meth:`apply` before every step.
+
+    It writes ``mjData.qfrc_applied`` of the fibre's degrees of freedom (a setup calls it from its ``actuate``).
+    Not MuJoCo's passive-force callback: that one is global to the process, and MuJoCo's compiler calls it on
+    models under construction, where the Python bindings fail ("engine error: Python exception raised").
+
+    ``carrier_acceleration(data)`` → (3,) m/s², world: the acceleration of the body the catheter hangs from
+    when the fibre hangs from the world (see :func:`add_fibre`).
+    """
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle,
+                 carrier_acceleration: Callable[[mujoco.MjData], np.ndarray] | None = None) -> None:
+        self.handle = h = handle
+        self.carrier_acceleration = carrier_acceleration
+        self.spec = spec = handle.spec
+        cath = handle.catheter
+        self.cath_reader = RodReader(model, cath.name)
+        self.fibre_reader = RodReader(model, spec.name)
+        nf = handle.s.size
+        self._cframes = np.empty((cath.n_segments, 3, 3))
+        self._cdarb = np.empty((cath.n_segments - 1, 3))
+        self._fframes = np.empty((nf - 1, 3, 3))
+        self._fdarb = np.empty((nf - 2, 3))
+        fid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, spec.name)
+        bodies = model.flex_vertbodyid[model.flex_vertadr[fid]: model.flex_vertadr[fid] + nf]
+        if np.any(model.body_jntnum[bodies] != 3):
+            raise ValueError(f"LumenCoupler: every vertex of fibre {spec.name!r} must move (3 slide joints)")
+        self._parent = int(model.body_parentid[bodies[0]])
+        cid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, cath.name)
+        cb = model.flex_vertbodyid[model.flex_vertadr[cid] + model.flex_vertnum[cid] - 1]
+        self._cath_parent = int(model.body_parentid[cb])
+        j0 = model.body_jntadr[bodies]
+        self._dof = model.jnt_dofadr[j0[:, None] + np.arange(3)]  # (nf, 3)
+        self._axes = model.jnt_axis[j0[:, None] + np.arange(3)]  # (nf, 3 joints, 3) in the parent frame
+        model.body_gravcomp[bodies] = 1.0
+        names = [f"{spec.name}_twist_{e}" for e in range(nf - 2)] + [f"{spec.name}_twist"]
+        tw = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names])
+        edge_glued = h.glued[:-1] & h.glued[1:]
+        if spec.n_fixations and not edge_glued.any():
+            edge_glued[np.flatnonzero(h.glued)[0] - (1 if np.flatnonzero(h.glued)[0] == nf - 1 else 0)] = True
+        self.glued_edges = np.flatnonzero(edge_glued)  #: fibre edges whose roll the glue holds
+        self._roll_edges = np.flatnonzero(edge_glued & (tw >= 0))
+        self._roll_dof = model.jnt_dofadr[tw[self._roll_edges]] if self._roll_edges.size else np.zeros(0, int)
+        self._glue_eq = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, f"{spec.name}_glue_{k}")
+                                  for k in np.flatnonzero(h.glued)], dtype=int)
+        self._glue_idx = np.flatnonzero(h.glued)
+        cs = cath.vertex_s
+        self._cs0, self._l = float(cs[0]), cath.segment_length
+        self.sigma = handle.s.copy()  # lumen coordinate (catheter arc length) of each fibre vertex, m
+        self._free = ~h.glued
+        self._prev_t: float | None = None
+        self._prev_L: np.ndarray | None = None
+        self._v_l: np.ndarray | None = None
+        self.roll0 = 0.0
+        self._roll_ready = False
+        self.tip_force = 0.0  # N, axial push of the lumen's end on the tip (last step)
+        self.normal = np.zeros(nf)  # N, wall force per vertex (last step)
+        self.tension = np.zeros(nf - 1)  # N, axial force per fibre edge from the wall and the end (last step)
+        self.calls = 0
+
+    # -- geometry --
+    def lumen(self, x: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Lumen axis points (n, 3), tangents (n, 3) and d1 (n, 3) at catheter arc lengths ``sigma``."""
+        u = (sigma - self._cs0) / self._l
+        j = np.clip(np.floor(u).astype(np.int64), 0, x.shape[0] - 2)
+        w = (u - j)[:, None]
+        f = self._cframes[j]
+        d1, t = f[:, :, 0], f[:, :, 2]
+        p = (1.0 - w) * x[j] + w * x[j + 1] + self.spec.offset * d1
+        return p, t, d1
+
+    def roll_error(self, frames_f: np.ndarray, edges: np.ndarray) -> np.ndarray:
+        """Roll of the fibre's material frame against the catheter's at fibre edges ``edges``, rad."""
+        c, s = math.cos(self.roll0), math.sin(self.roll0)
+        f = frames_f[edges]
+        d1f = c * f[:, :, 0] + s * f[:, :, 1]  # the fibre's d1 in the catheter's convention
+        cf = self._cframes[self.handle.first + edges]
+        return np.arctan2(np.einsum("ni,ni->n", d1f, cf[:, :, 1]), np.einsum("ni,ni->n", d1f, cf[:, :, 0]))
+
+    def calibrate_roll(self, data: mujoco.MjData) -> float:
+        """Fix the constant roll between MuJoCo's director of the fibre and the catheter's convention (d1 = the
+        base's x axis), from the present state (call after the first step, with the fibre at rest beside the
+        catheter's grid)."""
+        self.cath_reader.compute(data, self._cframes, self._cdarb)
+        self.fibre_reader.compute(data, self._fframes, self._fdarb)
+        self.roll0 = 0.0
+        self.roll0 = -float(np.median(self.roll_error(self._fframes, np.arange(self._fframes.shape[0]))))
+        return self.roll0
+
+    # -- the forces --
+    def apply(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Write the lumen's forces on the fibre for the next step into ``data.qfrc_applied``."""
+        spec, h = self.spec, self.handle
+        self.calls += 1
+        x_c = self.cath_reader.compute(data, self._cframes, self._cdarb)
+        x_f = data.flexvert_xpos[self.fibre_reader._va: self.fibre_reader._va + self.fibre_reader._nv]
+        rp = data.xmat[self._parent].reshape(3, 3)
+        axes_w = self._axes @ rp.T  # (nf, 3, 3): joint axes in the world
+        v_f = np.einsum("nj,nji->ni", data.qvel[self._dof], axes_w)
+        # lumen coordinate by projection (one step per call: the fibre slides far less than an edge per step)
+        free = self._free
+        p, t, _ = self.lumen(x_c, self.sigma)
+        a = np.einsum("ni,ni->n", x_f - p, t)
+        self.sigma[free] = np.clip(self.sigma[free] + a[free], self._cs0, self._cs0 + self._l * (x_c.shape[0] - 1))
+        p, t, _d1 = self.lumen(x_c, self.sigma)
+        # lumen velocity and acceleration by differences over steps (the catheter is a quasi-static rod)
+        tnow = float(data.time)
+        if self._prev_t is not None and tnow > self._prev_t:
+            self._v_l = (p - self._prev_L) / (tnow - self._prev_t)
+        if self._prev_t is None or tnow > self._prev_t:
+            self._prev_t, self._prev_L = tnow, p
+        v_l = self._v_l if self._v_l is not None else np.zeros_like(p)
+        force = -spec.drag * (v_f - v_l)  # numerical drag against the lumen: settles the free fibre
+        if self.carrier_acceleration is not None:
+            # d'Alembert: a fibre hung from the world is carried along with the hub's acceleration
+            force += spec.vertex_mass * self.carrier_acceleration(data)
+        r = x_f - p
+        r -= np.einsum("ni,ni->n", r, t)[:, None] * t
+        d = np.linalg.norm(r, axis=1)
+        pen = d - spec.clearance
+        contact = free & (pen > 0.0)
+        n_hat = r / np.maximum(d, 1e-12)[:, None]
+        v_rel = v_f - v_l
+        v_ax = np.einsum("ni,ni->n", v_rel, t)
+        v_cross = v_rel - v_ax[:, None] * t
+        # the wall: a spring along the radius and a damper over the whole cross-section (not along the radius
+        # only: at zero clearance the radius' direction is noise and a damper along it went unstable)
+        normal = np.where(contact, spec.wall_stiffness * pen, 0.0)
+        force += -normal[:, None] * n_hat - (spec.wall_damping * contact)[:, None] * v_cross
+        # friction against sliding along the lumen, as a viscosity μN/|v| (regularised): explicit, so capped
+        # at half the stability limit m/dt
+        visc = np.minimum(spec.friction * normal / np.sqrt(v_ax**2 + spec.slip_speed**2),
+                          0.5 * spec.vertex_mass / model.opt.timestep)
+        force -= (visc * v_ax)[:, None] * t
+        self.normal = normal
+        # the lumen's end pushes the tip back
+        gap = h.lumen_end - self.sigma[-1]
+        self.tip_force = spec.wall_stiffness * max(-gap, 0.0)
+        force[-1] -= self.tip_force * t[-1]
+        # the fibre's axial force: tension at each edge = the wall's and end's axial push on everything distal
+        along = np.einsum("ni,ni->n", force, t)
+        self.tension = np.cumsum(along[::-1])[::-1][1:]
+        data.qfrc_applied[self._dof] = np.einsum("ni,nji->nj", force, axes_w)
+        # glue: the connect anchors follow the lumen's offset; the roll springs hold the fibre's roll
+        if self._glue_eq.size and spec.offset:
+            model.eq_data[self._glue_eq, 3:6] = (spec.offset * self._cframes[np.minimum(
+                h.first + self._glue_idx, self._cframes.shape[0] - 1), :, 0]) @ data.xmat[
+                    self._cath_parent].reshape(3, 3)
+        pa = self.fibre_reader._pa
+        if not self._roll_ready and (data.plastic[pa + 3] or data.plastic[pa + 4] or data.plastic[pa + 5]):
+            self.calibrate_roll(data)  # MuJoCo has chosen the fibre's reference directors (after the first step)
+            self._roll_ready = True
+        if self._roll_dof.size and self._roll_ready:
+            self.fibre_reader.compute(data, self._fframes, self._fdarb)
+            phi = self.roll_error(self._fframes, self._roll_edges)
+            data.qfrc_applied[self._roll_dof] = -spec.roll_stiffness * phi
+
+    # -- observables --
+    def slide(self) -> np.ndarray:
+        """Axial slide of each fibre vertex along the lumen since rest, m (positive: toward the tip)."""
+        return self.sigma - self.handle.s
+
+    def tip_gap(self) -> float:
+        """Lumen's end minus the fibre tip's lumen coordinate, m (≤ 0: in contact)."""
+        return float(self.handle.lumen_end - self.sigma[-1])
+
+    def tip_contact(self) -> bool:
+        return self.tip_gap() <= 0.0
+
+
+def settle_fibre(model: mujoco.MjModel, data: mujoco.MjData, step: Callable[[], None], *, tol: float = 1e-6,
+                 window: float = 0.05, max_time: float = 10.0, label: str = "fibre") -> float:
+    """Step (``step()`` applies the coupler and steps once) until no flex vertex moves more than ``tol`` (m) over
+    ``window`` (s); the settling time (s). Raises ``SettleError`` after ``max_time`` or on instability.
+
+    :func:`models.fixtures.settle` steps MuJoCo in blocks; the fibre needs its coupler before every step."""
+    from models.fixtures.settle import UNSTABLE_WARNINGS, SettleError
+
+    warned = [data.warning[w].number for w in UNSTABLE_WARNINGS]
+    n = max(1, round(window / model.opt.timestep))
+    t0 = data.time
+    while True:
+        start = data.flexvert_xpos.copy()
+        for _ in range(n):
+            step()
+        moved = np.linalg.norm(data.flexvert_xpos - start, axis=1)
+        if not np.all(np.isfinite(moved)) or [data.warning[w].number for w in UNSTABLE_WARNINGS] != warned:
+            raise SettleError(f"{label}: the simulation became unstable while settling the fibre")
+        if moved.max() < tol:
+            return float(data.time - t0)
+        if data.time - t0 > max_time:
+            raise SettleError(f"{label}: not settled after {max_time:g} s simulated: a vertex still moved "
+                              f"{moved.max() * 1e6:.2f} µm in {window:g} s (tolerance {tol * 1e6:.3g} µm)")

@@ -1,0 +1,128 @@
+"""The fibre as its own body in the catheter's lumen (models/fibre.py) and the integration experiment.
+
+Physics (slow): glued with zero clearance the fibre reads what the welded model reads; with clearance, in a
+constant-curvature lumen the fibre rides on the inner wall with the curvature of that wall, 1/(R − c); the
+guideline trends (error grows with clearance, tip contact disturbs peaks, no base fixation lets the fibre slide).
+Fast: the fibre's geometry in the scene and bad specs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+from models.catheter import CatheterSpec, Scene
+from models.fibre import FibreSpec, add_fibre
+from sim_interrogator.fibre_setups import FIBRE_BASE_LENGTH, FibreStatic
+from sim_interrogator.optics import Optics, OpticsConfig
+from sim_interrogator.sim import SimInterrogator
+from twin import FiberModel
+
+
+def _fibre_curvature(sim, setup, s):
+    """The fibre's curvature (k_x, k_y) at ``s`` in the catheter's roll convention, 1/m."""
+    d = sim.optics_reader.read(sim.data).darboux_at(s)
+    r = setup.optics_roll(np.asarray(s))
+    c, si = np.cos(r), np.sin(r)
+    k1, k2 = c * d[:, 0] + si * d[:, 1], c * d[:, 1] - si * d[:, 0]
+    return np.stack([k2, -k1], axis=-1)
+
+
+# ------------------------------------------------------------------------------------------------------ fast
+def test_fibre_sits_on_the_catheters_grid_with_its_glue_spots_and_tip_gap():
+    spec = CatheterSpec(base_length=FIBRE_BASE_LENGTH)
+    scene = Scene("t")
+    rod = scene.add_rod(spec)
+    h = add_fibre(scene, rod, FibreSpec(n_fixations=2, dx_prox=0.015, fixation_spacing=0.005, dx_dist=0.002))
+    assert np.allclose(h.s, spec.vertex_s[h.first:h.first + h.s.size])  # beside catheter vertices at rest
+    glued = h.s[h.glued]
+    assert glued.max() <= -0.015 + 1e-9 and glued.min() >= -0.015 - 0.005 - 0.002 - 1e-9
+    assert ((glued > -0.0175) & (glued <= -0.015 + 1e-9)).any() and (glued <= -0.020 + 1e-9).any()
+    assert h.s[-1] >= spec.sensed_length + 0.003 - 1e-9  # the tail beyond the last grating
+    assert h.lumen_end == pytest.approx(h.s[-1] + 0.002)
+    model, _ = scene.build()
+    assert model.nflex == 2
+
+
+def test_bad_fibre_specs_are_refused():
+    with pytest.raises(ValueError, match="stretch"):
+        FibreSpec(glued=True, offset=2e-4)
+    with pytest.raises(ValueError, match="n_fixations"):
+        FibreSpec(n_fixations=5)
+    with pytest.raises(ValueError, match="clearance"):
+        FibreSpec(clearance=-1e-4)
+    scene = Scene("t")
+    rod = scene.add_rod(CatheterSpec())  # 10 mm base: no room for fixations 25 mm before the first grating
+    with pytest.raises(ValueError, match="base_length"):
+        add_fibre(scene, rod, FibreSpec(dx_prox=0.025))
+
+
+# ------------------------------------------------------------------------------------------------------ slow
+@pytest.mark.slow
+def test_glued_fibre_without_clearance_reads_what_the_welded_model_reads():
+    setup = FibreStatic("helix", glued=True, clearance=0.0)
+    sim = SimInterrogator(setup, FiberModel.paper(), OpticsConfig.ideal())
+    g = sim.fiber.grating_s
+    k_cath = sim.reader.read(sim.data).curvature_at(g)  # what the welded model's optics read
+    k_fib = _fibre_curvature(sim, setup, g)
+    # measured 0.019 1/m (helix, |k| = 40 1/m): the glue's connect constraints leave sub-micrometre play
+    assert np.abs(k_fib - k_cath).max() < 0.05
+    optics = Optics(sim.fiber, OpticsConfig.ideal())
+    w_weld, _ = optics.wavelengths(k_cath, 0.0)
+    frame = sim.read()
+    # 0.05 1/m × g (28 µm) × λ (1550 nm) ≈ 2 pm
+    assert np.nanmax(np.abs(frame.wavelengths - w_weld)) < 3e-3
+    assert setup.coupler.tip_gap() == pytest.approx(0.002, abs=1e-6) and not setup.contact_frames
+
+
+@pytest.mark.slow
+def test_fibre_with_clearance_rides_the_inner_wall_of_a_bent_lumen():
+    c = 1.5e-4
+    setup = FibreStatic("arc", clearance=c)  # a planar arc of 25 1/m
+    sim = SimInterrogator(setup, FiberModel.paper(), OpticsConfig.ideal())
+    co = setup.coupler
+    cath = sim.reader.read(sim.data)
+    fib = sim.optics_reader.read(sim.data)
+    p, t, _ = co.lumen(cath.positions, co.sigma)
+    r = fib.positions - p
+    r -= np.einsum("ni,ni->n", r, t)[:, None] * t
+    k = cath.curvature_at(co.sigma)
+    fr = cath.frames_at(co.sigma)
+    towards_centre = k[:, :1] * fr[:, :, 0] + k[:, 1:] * fr[:, :, 1]
+    towards_centre /= np.linalg.norm(towards_centre, axis=1, keepdims=True)
+    inner = np.einsum("ni,ni->n", r, towards_centre)
+    mid = (fib.s > 0.03) & (fib.s < 0.12)  # away from the glue's transition and the free tail
+    # on the inner wall: the clearance plus the penalty wall's give (≤ 10 µm at these forces)
+    assert np.all(inner[mid] > c - 5e-6) and np.all(inner[mid] < c + 1.5e-5)
+    # and with the inner wall's curvature 1/(R − c) = 25.094 1/m, not the axis' 25
+    s_mid = np.linspace(0.04, 0.11, 8)
+    kf = np.linalg.norm(_fibre_curvature(sim, setup, s_mid), axis=1)
+    assert np.allclose(kf, 1 / (1 / 25.0 - c), atol=0.03)
+    # the shorter inner path pushes the free tip toward the lumen's end by ≈ c·∫κ ds (= 0.64 mm over 170 mm)
+    assert 0.3e-3 < 0.002 - co.tip_gap() < 0.9e-3
+
+
+@pytest.mark.slow
+def test_error_grows_with_clearance_and_tip_contact_disturbs_peaks():
+    from scenarios.integration import BASELINE, Params, run_point
+
+    params = Params(shapes=("arc", "helix"), repeats=2, cycles=0)
+    tight = run_point({**BASELINE, "label": "0", "clearance": 0.0}, params)
+    loose = run_point({**BASELINE, "label": "0.3", "clearance": 3e-4}, params)
+    assert loose["max_error_mm"] > tight["max_error_mm"] and loose["mean_error_mm"] > tight["mean_error_mm"]
+    contact = run_point({**BASELINE, "label": "c", "dx_dist": 0.0}, params)
+    assert contact["static_contact_frames"] > 0 and contact["static_lost_peaks"] > 0
+    assert tight["static_contact_frames"] == 0
+
+
+@pytest.mark.slow
+def test_without_base_fixation_the_fibre_slides_and_repeatability_worsens():
+    from scenarios.integration import BASELINE, Params, run_point
+
+    params = Params(shapes=(), cycles=3)
+    fixed = run_point({**BASELINE, "label": "2"}, params)
+    free = run_point({**BASELINE, "label": "0", "fixations": 0}, params)
+    assert free["cycle_slide_max_mm"] > fixed["cycle_slide_max_mm"]
+    assert free["repeat_std_mm"] > fixed["repeat_std_mm"]
