@@ -1,8 +1,8 @@
-"""`twin bench`: how fast reconstruction (and, when installed, simulation and streaming) runs here.
+"""How fast reconstruction (and, when installed, simulation, streaming and studies) runs here (`twin bench`).
 
 The measurements run in a child process pinned to one CPU with single-threaded BLAS, so "per core" means one
-core. The report compares each figure with its goal and, with ``--compare FILE``, with an earlier run;
-``--json`` prints one JSON object and ``--out FILE`` writes it.
+core. :func:`report` compares each figure with its goal and, optionally, with an earlier run. The command is
+:mod:`twin.cli.bench`.
 
 Sections are found through the registry (:mod:`twin.registry`, group ``twin.bench``: ``module:function``
 returning a dict), so the simulator's benchmarks live in their own packages without the sensing core naming them.
@@ -10,7 +10,6 @@ returning a dict), so the simulator's benchmarks live in their own packages with
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -20,8 +19,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-from twin import jsonout
 
 
 def sections() -> dict[str, str]:
@@ -44,39 +41,6 @@ GOALS: dict[tuple[str, str], tuple[str, float, str]] = {
 }
 
 PAPER_CPP_US = 14_300.0  # the paper's C++ reconstruction per frame (2.6 GHz CPU)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--json", action="store_true", help="print one JSON object instead of the report")
-    parser.add_argument("--out", type=Path, help="also write the JSON to this file")
-    parser.add_argument("--compare", type=Path, help="compare with an earlier `twin bench --json` file")
-    parser.add_argument("--quick", action="store_true", help="fewer repetitions (a rough figure in seconds)")
-    known = ",".join(sections())
-    parser.add_argument("--sections", default=known, help=f"comma-separated sections to run (default: {known})")
-    parser.add_argument("--cpu", type=int, default=None, help="CPU to pin the measurement to (default: the last)")
-
-
-def run(args: argparse.Namespace) -> int:
-    known = sections()
-    chosen = [s.strip() for s in args.sections.split(",") if s.strip()]
-    unknown = sorted(set(chosen) - set(known))
-    if unknown:
-        raise ValueError(f"unknown section(s) {', '.join(unknown)}; known: {', '.join(known)}")
-    previous = None
-    if args.compare:
-        try:
-            previous = json.loads(args.compare.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{args.compare}: not a JSON benchmark file ({exc})") from None
-    result = measure_in_child(chosen, quick=args.quick, cpu=args.cpu)
-    text = jsonout.dumps(result, indent=2)
-    if args.out:
-        args.out.write_text(text + "\n")
-    if args.json:
-        print(text)
-    else:
-        print(report(result, previous))
-    return 0
 
 
 def measure_in_child(sections: list[str], quick: bool = False, cpu: int | None = None) -> dict:

@@ -27,7 +27,7 @@ if TYPE_CHECKING:  # pragma: no cover
 #: the core's commands: command → (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("twin.cli.run", "run a scenario (an experiment of the paper, or our own)"),
-    "bench": ("twin.bench", "measure reconstruction (and simulation, streaming) speed"),
+    "bench": ("twin.cli.bench", "measure reconstruction (and simulation, streaming) speed"),
     "live": ("twin.cli.live", "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"),
     "replay": ("twin.cli.replay", "reconstruct a recording (twin HDF5 or ILLumiSense log) and summarise it"),
     "calibrate": ("twin.cli.calibrate", "two-step calibration (straight, then an in-plane bend) from a source"),
