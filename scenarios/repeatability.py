@@ -28,8 +28,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from scenarios import _sheath_common as common
 from scenarios._common import entry
+from scenarios._common import sheath as common
 from scenarios._common.calibration import calibration_for
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import DEG, option

@@ -10,11 +10,11 @@ What is measured, per step (the paper's "tip deviation after registration vs ang
 1. each frame is reconstructed (the default pipeline, the paper's with θ_b held through low curvature and the
    paper's literal transcription; calibration ``lab`` unless ``--calibration`` says otherwise, see
    :mod:`scenarios._common.calibration`) and placed in the world with the fibre base's pose: ``tracked`` — the
-   true pose of the fibre's s = 0 (a tracked base, :func:`scenarios.series.to_world`), or ``commanded`` — the
+   true pose of the fibre's s = 0 (a tracked base, :func:`scenarios._common.series.to_world`), or ``commanded`` — the
    sheath's centreline at the commanded insertion, rolled by the commanded hub angle (what an experimenter knows
    from the handle);
 2. a static measurement is the mean over the last ``window`` (0.5 s) of each dwell, of the reconstructed tip and of
-   the EM reading (true tip + 0.2 mm per-axis Gaussian noise, see :mod:`scenarios._sheath_common`);
+   the EM reading (true tip + 0.2 mm per-axis Gaussian noise, see :mod:`scenarios._common.sheath`);
 3. registration: one translation maps the reconstructed tips onto the EM readings over all angles (the unknown
    offset between the FBG and EM frames; the tips move by < 1 mm, too little to fix a rotation), and the tip
    deviation at each angle is the distance left. ``max_deviation_mm`` is the largest over the angles;
@@ -46,8 +46,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from scenarios import _sheath_common as common
 from scenarios._common import entry
+from scenarios._common import sheath as common
 from scenarios._common.calibration import calibration_for
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import DEG, option

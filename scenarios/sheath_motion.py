@@ -30,11 +30,12 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from scenarios import _sheath_common as common
 from scenarios._common import entry
+from scenarios._common import sheath as common
 from scenarios._common.calibration import calibration_for
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
+from scenarios._common.series import errors
 from scenarios.report import (
     Report,
     curvature_profiles,
@@ -46,7 +47,6 @@ from scenarios.report import (
     stamp,
     tip_trajectories,
 )
-from scenarios.series import errors
 from sim_interrogator.sheath import SheathPath
 from twin import metrics
 

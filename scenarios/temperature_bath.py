@@ -50,7 +50,7 @@ from scenarios._common.calibration import CALIBRATIONS, calibration_for, check_c
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
 from scenarios._common.optics import OPTICS, optics_config
-from scenarios.series import Series, collect
+from scenarios._common.series import Series, collect
 from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.thermal import PROFILES, Bath
 from twin import FiberModel, Reconstructor, Shape, metrics, shapes

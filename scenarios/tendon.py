@@ -16,7 +16,7 @@ reconstruction ends, so no tip offset is needed) plus white Gaussian noise of ``
 offset are not modelled — samples are synchronous with the interrogator's frames.
 
 Placement. The reconstruction lives in the fibre's base frame; it is put in the world with the true base pose
-(the rod's material frame at s = 0, :func:`scenarios.series.to_world` — a base tracked perfectly, as if the EM
+(the rod's material frame at s = 0, :func:`scenarios._common.series.to_world` — a base tracked perfectly, as if the EM
 tracker's frame had been registered to the catheter's clamp beforehand). The headline deviations are measured
 that way (no fitting to the EM data). ``registered`` deviations additionally fit one rigid transform of the whole
 reconstructed tip trajectory onto the EM trajectory (Kabsch; what one does when the frames are unknown), which
@@ -55,7 +55,7 @@ from scenarios._common.calibration import CALIBRATIONS, calibration_for, check_c
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
 from scenarios._common.optics import OPTICS, optics_config
-from scenarios.series import Series, collect, to_world
+from scenarios._common.series import Series, collect, to_world
 from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.tendon import Tendon
 from twin import FiberModel, Reconstructor, metrics

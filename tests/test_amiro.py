@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scenarios.jig import AMIRO, amiro_fiber, loro
 from scenarios.real_jig import EFFECTS, FACTOR, KEYS, compare, real_statistics
+from sim_interrogator.jig import AMIRO, amiro_fiber, loro
 from twin import Calibration, FiberModel
 from twin.calibration import jig
 from twin.cli import main

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scenarios.jig import JigParams, needle_fiber, simulate
+from sim_interrogator.jig import JigParams, needle_fiber, simulate
 from twin import Calibration, FiberModel, Reconstructor, metrics, strain
 from twin.calibration.jig import (
     JigPoses,

@@ -77,3 +77,14 @@ def test_a_command_that_needs_a_missing_extra_says_which_in_one_line():
     assert out.returncode == 2, out.stderr
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and "'sim' extra" in lines[0] and "catheter-twin[sim]" in lines[0], out.stderr
+
+
+def test_no_scenario_imports_another():
+    """Scenarios share code through scenarios/_common and scenarios/report.py only."""
+    shared = {"scenarios._common", "scenarios.report", "scenarios.studies"}
+    bad = []
+    for path in sorted((ROOT / "scenarios").glob("*.py")):
+        for line, name in _imports(path):
+            if name.startswith("scenarios.") and not any(name == s or name.startswith(s + ".") for s in shared):
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
+    assert not bad, "\n".join(bad)

@@ -1,5 +1,5 @@
 """What the three sheath experiments (rotation, repeatability, sheath-motion) share: running a sheath setup into a
-:class:`~scenarios.series.Series` with a few extra per-frame records, the reconstructors, an EM-sensor-like tip
+:class:`~scenarios._common.series.Series` with a few extra per-frame records, the reconstructors, an EM-sensor-like tip
 reading, the viewer hook, the parameters every sheath experiment has and report pieces. The command-line glue,
 the calibration and the optics are every scenario's (:mod:`scenarios._common`).
 
@@ -21,7 +21,7 @@ import numpy as np
 from scenarios._common.calibration import CALIBRATIONS
 from scenarios._common.entry import option
 from scenarios._common.optics import OPTICS, optics_config
-from scenarios.series import Series, collect
+from scenarios._common.series import Series, collect
 from sim_interrogator.sheath import SheathSetup
 from sim_interrogator.sim import SimInterrogator
 from twin import Calibration, FiberModel, Reconstructor, Shape
@@ -92,7 +92,7 @@ class Run:
 
 
 class _Recording:
-    """A SimInterrogator stand-in for :func:`scenarios.series.collect` that records the hub and the twist."""
+    """A SimInterrogator stand-in for :func:`scenarios._common.series.collect` that records the hub and the twist."""
 
     def __init__(self, sim: SimInterrogator, setup: SheathSetup):
         self.sim, self.setup = sim, setup
