@@ -132,6 +132,18 @@ def _open_viewer(enabled: bool):
     return viewer
 
 
+def _warm_up(server: IllumisenseServer, fiber: FiberModel, cal) -> None:
+    """Encode, decode and reconstruct one record before the clock starts: on a fresh install the compiled
+    kernels of the wire format (the sensor blocks, the scanner) are built on first use, seconds that would
+    otherwise be taken from the live run."""
+    from twin.io.illumisense_stream import StreamDecoder
+
+    data = server.encode(Frame(fiber.lambda0.copy(), 0.0, 0))
+    decoder = StreamDecoder()
+    frames = decoder.feed(data) + decoder.finish()
+    Reconstructor(fiber, cal)([f.wavelengths for f in frames] or [fiber.lambda0])
+
+
 def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
@@ -158,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
     duration = args.duration or (sim.setup.duration if sim.setup.duration else 20.0)
     tap = TruthTap()
     server = IllumisenseServer(sim, port=args.port)
+    _warm_up(server, fiber, cal)
     server.pump.subscribe(tap)
     server.start()
     host, port = server.address
