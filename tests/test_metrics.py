@@ -1,4 +1,4 @@
-"""Registration and error metrics (docs/math.md §5.2, §7 item 6): Kabsch, exact point-to-polyline, ICP, translation
+"""Registration and error metrics (docs/math.md §5.2, §7.6): Kabsch, exact point-to-polyline, ICP, translation
 search, shape_error and the in-plane / out-of-plane split."""
 
 import numpy as np
