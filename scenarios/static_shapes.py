@@ -337,20 +337,18 @@ def write_report(result: Result, directory) -> Path:
                                   paper_max_mm=PAPER_MAX_MM)
             rep.figure(f"error_along_arc_{m}", fig, f"distance of each point of the {m} pipeline's reconstruction "
                        "(last frame, registered) from the catheter's centreline")
-    fig = per_shape_errors(
-        names, {m: [float(np.max(r.errors[m]["rod"]["max"]) * 1e3) for r in result.shapes] for m in MODES},
-        {m: [float(np.mean(r.errors[m]["rod"]["mean"]) * 1e3) for r in result.shapes] for m in MODES},
-        "Max and mean error per shape against the catheter (over the repetitions)", cal,
-        paper_max_mm=PAPER_MAX_MM, paper_mean_mm=PAPER_MEAN_MM)
-    rep.figure("errors_per_shape", fig, "max (left) and mean (right) error per shape, each pipeline; dashed: the "
-               "paper's figures on hardware")
-    fig = per_shape_errors(
-        names, {m: [float(np.max(r.errors[m]["fixture"]["max"]) * 1e3) for r in result.shapes] for m in MODES},
-        {m: [float(np.mean(r.errors[m]["fixture"]["mean"]) * 1e3) for r in result.shapes] for m in MODES},
-        "Max and mean error per shape against the fixture (the paper's metric)", cal,
-        paper_max_mm=PAPER_MAX_MM, paper_mean_mm=PAPER_MEAN_MM)
-    rep.figure("errors_per_shape_fixture", fig, "the same against the fixture's centreline (ICP + translation "
-               "search, as the paper measured): includes the catheter's play in the tube or groove")
+    for against, suffix, title, caption in (
+        ("rod", "", "against the catheter (over the repetitions)",
+         "max (left) and mean (right) error per shape, each pipeline; dashed: the paper's figures on hardware"),
+        ("fixture", "_fixture", "against the fixture (the paper's metric)",
+         "the same against the fixture's centreline (ICP + translation search, as the paper measured): includes "
+         "the catheter's play in the tube or groove"),
+    ):
+        fig = per_shape_errors(
+            names, {m: [float(np.max(r.errors[m][against]["max"]) * 1e3) for r in result.shapes] for m in MODES},
+            {m: [float(np.mean(r.errors[m][against]["mean"]) * 1e3) for r in result.shapes] for m in MODES},
+            f"Max and mean error per shape {title}", cal, paper_max_mm=PAPER_MAX_MM, paper_mean_mm=PAPER_MEAN_MM)
+        rep.figure(f"errors_per_shape{suffix}", fig, caption)
     rep.text("```\n" + text_report(result) + "\n```")
     return rep.write()
 
