@@ -176,9 +176,10 @@ def test_cli_rotation_json_and_report(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["experiment"] == "rotation" and out["summary"]["paper_max_deviation_mm"] == 0.36
     assert out["params"]["total_angle"] == pytest.approx(math.pi / 4) and out["calibration"]["name"] == "true"
+    summary = out["summary"]
     for key in ("paper_pipeline_max_deviation_mm", "paper_literal_max_deviation_mm", "registered_max_deviation_mm",
                 "paper_pipeline_registered_max_deviation_mm"):
-        assert out["summary"][key] >= 0.0
+        assert math.isfinite(summary[key]) and summary[key] >= 0.0, key  # a number, never NaN (null in JSON)
     for name in ("report.md", "deviation_vs_angle.png", "error_over_time.png", "tip_trajectories.png",
                  "curvature_profiles.png", "shape_overlays.png", "error_along_arc.png", "registered_deviation.png"):
         assert (tmp_path / name).exists()

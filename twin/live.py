@@ -344,7 +344,7 @@ class LiveLoop:
             return good, None, np.zeros(0, np.uint8)
         self._matched_any = True
         w = np.stack([f.wavelengths for f in good]) if n > 1 else good[0].wavelengths[None]
-        outside = self._outside(w)
+        outside = self.rec.peaks_outside(w)
         n_outside = int(np.count_nonzero(outside))
         if n_outside:
             w = np.where(outside, np.nan, w)  # missing, for the reconstruction and the flags alike
@@ -381,16 +381,6 @@ class LiveLoop:
             last = n - 1 if not unusable[-1] else int(np.flatnonzero(~unusable)[-1])
             self._tip = shapes.positions[last, -1].copy()
         return good, shapes, flags
-
-    def _outside(self, w: np.ndarray) -> np.ndarray:
-        """Peaks outside the reconstructor's physical window, or infinite (reconstructors without a window)."""
-        outside = getattr(self.rec, "peaks_outside", None)
-        if outside is None:
-            return np.isinf(w)
-        try:
-            return np.asarray(outside(w), dtype=bool)
-        except Exception:  # a faulty check must not end the loop; the reconstruction reports its own errors
-            return np.isinf(w)
 
     def _count_sequence(self, seq: list[int], flags: np.ndarray) -> None:
         """Count gaps and resets of the sequence numbers; flag the frames that follow a gap."""

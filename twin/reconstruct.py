@@ -15,7 +15,7 @@ from twin import curve
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.frames import Frame, Shape
-from twin.strain import CurvatureSolver
+from twin.strain import CurvatureSolver, outside_window
 
 _QUADRATURE = {1: [1.0], 2: [0.5, 0.5], 3: [1 / 6, 4 / 6, 1 / 6]}  # weights of the m samples of one step
 
@@ -173,7 +173,6 @@ class Reconstructor:
         self._lam0 = calibration.reference_for(self.fiber)
         self._solver = CurvatureSolver(
             calibration.design_for(self.fiber), method=self.inversion, central_core=self.fiber.central_core,
-            max_strain=self.peak_window,
         )
         if self.twist:
             from twin.spun import TwistSolver, helix_of, twist_design
@@ -244,13 +243,15 @@ class Reconstructor:
 
         Peaks outside the physical window (:meth:`peaks_outside`) count as missing."""
         w = self._wavelengths(wavelengths)
-        return self._solver.solve((w - self._lam0) / self._lam0)
+        e = (w - self._lam0) / self._lam0
+        outside = outside_window(e, self.peak_window)
+        return self._solver.solve(np.where(outside, np.nan, e) if outside.any() else e)
 
     def peaks_outside(self, wavelengths) -> np.ndarray:
         """Boolean (..., n_gratings, n_cores): peaks present but outside the physical window (``peak_window``)
         around their reference wavelength, or infinite; the reconstruction treats them as missing."""
         w = np.asarray(wavelengths, dtype=np.float64)
-        return self._solver.outside((w - self._lam0) / self._lam0)
+        return outside_window((w - self._lam0) / self._lam0, self.peak_window)
 
     def __call__(self, wavelengths) -> Shape:
         sol = self.curvature(wavelengths)
@@ -319,7 +320,7 @@ class Reconstructor:
         rates = np.stack([tau, kap], axis=1).reshape(shape_r)
         # bend-plane angle along the output points: θ(0) plus the integrator's own quadrature of τ
         tau_steps = tau.reshape(n_f, -1, self._m)
-        weights = {1: [1.0], 2: [0.5, 0.5], 3: [1 / 6, 4 / 6, 1 / 6]}[self._m]
+        weights = _QUADRATURE[self._m]
         dtheta = self.h * (tau_steps @ np.asarray(weights))
         theta_out = theta0[:, :1] + np.concatenate([np.zeros((n_f, 1)), np.cumsum(dtheta, axis=1)], axis=1)
         c0, s0 = np.cos(theta_out[:, 0]), np.sin(theta_out[:, 0])

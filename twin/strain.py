@@ -162,18 +162,12 @@ class CurvatureSolver:
         Inverse variances of the optical strains, any scale; default equal.
     rcond : float
         Nodes whose (scaled) normal matrix has a reciprocal condition number below this are invalid.
-    max_strain : float or None
-        Physical window: an optical strain with |e| above this (or a non-finite one) is treated as a missing
-        peak. None: no window.
     """
 
     def __init__(self, design, *, method: str = "lstsq", central_core: int | None = None, weights=None,
-                 rcond: float = 1e-6, max_strain: float | None = None):
+                 rcond: float = 1e-6):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-        if max_strain is not None and not (np.isfinite(max_strain) and max_strain > 0):
-            raise ValueError(f"max_strain must be a positive optical strain or None, got {max_strain}")
-        self.max_strain = None if max_strain is None else float(max_strain)
         d = np.array(design, dtype=np.float64)
         if d.ndim != 3 or d.shape[2] != 3:
             raise ValueError(f"design must have shape (n_gratings, n_cores, 3), got {d.shape}")
@@ -253,27 +247,17 @@ class CurvatureSolver:
         ev = np.linalg.eigvalsh(normal)
         return ev[..., 0] / np.maximum(ev[..., -1], 1e-300)
 
-    def outside(self, strain) -> np.ndarray:
-        """Boolean mask of the strains outside the physical window (``max_strain``; ±inf included), same shape.
-
-        NaN (an absent peak) is not "outside": it is missing already.
-        """
-        e = np.asarray(strain, dtype=np.float64)
-        if self.max_strain is None:
-            return np.isinf(e)
-        return np.abs(e) > self.max_strain  # NaN compares False
-
     def solve(self, strain) -> StrainSolution:
-        """Invert optical strain ``e`` of shape (..., n_gratings, n_cores); NaN entries are missing peaks, and so
-        are entries outside the physical window (``max_strain``)."""
+        """Invert optical strain ``e`` of shape (..., n_gratings, n_cores); NaN (and infinite) entries are missing
+        peaks (the physical window is :func:`outside_window`'s, applied by the caller)."""
         e = np.asarray(strain, dtype=np.float64)
         if e.ndim < 2 or e.shape[-2:] != (self.n_gratings, self.n_cores):
             raise ValueError(
                 f"expected optical strain of shape (..., {self.n_gratings}, {self.n_cores}), got {e.shape}"
             )
-        out = self.outside(e)
-        if out.any():
-            e = np.where(out, np.nan, e)
+        inf = np.isinf(e)
+        if inf.any():
+            e = np.where(inf, np.nan, e)
         missing = np.isnan(e)
         if not missing.any():
             n_g = self.n_gratings
@@ -352,3 +336,12 @@ def curvature(
         raise ValueError(f"reference must have shape {(fiber.n_gratings, fiber.n_cores)}, got {lam0.shape}")
     solver = CurvatureSolver.for_fiber(fiber, method=method, weights=weights)
     return solver.solve(optical_strain(w, lam0)).curvature
+
+
+def outside_window(strain, max_strain: float | None) -> np.ndarray:
+    """Boolean mask, same shape: optical strains outside the physical window |e| ≤ ``max_strain`` (None: no
+    window), or infinite. NaN (an absent peak) is not "outside": it is missing already."""
+    e = np.asarray(strain, dtype=np.float64)
+    if max_strain is None:
+        return np.isinf(e)
+    return np.abs(e) > max_strain  # NaN compares False

@@ -30,8 +30,6 @@ from twin.frames import Truth
 #: The pipelines every sheath experiment runs: ours, the paper's with θ_b held through low curvature
 #: (``Reconstructor.paper``, κ_min = 1 1/m) and the paper's literal transcription (κ_min = 0).
 MODES = ("default", "paper", "paper-literal")
-MODE_LABELS = {"default": "default pipeline", "paper": "paper's pipeline (guarded)",
-               "paper-literal": "paper's pipeline, literal"}
 
 
 def optics_field(default: str = "realistic"):
@@ -194,6 +192,3 @@ def paper_table(rows: list[tuple[str, ...]]) -> tuple[list[str], list[tuple[str,
     return ["quantity", "paper (hardware)", "twin: default pipeline", "twin: paper's pipeline (guarded)",
             "twin: paper's pipeline, literal"], rows
 
-
-def mm(x) -> str:
-    return f"{float(x) * 1e3:.2f} mm"

@@ -14,11 +14,9 @@ connected (a client that falls ~4 s behind is dropped).
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
-from sim_interrogator.servers.common import FramePump, TcpBroadcaster
+from sim_interrogator.servers.common import FramePump, TcpBroadcaster, log
 from twin.frames import Frame
 from twin.io import illumisense
 from twin.io.source import Source
@@ -95,7 +93,7 @@ class IllumisenseServer:
         except (ValueError, FloatingPointError) as exc:  # a frame the codec cannot write must not stop the pump
             self.encode_errors += 1
             if self.encode_errors == 1:
-                print(f"twin serve: illumisense: a frame could not be encoded: {exc}", file=sys.stderr)
+                log(f"illumisense: a frame could not be encoded: {exc}")
             return
         self.broadcaster.publish(data)
         self.records_sent += 1
