@@ -37,6 +37,7 @@ FIELD_KINDS = {
     "handedness": "integer",
     "length": "number",
     "name": "text",
+    "spin_rate": "number",
 }
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twin.fiber import FiberModel
-from twin.strain import StrainSolution, design_matrix
+from twin.strain import StrainSolution, design_matrix, reciprocal_condition
 
 __all__ = [
     "TwistSolution",
@@ -202,7 +202,7 @@ class TwistSolver:
         self.helix = None if helix is None else (float(helix[0]), float(helix[1]))
         self.s = np.arange(self.n_gratings, dtype=np.float64) if s is None else np.asarray(s, dtype=np.float64)
         normal, dtw = self._normal(np.ones((self.n_gratings, self.n_cores), bool), np.arange(self.n_gratings))
-        bad = self._rcond(normal) < self.rcond
+        bad = reciprocal_condition(normal) < self.rcond
         if bad.any():
             n = int(np.argmax(bad))
             raise ValueError(
@@ -220,11 +220,6 @@ class TwistSolver:
         dtw = np.swapaxes(ds, -1, -2) * w[..., None, :]
         return dtw @ ds, dtw
 
-    @staticmethod
-    def _rcond(normal: np.ndarray) -> np.ndarray:
-        ev = np.linalg.eigvalsh(normal)
-        return ev[..., 0] / np.maximum(ev[..., -1], 1e-300)
-
     def solve(self, strain) -> TwistSolution:
         """Invert optical strain of shape (..., n_gratings, n_cores); NaN entries are missing peaks."""
         e = np.asarray(strain, dtype=np.float64)
@@ -240,7 +235,7 @@ class TwistSolver:
             x[hit] = np.nan
             idx = np.nonzero(hit)
             normal, dtw = self._normal(~missing[idx], idx[-1])
-            ok = self._rcond(normal) >= self.rcond
+            ok = reciprocal_condition(normal) >= self.rcond
             if ok.any():
                 sol = np.linalg.solve(normal[ok], dtw[ok] @ e0[idx][ok][..., None])[..., 0] * self._scale
                 x[tuple(a[ok] for a in idx)] = sol
@@ -249,7 +244,7 @@ class TwistSolver:
             if (~ok).any():
                 rest = tuple(a[~ok] for a in idx)
                 n3, d3 = normal[~ok][:, :3, :3], dtw[~ok][:, :3, :]
-                ok3 = self._rcond(n3) >= self.rcond
+                ok3 = reciprocal_condition(n3) >= self.rcond
                 if ok3.any():
                     sel = tuple(a[ok3] for a in rest)
                     tau = self._fill(x[..., 3], sel)

@@ -212,8 +212,8 @@ class CurvatureSolver:
             self.central_core = central_core
             dtw = np.swapaxes(self._ds, 1, 2) * w[:, None, :]  # (n_g, 3, n_c)
             normal = dtw @ self._ds
-            if np.any(self._rcond(normal) < self.rcond):
-                n = int(np.argmax(self._rcond(normal) < self.rcond))
+            if np.any(reciprocal_condition(normal) < self.rcond):
+                n = int(np.argmax(reciprocal_condition(normal) < self.rcond))
                 raise ValueError(
                     f"grating {n}: this core layout cannot separate bending (k_x, k_y) from the common mode; "
                     "it needs a central core and 2 off-axis cores at different angles, or 3 off-axis cores "
@@ -241,11 +241,6 @@ class CurvatureSolver:
         """A solver for a fibre model (optionally with calibrated angles, gains and twist)."""
         d = design_matrix(fiber, core_angles=core_angles, gains=gains, twist=twist)
         return cls(d, method=method, central_core=fiber.central_core, weights=weights)
-
-    @staticmethod
-    def _rcond(normal: np.ndarray) -> np.ndarray:
-        ev = np.linalg.eigvalsh(normal)
-        return ev[..., 0] / np.maximum(ev[..., -1], 1e-300)
 
     def solve(self, strain) -> StrainSolution:
         """Invert optical strain ``e`` of shape (..., n_gratings, n_cores); NaN (and infinite) entries are missing
@@ -289,7 +284,7 @@ class CurvatureSolver:
         ds = self._ds[node]  # (m, n_c, 3)
         dtw = np.swapaxes(ds, 1, 2) * w[:, None, :]
         normal = dtw @ ds
-        ok = self._rcond(normal) >= self.rcond
+        ok = reciprocal_condition(normal) >= self.rcond
         if ok.any():
             x = np.linalg.solve(normal[ok], (dtw[ok] @ e0[idx][ok][..., None]))[..., 0] * self._scale
             sel = tuple(a[ok] for a in idx)
@@ -345,3 +340,9 @@ def outside_window(strain, max_strain: float | None) -> np.ndarray:
     if max_strain is None:
         return np.isinf(e)
     return np.abs(e) > max_strain  # NaN compares False
+
+
+def reciprocal_condition(normal: np.ndarray) -> np.ndarray:
+    """Smallest over largest eigenvalue of symmetric normal matrices (..., k, k): 0 for a singular one."""
+    ev = np.linalg.eigvalsh(normal)
+    return ev[..., 0] / np.maximum(ev[..., -1], 1e-300)

@@ -162,11 +162,9 @@ class HyperionSource(Driver):
         frames = [self._map(f) for f in self._decoder.feed_frames(data)]
         # gaps are counted here rather than by the per-connection decoder, so that samples lost across a
         # reconnect count too
-        for f in frames:
-            lost = self._sequence.count(f.sequence)
-            if lost:
-                self.counters["sequence_gaps"] += 1
-                self.counters["lost_samples"] += lost
+        if frames:
+            self._sequence.count_many([f.sequence for f in frames])
+            self.counters.update(self._sequence.as_dict())
         self._push(frames)
 
     def _map(self, frame: Frame) -> Frame:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twin.frames import Frame
 from twin.io.errors import FramingError
 from twin.io.illumisense import LayoutConsensus, Record, decode_many, decode_record
 
@@ -125,12 +126,13 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
                 pos_v[k] = r.sensors[0].positions
                 present[k] = True
         vendor = VendorArrays(first.s, pos_v, present)
+    batch = Frame.stack(frames)
     return LogContents(
-        timestamps=np.array([f.timestamp for f in frames]),
-        sequences=np.array([f.sequence for f in frames], dtype=np.int64),
-        wavelengths=np.stack([f.wavelengths for f in frames]),
-        powers=np.stack([f.powers for f in frames]),
-        status=np.stack([f.status for f in frames]),
+        timestamps=batch.timestamp,
+        sequences=batch.sequence,
+        wavelengths=batch.wavelengths,
+        powers=batch.powers,
+        status=batch.status,
         vendor=vendor,
         errors=errors,
         odd_records=consensus.odd,
