@@ -93,7 +93,7 @@ def test_log_whose_first_line_is_odd_keeps_the_good_lines(tmp_path):
         assert len(r) == 20 and r.shape == (3, 4)
         np.testing.assert_array_equal(r.frames().sequence, np.arange(1, 21))
         assert len(r.errors) == 1 and r.errors[0].startswith("line 1: channel layout 3 channel(s)")
-        assert r.vendor is None
+        assert not r.has_vendor and r.vendor() == ()
 
 
 def test_server_sends_the_vendor_layout_from_its_own_reconstruction():
@@ -161,7 +161,8 @@ def test_replay_of_a_log_with_and_without_sensor_blocks(tmp_path):
     assert a["vendor_frames_compared"] == 40 and 0 <= a["vendor_distance_max_mm"] <= 0.02
     assert "vendor_distance_max_mm" not in b
     with open_recording(with_blocks) as r:
-        assert r.vendor is not None and r.vendor.positions.shape == (40, 171, 3) and r.vendor.present.all()
+        (v,) = r.vendor()
+        assert r.has_vendor and v.positions.shape == (40, 171, 3) and v.present.all()
 
 
 def test_log_line_endings_header_and_decimal_comma(tmp_path):

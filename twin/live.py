@@ -344,6 +344,29 @@ class LiveLoop:
             return good, None, np.zeros(0, np.uint8)
         self._matched_any = True
         w = np.stack([f.wavelengths for f in good]) if n > 1 else good[0].wavelengths[None]
+        shapes, flags = self.process_arrays(w, [f.sequence for f in good])
+        return good, shapes, flags
+
+    def process_arrays(self, w: np.ndarray, sequence) -> tuple[Shape | None, np.ndarray]:
+        """Reconstruct and count a batch given as arrays (the books of :meth:`process`; ``twin replay`` keeps
+        its books here too, so both count alike).
+
+        Parameters
+        ----------
+        w : ndarray, shape (n, n_gratings, n_cores)
+            Wavelengths, nm, matching the fibre model (n >= 1).
+        sequence : array_like of int, shape (n,)
+            The frames' sequence numbers.
+
+        Returns
+        -------
+        shapes : Shape or None
+            Batched reconstruction (None when the reconstructor raised).
+        flags : ndarray of uint8 (n,)
+            :class:`FrameFlag` bits per frame.
+        """
+        n = len(w)
+        shape = self._shape
         outside = self.rec.peaks_outside(w)
         n_outside = int(np.count_nonzero(outside))
         if n_outside:
@@ -351,7 +374,7 @@ class LiveLoop:
         flags = np.isnan(w.reshape(n, -1)).any(axis=1).astype(np.uint8)  # MISSING_PEAKS = 1
         # counted before the sequence counter adds its own flag to the same array
         n_missing = int(np.count_nonzero(flags))
-        self._count_sequence([f.sequence for f in good], flags)
+        self._count_sequence(sequence, flags)
         try:
             shapes = self.rec(w)
         except Exception as exc:  # the frames still reach the sinks (the recorder keeps them)
@@ -380,9 +403,9 @@ class LiveLoop:
             self._last_valid = time.monotonic()
             last = n - 1 if not unusable[-1] else int(np.flatnonzero(~unusable)[-1])
             self._tip = shapes.positions[last, -1].copy()
-        return good, shapes, flags
+        return shapes, flags
 
-    def _count_sequence(self, seq: list[int], flags: np.ndarray) -> None:
+    def _count_sequence(self, seq, flags: np.ndarray) -> None:
         """Count gaps and resets of the sequence numbers; flag the frames that follow a gap."""
         counter = self._sequence
         flags[counter.count_many(seq) > 0] |= _GAP  # one batch call (a call per frame cost ~10 µs each)

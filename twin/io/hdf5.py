@@ -18,6 +18,11 @@ File layout (format ``twin-recording`` version 1; every array batch-first along 
     /truth/temperature    float64 (n, g)          K, if given
     /truth/s              float64 (m,)            arc length of the truth samples, m
     /truth/fixture        float64 (k, 3)          the fixture's centreline of the first frame, m, if given
+    /vendor/sensor<k>/present    bool    (n,)       the frame carried sensor block k   (only when the first
+    /vendor/sensor<k>/curvature  float64 (n, G)     |κ| at its G gratings, 1/m           chunk's frames carry
+    /vendor/sensor<k>/angle      float64 (n, G)     bending direction, rad               the interrogator's
+    /vendor/sensor<k>/positions  float64 (n, N, 3)  shape points, m, vendor frame        reconstruction,
+    /vendor/sensor<k>/spacing    float64 ()         arc length between the points, m     Frame.vendor)
     attributes of /: format, version, fiber_toml, calibration_toml, source_url, created_utc, software,
                      frames (count written so far), complete (False until closed cleanly), rate_hz
 
@@ -35,6 +40,14 @@ any instant, so a process killed at any point leaves a file holding everything u
 which also lets ``twin replay`` read a recording while it is being written. Truth datasets are created from
 the first chunk (SWMR forbids new datasets later): truth that first appears after it is counted in
 :attr:`Recorder.truth_dropped` and not stored.
+
+The interrogator's own reconstruction (ILLumiSense sensor blocks, :attr:`Frame.vendor`, SI) is stored the same
+way, one group per sensor k = 0, 1, … with the layout — G gratings, N shape points, their spacing — of the
+sensor's first block in the first chunk: fixed per recording, so the arrays stay rectangular and chunked like
+the rest. A block of another G, N or spacing, a sensor beyond those of the first chunk, or blocks that first
+appear after it are not stored (``present`` False there) and counted in :attr:`Recorder.vendor_dropped`.
+Damage to vendor chunks is treated like damage to truth chunks: reported, and the rows from there on come back
+without their vendor blocks, the frames kept.
 
 Opening damaged files quickly, and finding which of their rows can be trusted. A recording written in SWMR
 mode and not closed (still being written, or its writer was killed) can only be opened in SWMR-read mode. That
@@ -71,13 +84,15 @@ from twin.extras import require
 from twin.fiber import FiberModel
 from twin.frames import Frame, Truth
 
-__all__ = ["FORMAT", "FRAME_FIELDS", "SWMR_READ_ATTEMPTS", "TRUTH_FIELDS", "VERSION", "HDF5Open", "Recorder",
-           "chunk_rows", "open_hdf5", "readable_rows"]
+__all__ = ["FORMAT", "FRAME_FIELDS", "SWMR_READ_ATTEMPTS", "TRUTH_FIELDS", "VENDOR_FIELDS", "VERSION", "HDF5Open",
+           "Recorder", "chunk_rows", "open_hdf5", "readable_rows"]
 
 FORMAT = "twin-recording"
 VERSION = 1
 TRUTH_FIELDS = ("positions", "frames", "curvature", "twist", "temperature")
 FRAME_FIELDS = ("timestamp", "sequence", "received", "wavelengths", "powers", "status")
+#: per-frame datasets of each /vendor/sensor<k> group (with ``spacing``, a scalar)
+VENDOR_FIELDS = ("present", "curvature", "angle", "positions")
 _CHUNK_BYTES = 1 << 20
 
 #: metadata read attempts in SWMR-read mode: the sleeps double from ~1 ns, so 26 attempts retry for ~70 ms in all
@@ -281,6 +296,8 @@ class Recorder:
     truth_dropped : int
         Frames whose truth could not be stored (truth absent from the first chunk, or a truth of another
         shape).
+    vendor_dropped : int
+        Sensor blocks (:attr:`Frame.vendor`) that could not be stored (module docstring).
     """
 
     def __init__(
@@ -325,10 +342,12 @@ class Recorder:
         self._ds: dict[str, object] = {}
         self._shape: tuple[int, int] | None = None
         self._truth_ref: Truth | None = None
+        self._vendor_ref: list = []  # the first block of each sensor in the first chunk: the stored layout
         self._last_flush = time.monotonic()
         self.frames_written = 0
         self.flushes = 0
         self.truth_dropped = 0
+        self.vendor_dropped = 0
         self._closed = False
 
     # ---------------------------------------------------------------- sink interface
@@ -382,7 +401,7 @@ class Recorder:
                 self._n_pending += k
 
     # ---------------------------------------------------------------- datasets
-    def _create(self, truth: Truth | None) -> None:
+    def _create(self, truth: Truth | None, vendor: Sequence) -> None:
         f = self._file
         g, c = self._shape
 
@@ -414,6 +433,14 @@ class Recorder:
                 if v is not None:
                     shp = np.shape(v)[len(truth.batch_shape):]
                     make(f"truth/{name}", shp, "f4" if name == "frames" else "f8", np.nan)
+        self._vendor_ref = list(vendor)
+        for k, block in enumerate(self._vendor_ref):
+            g, m = len(block.curvature), len(block.positions)
+            f.create_dataset(f"vendor/sensor{k}/spacing", data=np.float64(block.spacing))
+            make(f"vendor/sensor{k}/present", (), "?")
+            make(f"vendor/sensor{k}/curvature", (g,), "f8", np.nan)
+            make(f"vendor/sensor{k}/angle", (g,), "f8", np.nan)
+            make(f"vendor/sensor{k}/positions", (m, 3), "f8", np.nan)
         try:
             f.swmr_mode = True
         except (ValueError, RuntimeError, OSError):  # pragma: no cover - HDF5 without SWMR: flushes still apply
@@ -426,8 +453,15 @@ class Recorder:
             return
         items, received = self._pending, self._received
         self._pending, self._received, self._n_pending = [], [], 0
+        # one entry per row: a single frame's sensor blocks (a batch carries none)
+        vendors = [v for f in items for v in ([None] * len(f) if f.batch_shape else [f.vendor])]
         if not self._ds:
-            self._create(next((f.truth for f in items if f.truth is not None), None))
+            first: dict[int, object] = {}
+            for v in vendors:
+                for k, block in enumerate(v or ()):
+                    first.setdefault(k, block)
+            self._create(next((f.truth for f in items if f.truth is not None), None),
+                         [first[k] for k in range(len(first))])
         offered = sum(int(np.count_nonzero(f.truth.all_present)) for f in items if f.truth is not None)
         batch = Frame.stack(items, truth_like=self._truth_ref)
         n0, n = self.frames_written, len(batch)
@@ -450,6 +484,7 @@ class Recorder:
             self.truth_dropped += offered - int(present.sum())
         else:
             self.truth_dropped += offered
+        cols.update(self._vendor_columns(vendors))
         for name, data in cols.items():
             ds = self._ds[name]
             ds.resize(n0 + n, axis=0)
@@ -460,6 +495,23 @@ class Recorder:
         self._file.attrs["frames"] = self.frames_written
         self._file.flush()
         self.flushes += 1
+
+    def _vendor_columns(self, vendors: list) -> dict[str, np.ndarray]:
+        """The /vendor rows of one flush, from each row's sensor blocks (None: none); counts what is dropped."""
+        offered = sum(len(v) for v in vendors if v)
+        if not offered and not self._vendor_ref:
+            return {}
+        from twin.io.illumisense_vendor import VendorArrays
+
+        cols: dict[str, np.ndarray] = {}
+        stored = 0
+        for k, ref in enumerate(self._vendor_ref):
+            a = VendorArrays.from_sensors([v[k] if v and len(v) > k else None for v in vendors], like=ref)
+            stored += int(a.present.sum())
+            for name in VENDOR_FIELDS:
+                cols[f"vendor/sensor{k}/{name}"] = getattr(a, name)
+        self.vendor_dropped += offered - stored
+        return cols
 
     def close(self) -> None:
         """Flush everything, mark the recording complete and close the file. Idempotent."""
@@ -479,6 +531,7 @@ class Recorder:
             "frames_buffered": self._n_pending,
             "flushes": self.flushes,
             "truth_dropped": self.truth_dropped,
+            "vendor_dropped": self.vendor_dropped,
         }
 
     def __enter__(self) -> Recorder:

@@ -10,8 +10,9 @@ number, channel blocks, optional sensor blocks, any line ending. All lines are t
 - The channel layout is decided by a consensus of the first records (:class:`LayoutConsensus`), so one odd
   first line does not throw away the rest: records of another layout are skipped and reported (a log is one
   file of one shape, so the layout is not re-learned).
-- The first sensor block of each record is kept as the vendor's shape (positions (n, N, 3) m, NaN rows for
-  records without one, or whose N differs from the first).
+- The sensor blocks are kept as the vendor's reconstruction, per sensor (:class:`VendorArrays`: curvature,
+  angle, shape; the layout of the sensor's first block, rows absent for records without that block or with
+  another G or N).
 """
 
 from __future__ import annotations
@@ -24,38 +25,22 @@ import numpy as np
 from twin.frames import Frame
 from twin.io.errors import FramingError
 from twin.io.illumisense import LayoutConsensus, Record, decode_many, decode_record
+from twin.io.illumisense_vendor import VendorArrays
 
 __all__ = ["LogContents", "VendorArrays", "read_log"]
 
 
 @dataclass(frozen=True, eq=False)
-class VendorArrays:
-    """The vendor's shapes of a log's records.
-
-    Attributes
-    ----------
-    s : ndarray (N,)
-        Arc length of the shape points, m.
-    positions : ndarray (n, N, 3)
-        m, vendor frame; NaN for records without a (matching) sensor block.
-    present : ndarray of bool (n,)
-    """
-
-    s: np.ndarray
-    positions: np.ndarray
-    present: np.ndarray
-
-
-@dataclass(frozen=True, eq=False)
 class LogContents:
-    """The frames of a log as arrays (n, …), the vendor's shapes, and what was skipped."""
+    """The frames of a log as arrays (n, …), the vendor's sensor blocks (one :class:`VendorArrays` per sensor,
+    empty when the log has none), and what was skipped."""
 
     timestamps: np.ndarray
     sequences: np.ndarray
     wavelengths: np.ndarray
     powers: np.ndarray
     status: np.ndarray
-    vendor: VendorArrays | None
+    vendor: tuple[VendorArrays, ...]
     errors: list[str]
     odd_records: int
 
@@ -115,17 +100,9 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
                           f"{_describe(layout)}")
     errors.sort(key=lambda e: int(e.split(":", 1)[0].split()[1]))
     frames = [r.frame for r in kept]
-    vendor = None
-    first = next((r.sensors[0] for r in kept if r.sensors), None)
-    if first is not None:
-        n_pts = first.positions.shape[0]
-        pos_v = np.full((len(kept), n_pts, 3), np.nan)
-        present = np.zeros(len(kept), bool)
-        for k, r in enumerate(kept):
-            if r.sensors and r.sensors[0].positions.shape[0] == n_pts:
-                pos_v[k] = r.sensors[0].positions
-                present[k] = True
-        vendor = VendorArrays(first.s, pos_v, present)
+    n_sensors = max((len(r.sensors) for r in kept), default=0)
+    vendor = tuple(VendorArrays.from_sensors([r.sensors[k] if len(r.sensors) > k else None for r in kept])
+                   for k in range(n_sensors))
     batch = Frame.stack(frames)
     return LogContents(
         timestamps=batch.timestamp,

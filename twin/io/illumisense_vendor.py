@@ -12,14 +12,16 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from twin.frames import Frame, Shape
 from twin.io.illumisense import SHAPE_SPACING, VendorSensor
-from twin.metrics import shape_error
+from twin.metrics import ErrorStats, kabsch, shape_error
 
-__all__ = ["VENDOR_FROM_BASE", "VendorDistance", "vendor_distance", "vendor_sensors"]
+__all__ = ["VENDOR_FROM_BASE", "VendorArrays", "VendorDistance", "frame_vendor", "vendor_distance",
+           "vendor_in_base", "vendor_sensors"]
 
 #: rows map our base-frame coordinates to the vendor's: vendor = VENDOR_FROM_BASE @ ours
 VENDOR_FROM_BASE = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -56,14 +58,93 @@ def vendor_sensors(shapes: Shape, spacing: float = SHAPE_SPACING) -> list[Vendor
     return [VendorSensor(mag[i], ang[i], p[i], spacing) for i in range(p.shape[0])]
 
 
+@dataclass(frozen=True, eq=False)
+class VendorArrays:
+    """One sensor's blocks over a run of frames (a recording, or rows of it), batch-first, SI.
+
+    Attributes
+    ----------
+    curvature : ndarray, shape (n, G)
+        |κ| at the sensor's G gratings, 1/m; NaN where absent.
+    angle : ndarray, shape (n, G)
+        Bending direction at the gratings, rad; NaN where absent.
+    positions : ndarray, shape (n, N, 3)
+        Shape points in the vendor frame, m, ``spacing`` apart from arc length 0; NaN where absent.
+    present : ndarray of bool, shape (n,)
+        Frames that carried this sensor's block with this G and N.
+    spacing : float
+        Arc length between shape points, m.
+    """
+
+    curvature: np.ndarray
+    angle: np.ndarray
+    positions: np.ndarray
+    present: np.ndarray
+    spacing: float = SHAPE_SPACING
+
+    @property
+    def s(self) -> np.ndarray:
+        """Arc length of the shape points, m, shape (N,)."""
+        return self.spacing * np.arange(self.positions.shape[1])
+
+    def __len__(self) -> int:
+        return len(self.present)
+
+    def __getitem__(self, index) -> VendorArrays:
+        """Rows of the batch: ``arrays[start:stop]``, ``arrays[mask]``."""
+        return VendorArrays(self.curvature[index], self.angle[index], self.positions[index], self.present[index],
+                            self.spacing)
+
+    def sensor(self, i: int) -> VendorSensor | None:
+        """Row ``i`` as a :class:`VendorSensor`, or None where absent."""
+        if not self.present[i]:
+            return None
+        return VendorSensor(self.curvature[i], self.angle[i], self.positions[i], self.spacing)
+
+    @classmethod
+    def from_sensors(cls, blocks: Sequence[VendorSensor | None], like: VendorSensor | None = None
+                     ) -> VendorArrays | None:
+        """Stack one sensor's blocks of consecutive frames (None: the frame had none).
+
+        The layout (G gratings, N points, spacing) is ``like``'s, else the first block's; blocks of another
+        layout are left out (``present`` False). None when no block is given and no ``like``.
+        """
+        ref = like if like is not None else next((b for b in blocks if b is not None), None)
+        if ref is None:
+            return None
+        n, g, m = len(blocks), len(ref.curvature), len(ref.positions)
+        rows = [i for i, b in enumerate(blocks) if b is not None and len(b.curvature) == g and len(b.angle) == g
+                and b.positions.shape == (m, 3) and b.spacing == ref.spacing]
+        out = cls(np.full((n, g), np.nan), np.full((n, g), np.nan), np.full((n, m, 3), np.nan), np.zeros(n, bool),
+                  float(ref.spacing))
+        if rows:
+            out.curvature[rows] = np.stack([blocks[i].curvature for i in rows])
+            out.angle[rows] = np.stack([blocks[i].angle for i in rows])
+            out.positions[rows] = np.stack([blocks[i].positions for i in rows])
+            out.present[rows] = True
+        return out
+
+
+def frame_vendor(sensors: Sequence[VendorArrays], i: int) -> tuple[VendorSensor, ...] | None:
+    """:attr:`twin.frames.Frame.vendor` of row ``i``: the sensors' blocks up to the first one absent there (a
+    sensor's index keeps its meaning), or None when sensor 0 is absent."""
+    out = []
+    for arrays in sensors:
+        block = arrays.sensor(i)
+        if block is None:
+            break
+        out.append(block)
+    return tuple(out) or None
+
+
 def vendor_distance(positions: np.ndarray, s: np.ndarray, vendor_positions: np.ndarray, vendor_s: np.ndarray):
     """Distance from our reconstructions to the vendor's shapes after a rigid (Kabsch) registration.
 
     Parameters
     ----------
-    positions : ndarray, shape (n, m, 3)
+    positions : ndarray, shape (..., m, 3)
         Our reconstructions, m, at arc lengths ``s`` (m,).
-    vendor_positions : ndarray, shape (n, N, 3)
+    vendor_positions : ndarray, shape (..., N, 3)
         The vendor's shapes, m, at arc lengths ``vendor_s`` (N,) from the same base.
     s, vendor_s : ndarray
 
@@ -76,7 +157,42 @@ def vendor_distance(positions: np.ndarray, s: np.ndarray, vendor_positions: np.n
     keep = s <= vendor_s[-1] + 1e-9
     if np.count_nonzero(keep) < 3 or vendor_s.size < 2:
         return None
-    return shape_error(positions[:, keep], vendor_positions, s=s[keep], truth_s=vendor_s, register="kabsch")
+    return shape_error(positions[..., keep, :], vendor_positions, s=s[keep], truth_s=vendor_s, register="kabsch")
+
+
+def vendor_in_base(positions: np.ndarray, s: np.ndarray, vendor_positions: np.ndarray, vendor_s: np.ndarray
+                   ) -> tuple[np.ndarray, ErrorStats] | None:
+    """The vendor's shape moved onto one reconstruction by the registration :func:`vendor_distance` makes.
+
+    :func:`vendor_distance` moves our points onto the vendor's (Kabsch over the common arc length); this applies
+    the inverse motion to the vendor's points instead, so the distances from our points to the moved vendor
+    polyline are the reported ones (what the viewer draws is what is reported).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (m, 3)
+        One reconstruction in its base frame, m, at arc lengths ``s`` (m,).
+    vendor_positions : ndarray, shape (N, 3)
+        The vendor's shape, m, vendor frame, at arc lengths ``vendor_s`` (N,).
+
+    Returns
+    -------
+    (ndarray (N, 3), ErrorStats) or None
+        The vendor's points in our base frame, m, and :func:`vendor_distance`'s figures; None when the two do
+        not overlap over 3 points or the vendor's shape has NaN points.
+    """
+    v = np.asarray(vendor_positions, dtype=np.float64)
+    vs = np.asarray(vendor_s, dtype=np.float64)
+    if not np.isfinite(v).all():
+        return None
+    p = np.asarray(positions, dtype=np.float64)
+    e = vendor_distance(p, s, v, vs)
+    if e is None:
+        return None
+    keep = s <= vs[-1] + 1e-9
+    paired = np.stack([np.interp(s[keep], vs, v[:, k]) for k in range(3)], axis=-1)
+    R, t = kabsch(p[keep], paired)  # ours → vendor, the motion shape_error applies
+    return (v - t) @ R, e
 
 
 class VendorDistance:
@@ -117,8 +233,8 @@ class VendorDistance:
 
     def add_chunk(self, vendor, start: int, shapes: Shape, select: np.ndarray) -> None:
         """Compare frames ``start:start + len(shapes)`` of a recording whose vendor shapes are ``vendor``
-        (:class:`twin.io.illumisense_log.VendorArrays`, or None: nothing to do); ``select`` (bool per frame)
-        picks the frames to compare."""
+        (:class:`VendorArrays` of the compared sensor, rows from 0; or None: nothing to do); ``select`` (bool
+        per frame) picks the frames to compare."""
         if vendor is None:
             return
         m = len(shapes)

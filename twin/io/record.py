@@ -6,11 +6,17 @@ is importable from here too) are read also while being written and after their w
 Damage: a recording cut short, or with damaged bytes, is opened without waiting on HDF5's retries
 (:mod:`twin.io.hdf5`) and reported: :attr:`RecordingReader.damage` says what is wrong, :attr:`len` counts the
 frames readable before the first damage, :attr:`RecordingReader.frames_recorded` how many the file claims. A
-damaged recording is never ``complete``.
+damaged recording is never ``complete``. Damage to the truth or to the interrogator's own reconstruction
+(``/vendor``) is reported the same way but keeps the frames: their truth or vendor blocks are absent from the
+damaged row on.
+
+The interrogator's own reconstruction (ILLumiSense sensor blocks) comes back per sensor as
+:class:`~twin.io.illumisense_vendor.VendorArrays` (:meth:`RecordingReader.vendor`), from a twin recording or a
+log alike, and on the single frames of ``replay://`` as :attr:`Frame.vendor <twin.frames.Frame.vendor>`.
 
 ILLumiSense log files (``*.txt``, one record per line as lab loggers save the stream) are read too:
 :func:`open_recording` detects them by content and :mod:`twin.io.illumisense_log` reads them (layout, header
-lines, skipped lines, the vendor's own shapes in :attr:`RecordingReader.vendor`). A log whose last line has no
+lines, skipped lines, the vendor's sensor blocks). A log whose last line has no
 line end was cut: it is reported as damaged (its last record may be incomplete).
 """
 
@@ -24,7 +30,16 @@ import numpy as np
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.frames import Frame, Truth
-from twin.io.hdf5 import FORMAT, FRAME_FIELDS, TRUTH_FIELDS, Recorder, chunk_rows, open_hdf5, readable_rows
+from twin.io.hdf5 import (
+    FORMAT,
+    FRAME_FIELDS,
+    TRUTH_FIELDS,
+    VENDOR_FIELDS,
+    Recorder,
+    chunk_rows,
+    open_hdf5,
+    readable_rows,
+)
 
 __all__ = ["FORMAT", "Recorder", "RecordingReader", "chunk_rows", "open_recording"]
 
@@ -55,7 +70,8 @@ class RecordingReader:
         What is damaged in the file, each naming the place (dataset, rows, bytes; empty for a sound file).
         Found when opening (a file cut short, chunks past its end) and when reading (chunks failing their
         checksum); ``len`` then counts the frames before the first damage of the frame data (truth rows past
-        damaged truth chunks come back absent, ``Truth.present`` False, their frames kept).
+        damaged truth chunks come back absent, ``Truth.present`` False, their frames kept; vendor rows likewise,
+        ``VendorArrays.present`` False).
     frames_recorded : int
         Frames the file says were written (its committed count); more than ``len`` when damaged.
     """
@@ -76,10 +92,12 @@ class RecordingReader:
             raise IsADirectoryError(f"{self.path}: is a directory, not a recording") from None
         self.errors: list[str] = []
         self.damage: list[str] = []
-        self._first_bad = self._truth_ok = 1 << 62  # first damaged row of the frames / of their truth
+        # first damaged row of the frames / of their truth / of their vendor blocks
+        self._first_bad = self._truth_ok = self._vendor_ok = 1 << 62
         self._file = None
         self._mem: Frame | None = None
-        self.vendor = None  # the interrogator's own shapes (twin.io.illumisense_log.VendorArrays), logs only
+        self._vendor_mem: tuple = ()  # a log's sensor blocks (VendorArrays per sensor)
+        self._vendor_sensors = 0  # /vendor/sensor<k> groups of a twin recording
         self._truth_names: list[str] = []
         if head == _HDF5_SIGNATURE:
             self._open_hdf5()
@@ -128,6 +146,10 @@ class RecordingReader:
             self._names = [f"frames/{k}" for k in FRAME_FIELDS if f"frames/{k}" in f] if "frames" in f else []
             if "truth/present" in f and "truth/s" in f:
                 self._truth_names = [k for k in TRUTH_FIELDS if f"truth/{k}" in f]
+            while all(f"vendor/sensor{self._vendor_sensors}/{k}" in f for k in (*VENDOR_FIELDS, "spacing")):
+                self._vendor_sensors += 1
+            if f"vendor/sensor{self._vendor_sensors}" in f:  # a group the writer created whole, now partial
+                self._damaged(0, f"vendor/sensor{self._vendor_sensors}: datasets missing", part="vendor")
             self._n = self.frames_recorded = 0
             self.refresh()
         except Exception as exc:  # anything HDF5 raises for damaged metadata: one line
@@ -153,6 +175,7 @@ class RecordingReader:
             return self._n
         f = self._file
         names = self._names + ([f"truth/{k}" for k in ("present", *self._truth_names)] if self.has_truth else [])
+        names += [f"vendor/sensor{j}/{k}" for j in range(self._vendor_sensors) for k in VENDOR_FIELDS]
         if len(self._names) < len(FRAME_FIELDS) or "frames/count" not in f:
             if self._names or "frames/count" in f:
                 self._damaged(0, "datasets missing from /frames")
@@ -177,28 +200,27 @@ class RecordingReader:
         # no more than the committed count, and only those whose chunks are inside the file
         n = min(rows, count)
         size = _size(self.path)
-        truth_ok = n
+        ok_rows = {None: n, "truth": n, "vendor": n}  # rows readable: frames, truth, vendor blocks
         for name in names:
-            is_truth = name.startswith("truth/")
-            want = truth_ok if is_truth else n
+            part = name.split("/")[0] if name.startswith(("truth/", "vendor/")) else None
+            want = ok_rows[part]
             ok, why = readable_rows(f[name], want, size)
             if ok < want and _size(self.path) > size:  # a writer's flush landed meanwhile
                 size = _size(self.path)
                 ok, why = readable_rows(f[name], want, size)
             if ok < want:
-                self._damaged(ok, why, truth=is_truth)
-                if is_truth:
-                    truth_ok = ok
-                else:
-                    n = truth_ok = ok
-        self._n = min(n, self._first_bad)
+                self._damaged(ok, why, part=part)
+                ok_rows = {p: min(v, ok) for p, v in ok_rows.items()} if part is None else {**ok_rows, part: ok}
+        self._n = min(ok_rows[None], self._first_bad)
         return self._n
 
-    def _damaged(self, row: int, why: str, truth: bool = False) -> None:
-        """Note damage from ``row`` on: of the frames, or (``truth``) only of their truth, which is then absent
-        from that row on while the frames stay readable."""
-        if truth:
+    def _damaged(self, row: int, why: str, part: str | None = None) -> None:
+        """Note damage from ``row`` on: of the frames, or (``part`` "truth" or "vendor") only of their truth or
+        vendor blocks, which are then absent from that row on while the frames stay readable."""
+        if part == "truth":
             self._truth_ok = min(row, self._truth_ok)
+        elif part == "vendor":
+            self._vendor_ok = min(row, self._vendor_ok)
         else:
             self._first_bad = min(row, self._first_bad)
             self._n = min(getattr(self, "_n", 0), self._first_bad)
@@ -231,7 +253,7 @@ class RecordingReader:
         stop = self._n if stop is None else min(stop, self._n)
         return max(0, min(start, stop)), stop
 
-    def _read(self, names: Sequence[str], start: int, stop: int, truth: bool = False
+    def _read(self, names: Sequence[str], start: int, stop: int, part: str | None = None
               ) -> tuple[dict[str, np.ndarray], int]:
         """Rows start:stop of datasets; on a read error, the rows before the first bad chunk (damage noted)."""
         out: dict[str, np.ndarray] = {}
@@ -251,7 +273,7 @@ class RecordingReader:
                 try:
                     parts.append(ds[row:nxt])
                 except Exception as exc:
-                    self._damaged(row, f"{name} rows {row}–{nxt - 1} unreadable ({_brief(exc)})", truth)
+                    self._damaged(row, f"{name} rows {row}–{nxt - 1} unreadable ({_brief(exc)})", part)
                     break
                 row = nxt
             end = row
@@ -288,19 +310,47 @@ class RecordingReader:
         f = self._file
         fields = ["truth/present", *(f"truth/{k}" for k in names)]
         end = max(start, min(stop, self._truth_ok))
-        cols, end = self._read(fields, start, end, truth=True)
-        m = stop - start
-        for name in fields:  # pad damaged rows: absent, NaN
-            ds, v = f[name], cols[name]
-            if len(v) < m:
-                pad = np.full((m - len(v), *ds.shape[1:]), False if name == "truth/present" else np.nan,
-                              dtype=ds.dtype)
-                cols[name] = np.concatenate([v, pad])
+        cols, end = self._read(fields, start, end, part="truth")
+        self._pad(cols, stop - start)
         kw = {k: cols[f"truth/{k}"] for k in names}
         if "frames" in kw:
             kw["frames"] = kw["frames"].astype(np.float64)
         return Truth(s=f["truth/s"][()], present=cols["truth/present"],
                      fixture=f["truth/fixture"][()] if "truth/fixture" in f else None, **kw), stop
+
+    def _pad(self, cols: dict[str, np.ndarray], m: int) -> None:
+        """Pad columns cut at damage to ``m`` rows: absent (``present`` False), NaN."""
+        for name, v in cols.items():
+            if len(v) < m:
+                ds = self._file[name]
+                fill = False if name.endswith("/present") else np.nan
+                cols[name] = np.concatenate([v, np.full((m - len(v), *ds.shape[1:]), fill, dtype=ds.dtype)])
+
+    @property
+    def has_vendor(self) -> bool:
+        """The recording holds the interrogator's own reconstruction (sensor blocks)."""
+        return bool(self._vendor_mem) or self._vendor_sensors > 0
+
+    def vendor(self, start: int = 0, stop: int | None = None) -> tuple:
+        """The interrogator's own reconstruction of frames ``start:stop``, one
+        :class:`~twin.io.illumisense_vendor.VendorArrays` per sensor (rows from 0 = frame ``start``; empty
+        when the recording has none). Rows past damaged vendor chunks come back absent."""
+        start, stop = self._span(start, stop)
+        if self._file is None:
+            return tuple(a[start:stop] for a in self._vendor_mem)
+        if not self._vendor_sensors:
+            return ()
+        from twin.io.illumisense_vendor import VendorArrays
+
+        f = self._file
+        names = [f"vendor/sensor{j}/{k}" for j in range(self._vendor_sensors) for k in VENDOR_FIELDS]
+        end = max(start, min(stop, self._vendor_ok))
+        cols, _ = self._read(names, start, end, part="vendor")
+        self._pad(cols, stop - start)
+        return tuple(VendorArrays(*(cols[f"vendor/sensor{j}/{k}"] for k in ("curvature", "angle", "positions")),
+                                  present=cols[f"vendor/sensor{j}/present"],
+                                  spacing=float(f[f"vendor/sensor{j}/spacing"][()]))
+                     for j in range(self._vendor_sensors))
 
     def received(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Wall-clock receive times of frames ``start:stop``, s (NaN for vendor logs)."""
@@ -372,7 +422,7 @@ def _read_log(reader: RecordingReader, *, channels_as: str, n_cores: int | None)
 
     log = read_log(reader.path, channels_as=channels_as, n_cores=n_cores)
     reader.errors.extend(log.errors)
-    reader.vendor = log.vendor
+    reader._vendor_mem = log.vendor
     return Frame(log.wavelengths, log.timestamps, log.sequences, powers=log.powers, status=log.status)
 
 

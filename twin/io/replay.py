@@ -1,15 +1,20 @@
 """What a recording holds: reconstruct every frame in batches and summarise (the library behind ``twin replay``).
 
 :func:`summarize` reads a twin HDF5 recording or an ILLumiSense log (:mod:`twin.io.record`), reconstructs every
-readable frame and returns a :class:`ReplaySummary`: frames, time span, lost samples and resets (one meaning
-everywhere: :class:`~twin.io.sequence.SequenceCounter` — a forward jump is lost samples, a backward or repeated
-number a reset), complete / partial / unusable frames, invalid nodes, reconstruction speed, the damage of a
-damaged file, and — when the recording holds the simulator's truth — the shape error against it
-(:func:`twin.metrics.shape_error` after a registration, on at most ``max_compare`` frames spread evenly).
+readable frame and returns a :class:`ReplaySummary`: frames, time span, lost samples and resets, complete /
+partial / unusable frames, frames with missing peaks, peaks outside their window, invalid nodes — counted by
+the live loop's own books (:meth:`twin.live.LiveLoop.process_arrays`), so `twin replay` and `twin live` count
+alike —, reconstruction speed, the damage of a damaged file, when the recording holds the simulator's truth the
+shape error against it (:func:`twin.metrics.shape_error` after a registration, on at most ``max_compare``
+frames spread evenly), and when it holds the interrogator's own shape the distance to it.
+
+:class:`ReplaySource` (``replay://FILE``) delivers the recorded frames one by one, with their truth and their
+sensor blocks (:attr:`Frame.vendor <twin.frames.Frame.vendor>`) when recorded.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -21,10 +26,10 @@ from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.frames import Frame
 from twin.io.errors import RecordingDamaged
-from twin.io.illumisense_vendor import VendorDistance
+from twin.io.illumisense_vendor import VendorDistance, frame_vendor
 from twin.io.record import open_recording
-from twin.io.sequence import SequenceCounter
 from twin.io.source import Source, SourceClosed, parse_url
+from twin.live import LiveLoop
 from twin.metrics import shape_error
 from twin.reconstruct import Reconstructor
 
@@ -66,14 +71,18 @@ class ReplaySummary:
     rate_hz : float or None
     lost_samples, sequence_gaps, sequence_resets : int
     frames_complete, frames_partial, frames_unusable, frames_missing_peaks, invalid_nodes : int
+        As :class:`twin.live.LiveStatus` counts them.
+    peaks_outside_window : int
+        Peaks outside the reconstructor's physical window (or infinite), treated as missing.
     reconstruct_frames_per_s : float or None
     skipped_lines : int
         Log lines that did not parse.
     truth : TruthErrors or None
     vendor : dict
-        When a log carries the interrogator's own shape: ``vendor_frames_compared``, ``vendor_distance_max_mm``,
-        ``vendor_distance_mean_mm`` (ours against it after a rigid registration,
-        :class:`twin.io.illumisense_vendor.VendorDistance`); empty otherwise.
+        When the recording (a twin recording or a log) carries the interrogator's own shape (sensor 0):
+        ``vendor_frames_compared``, ``vendor_distance_max_mm``, ``vendor_distance_mean_mm`` (ours against it
+        after a rigid registration, :class:`twin.io.illumisense_vendor.VendorDistance`, on the same frames as
+        the truth); empty otherwise.
     notes : tuple of str
     """
 
@@ -95,6 +104,7 @@ class ReplaySummary:
     frames_unusable: int
     frames_missing_peaks: int
     invalid_nodes: int
+    peaks_outside_window: int
     reconstruct_frames_per_s: float | None
     skipped_lines: int
     damage: tuple[str, ...] = ()
@@ -156,11 +166,9 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
             raise ValueError(f"{path}: frames have {g} gratings × {c} cores but the fibre model has "
                              f"{fiber.n_gratings} × {fiber.n_cores}; give the sensor's model with --fiber")
         rec = Reconstructor(fiber, calibration, method=method)
+        books = LiveLoop(None, rec)  # never run: its books only
         stride = max(1, math.ceil(len(reader) / max(1, max_compare)))
         g = fiber.n_gratings
-        counts = dict.fromkeys(("frames_complete", "frames_partial", "frames_unusable", "frames_missing_peaks",
-                                "invalid_nodes"), 0)
-        sequence = SequenceCounter()
         n = 0
         t_first = t_last = math.nan
         errors: dict[str, list[np.ndarray]] = {"mean": [], "max": [], "rms": [], "tip": []}
@@ -171,24 +179,21 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
             m = len(frames)
             n += m
             t0 = time.perf_counter()
-            shapes = rec(frames.wavelengths)
+            shapes, _ = books.process_arrays(frames.wavelengths, frames.sequence)
             t_rec += time.perf_counter() - t0
-            n_valid = np.count_nonzero(shapes.valid, axis=-1)
-            counts["frames_complete"] += int(np.count_nonzero(n_valid == g))
-            counts["frames_partial"] += int(np.count_nonzero((n_valid < g) & (n_valid > 0)))
-            counts["frames_unusable"] += int(np.count_nonzero(n_valid == 0))
-            counts["frames_missing_peaks"] += int(np.count_nonzero(frames.missing.any(axis=(1, 2))))
-            counts["invalid_nodes"] += int(g * m - n_valid.sum())
-            sequence.count_many(frames.sequence)
             ts = frames.timestamp[np.isfinite(frames.timestamp)]
             if ts.size:
                 t_first = ts[0] if math.isnan(t_first) else t_first
                 t_last = ts[-1]
-            vendor.add_chunk(reader.vendor, start, shapes, (np.arange(start, start + m) % stride == 0) & (n_valid == g))
+            if shapes is None:
+                continue
+            n_valid = np.count_nonzero(shapes.valid, axis=-1)
+            compare = (np.arange(start, start + m) % stride == 0) & (n_valid == g)
+            if reader.has_vendor:
+                vendor.add_chunk(reader.vendor(start, start + m)[0], 0, shapes, compare)
             if reader.has_truth and truth_note is None:
                 truth = reader.truth(start, start + m, fields=("positions",))
-                idx = np.arange(start, start + len(truth))
-                sel = np.flatnonzero((idx % stride == 0) & truth.all_present & (n_valid[: len(truth)] == g))
+                sel = np.flatnonzero(compare[: len(truth)] & truth.all_present)
                 if sel.size:
                     try:
                         e = shape_error(shapes.positions[sel], truth.positions[sel], s=rec.s, truth_s=truth.s,
@@ -217,6 +222,9 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
                 notes.append(truth_note or "truth present but no complete frame to compare")
         if reader.errors:
             notes.append(f"{len(reader.errors)} line(s) skipped, first: {reader.errors[0]}")
+        if books.c["reconstruct_errors"]:
+            notes.append(f"reconstruction failed on {books.c['reconstruct_errors']} batch(es): their frames are "
+                         "counted unusable")
         if not reader.complete and not reader.damaged:
             notes.append("the recording was not closed cleanly (killed writer, or still being written)")
         span = None if math.isnan(t_first) else float(t_last - t_first)
@@ -232,8 +240,9 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
             time_span=None if span is None or not math.isfinite(span) else round(span, 6),
             rate_hz=round((n - 1) / span, 3) if span is not None and math.isfinite(span) and span > 0 and n >= 2
             else None,
-            **sequence.as_dict(),
-            **counts,
+            **{k: books.c[k] for k in ("lost_samples", "sequence_gaps", "sequence_resets", "frames_complete",
+                                       "frames_partial", "frames_unusable", "frames_missing_peaks", "invalid_nodes",
+                                       "peaks_outside_window")},
             reconstruct_frames_per_s=round(n / t_rec, 1) if t_rec > 0 else None,
             skipped_lines=len(reader.errors),
             damage=tuple(reader.damage),
@@ -247,7 +256,8 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
 
 
 class ReplaySource(Source):
-    """``replay://FILE?speed=…``: a recording's frames, paced as recorded or as fast as read.
+    """``replay://FILE?speed=…``: a recording's frames, paced as recorded or as fast as read, with their truth
+    and their sensor blocks (:attr:`Frame.vendor <twin.frames.Frame.vendor>`) when recorded.
 
     Parameters
     ----------
@@ -284,6 +294,7 @@ class ReplaySource(Source):
         self.follow = follow
         self.chunk = chunk
         self._batch: Frame | None = None
+        self._vendor: tuple = ()  # the batch's sensor blocks (VendorArrays per sensor)
         self._i = 0
         self._times: np.ndarray = np.empty(0)
         self._next = 0  # next file row to load
@@ -300,6 +311,7 @@ class ReplaySource(Source):
         try:
             batch = self.reader.frames(self._next, min(n, self._next + self.chunk))
             received = self.reader.received(self._next, self._next + len(batch))
+            self._vendor = self.reader.vendor(self._next, self._next + len(batch))
         except Exception as exc:  # reopening would replay the same bytes: never transient
             raise RecordingDamaged(f"{self.reader.path}: unreadable at frame {self._next} ({exc})") from None
         if len(batch) == 0:
@@ -336,7 +348,12 @@ class ReplaySource(Source):
                     time.sleep(wait)
         self._delivered += 1
         self._i += 1
-        return self._batch[self._i - 1]
+        frame = self._batch[self._i - 1]
+        if self._vendor:
+            blocks = frame_vendor(self._vendor, self._i - 1)
+            if blocks is not None:
+                frame = dataclasses.replace(frame, vendor=blocks)
+        return frame
 
     def read_many(self, max_frames: int = 1 << 30, timeout: float | None = None) -> list[Frame]:
         """Frames that are due now, up to ``max_frames`` (waiting up to ``timeout`` s for the first)."""
