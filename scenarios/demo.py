@@ -83,7 +83,7 @@ class ErrorSink:
             self._next_view = time.monotonic() + self._period
             i = ok[-1]
             self.viewer.info.update(rate_hz=status.rate_hz, lost=status.lost_samples, frames=status.frames)
-            self.viewer.show(shapes[i], truths[i])
+            self.viewer.show(shapes[i], truths[i], vendor=frames[i].vendor)
 
 
 class LinePrinter:

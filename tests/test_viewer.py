@@ -1,8 +1,9 @@
 """The browser viewer: its numpy geometry (without meshcat), meshcat's command format, the scene server run as
 ``python -m twin.viewer.server`` (loopback only, meshcat's own client understood, browsers fed over the
 websocket), the Viewer (error colours, the truth on top, overlay figures, rate limiter, stale display, clean
-shutdown, never a hang), the live sink, the command-line flags — and a real browser (Debian's headless
-chromium) rendering the live page and the static export, checked pixel by pixel.
+shutdown, never a hang), the interrogator's own shape (registered as its reported distance is, toggled), the
+live sink, the command-line flags — and a real browser (Debian's headless chromium) rendering the live page and
+the static export, checked pixel by pixel.
 
 No timing asserts (speed lives in `twin bench`); waits are generous and only outcomes are checked. Every
 viewer is closed by a fixture finalizer, which also checks that its server process is gone.
@@ -28,6 +29,8 @@ import pytest
 
 from twin import Reconstructor
 from twin.frames import Frame, Shape, Truth
+from twin.io.illumisense import VendorSensor
+from twin.io.illumisense_vendor import VENDOR_FROM_BASE, vendor_distance
 from twin.io.synthetic import SyntheticSource
 from twin.live import LiveLoop, LiveStatus
 from twin.viewer import CAMERA_FOV_DEG, Viewer, ViewerConfig, ViewerError, ViewerSink, keep_open
@@ -67,6 +70,23 @@ def truth_of(shape: Shape, R=POSE_R, p=POSE_P, fixture: bool = True, offset: flo
     world = shape.positions @ R.T + p
     moved = world + offset * (shape.s > 0)[:, None] * R[:, 1]
     return Truth(s=shape.s, positions=moved, frames=R @ shape.frames, fixture=world.copy() if fixture else None)
+
+
+def vendor_of(shape: Shape, kappa: float = 21.0) -> VendorSensor:
+    """The interrogator's shape of the same fibre, bent a little more (``kappa`` 1/m instead of the arc's 20),
+    as ILLumiSense sends it: 1 mm points in the vendor frame, moved away from ours."""
+    other = arc(kappa=kappa)
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    pts = other.positions @ VENDOR_FROM_BASE.T @ R.T + [0.3, -0.2, 0.1]
+    k = np.hypot(*other.curvature.T)
+    return VendorSensor(k, np.zeros_like(k), pts)
+
+
+def centreline(obj: dict, sides: int = 8) -> np.ndarray:
+    """The centre of each ring of a tube mesh sent by the viewer (n, 3)."""
+    verts = attribute(obj, "position")
+    n = (len(verts) - 2 * (sides + 1)) // sides
+    return verts[: n * sides].reshape(n, sides, 3).mean(axis=1)
 
 
 class Spy:
@@ -391,6 +411,58 @@ def test_scene_shows_error_colours_truth_on_top_and_the_figures(make_viewer):
     assert "max error" not in dict(v.hud()["figures"]) and spy.objects("/twin/truth") == []
 
 
+def test_vendor_shape_is_drawn_registered_as_its_distance_is_reported(make_viewer):
+    v = make_viewer(max_fps=float("inf"))
+    spy = Spy(v)
+    shape = arc()
+    truth = truth_of(shape, offset=1e-4)
+    block = vendor_of(shape)
+    assert v.show(shape, truth, vendor=(block,))
+    (obj,) = spy.objects("/twin/vendor")
+    mat = obj["materials"][0]
+    assert mat["type"] == "MeshBasicMaterial" and mat["color"] == v.config.vendor_color and mat["depthTest"] is False
+    # drawn where the reported registration puts it: our placed points' distances to the drawn vendor
+    # centreline are the reported ones (float32 vertices: 1e-7 m)
+    placed = shape.positions @ POSE_R.T + POSE_P
+    drawn = centreline(obj)
+    assert len(drawn) == len(block.positions)
+    d = geo.local_error(placed, drawn)
+    reported = vendor_distance(shape.positions, shape.s, block.positions, block.s)
+    assert reported.max > 5e-4  # a distance one can see, not a coincidence at zero
+    assert d.max() == pytest.approx(reported.max, abs=2e-7) and d.mean() == pytest.approx(reported.mean, abs=2e-7)
+    assert v.vendor_errors["max"] == pytest.approx(reported.max, rel=1e-12)
+    assert ("set_property", "/twin/vendor") in [(k, p) for k, p, _ in spy.sent]  # visible, once
+    hud = v.hud()
+    figures = dict(hud["figures"])
+    assert figures["max distance"] == f"{1e3 * reported.max:.3f} mm" and "vs interrogator's shape" in figures
+    assert [f"#{v.config.vendor_color:06x}", "interrogator's own shape (registered onto ours)"] in hud["legend"]
+    # the truth is still on top of it
+    assert spy.objects("/twin/truth")[0]["object"]["renderOrder"] > obj["object"]["renderOrder"]
+    # the next frame: redrawn, the visibility (the page's toggle) left alone
+    spy.clear()
+    v.show(shape, truth, vendor=(block,))
+    assert len(spy.objects("/twin/vendor")) == 1 and "set_property" not in [k for k, _, _ in spy.sent]
+    # a frame without one: removed, and gone from the overlay
+    spy.clear()
+    v.show(shape, truth)
+    assert ("delete", "/twin/vendor") in [(k, p) for k, p, _ in spy.sent] and spy.objects("/twin/vendor") == []
+    assert v.vendor_errors is None and "max distance" not in dict(v.hud()["figures"])
+    assert not any("interrogator" in text for _, text in v.hud()["legend"])
+    spy.clear()
+    v.show(shape, truth)
+    assert spy.sent and all(p != "/twin/vendor" for _, p, _ in spy.sent)  # deleted once
+
+    # show_vendor=False: sent hidden (the page's scene controls switch it on); another sensor picked
+    hidden = make_viewer(max_fps=float("inf"), show_vendor=False, vendor_sensor=1)
+    spy = Spy(hidden)
+    hidden.show(shape, vendor=(vendor_of(shape, 30.0), block))
+    (prop,) = [c for k, p, c in spy.sent if k == "set_property" and p == "/twin/vendor"]
+    assert prop["property"] == "visible" and prop["value"] is False
+    assert hidden.vendor_errors["max"] == pytest.approx(reported.max, rel=1e-12)  # sensor 1 = block
+    hidden.show(shape, vendor=(block,), force=True)  # no sensor 1: nothing drawn
+    assert hidden.vendor_errors is None
+
+
 def test_rate_limiter_drops_frames_sooner_than_max_fps(make_viewer):
     v = make_viewer(max_fps=20.0)
     shape = arc()
@@ -487,10 +559,11 @@ def test_sink_draws_the_latest_usable_frame_and_keeps_a_dropped_one(make_viewer)
                   grating_s=one.grating_s, valid=np.ones((3, 18), bool))
     w = np.zeros((18, 4))
     truth = truth_of(two)
-    frames = [Frame(w), Frame(w, truth=truth), Frame(w)]
+    frames = [Frame(w), Frame(w, truth=truth, vendor=(vendor_of(two),)), Frame(w)]
     sink(frames, batch, LiveStatus(state="live", flags=np.array([0, 0, 4], np.uint8), rate_hz=99.5,
                                    lost_samples=3))
     assert sink.frames_shown == 1 and v.placement == "truth_base"
+    assert len(spy.objects("/twin/vendor")) == 1 and v.vendor_errors is not None  # the frame's vendor shape
     (mesh,) = spy.objects("/twin/shape")
     assert np.allclose(attribute(mesh, "position")[: v.config.sides].mean(axis=0), truth.positions[0], atol=1e-6)
     figures = dict(v.hud()["figures"])
@@ -746,3 +819,43 @@ def test_browser_renders_the_static_export(make_viewer, tmp_path):
     assert near(magenta(img), px).mean() >= 0.8
     dom = chromium(page.as_uri(), tmp_path, "static-dom", "--dump-dom").stdout
     assert "0.100 mm" in dom
+
+
+def orange(img: np.ndarray) -> np.ndarray:
+    """Pixels of the vendor shape's colour (0xFF8000, unlit): background, grid, viridis, grey, magenta fail it."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return (r > 0.85) & (g > 0.35) & (g < 0.65) & (b < 0.25)
+
+
+@pytest.mark.timeout(300)
+@needs_chromium
+def test_browser_shows_the_vendor_shape_when_present_and_not_otherwise(make_viewer, tmp_path):
+    """The interrogator's shape (orange, registered onto ours) is drawn along its projected centreline and
+    nowhere else, named in the legend; a frame without one leaves no orange pixel."""
+    from twin.io.illumisense_vendor import vendor_in_base
+
+    v = make_viewer()
+    shape = arc()
+    block = vendor_of(shape)
+    v.show(shape, vendor=(block,), label="vendor")
+    base, e = vendor_in_base(shape.positions, shape.s, block.positions, block.s)
+    assert e.max > 5e-4 and v.placement == "base_frame"  # no truth: the scene is our base frame
+    px = project(v, base)
+    assert np.all((px > 0) & (px < [W, H]))
+
+    img = screenshot(v.url, tmp_path, "vendor")
+    mask = orange(img)
+    if not mask.any():  # a slow first start of chromium may shoot before the scene arrives: once more
+        img = screenshot(v.url, tmp_path, "vendor-again")
+        mask = orange(img)
+    assert near(mask, px).mean() >= 0.8
+    ys, xs = np.nonzero(mask)
+    swatch = (xs < 340) & (ys > 380)  # the legend (bottom left) shows its colour too
+    assert swatch.any()
+    assert distance_to_polyline(np.stack([xs, ys], -1)[~swatch].astype(float), px).max() <= 6  # nowhere else
+    dom = chromium(v.url, tmp_path, "vendor-dom", "--dump-dom").stdout
+    assert "interrogator's own shape" in dom and f"{1e3 * e.max:.3f} mm" in dom
+
+    v.show(shape, force=True)  # the next frame has no vendor shape
+    plain = screenshot(v.url, tmp_path, "plain")
+    assert not orange(plain).any()

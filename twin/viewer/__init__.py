@@ -9,6 +9,11 @@
 - the **truth** as a thin magenta centreline drawn over everything, so it stays visible at any error, however
   small (the translucent tube around it shows by how much the reconstruction strays);
 - the **gratings** as black dots; the **fixture** (tube, groove, sheath) as a faint translucent tube;
+- the **interrogator's own shape** (ILLumiSense sensor blocks, :attr:`twin.frames.Frame.vendor`), when the frame
+  carries one, as a thin orange centreline, moved onto the reconstruction by the rigid registration the
+  reported vendor distance is computed with (:func:`twin.io.illumisense_vendor.vendor_in_base`), so what is
+  drawn is what is reported (its max / mean distance in the overlay). Shown by default; the page's scene
+  controls (node ``twin/vendor``) switch it off and on, and ``ViewerConfig.show_vendor`` sets how it starts;
 - a **scale bar** (black, a round length) under the catheter, and an overlay: the figures (max / mean / tip
   error when there is a truth, rate, lost frames, the calibration in use, the stream's state) and a legend with
   the colour bar. A stale stream turns the catheter opaque grey.
@@ -83,8 +88,13 @@ class ViewerConfig:
         Most frames drawn per second, Hz (``inf``: no limit); :meth:`Viewer.show` skips the others.
     scale : float
         Scene units per metre.
-    truth_color, fixture_color, stale_color, marker_color, scale_color : int
+    truth_color, fixture_color, stale_color, marker_color, scale_color, vendor_color : int
     fixture_opacity : float
+    show_vendor : bool
+        Whether the interrogator's own shape starts visible when a frame carries one (the page's scene controls
+        toggle it).
+    vendor_sensor : int
+        Which of the frame's sensor blocks is the fibre shown (0: the first).
     timeout : float
         Longest wait for the server's answer to one message, s (never hangs).
     web_port : int
@@ -108,6 +118,9 @@ class ViewerConfig:
     stale_color: int = 0x8C8C8C
     marker_color: int = 0x000000
     scale_color: int = 0x202020
+    vendor_color: int = 0xFF8000
+    show_vendor: bool = True
+    vendor_sensor: int = 0
     timeout: float = 2.0
     web_port: int = 7000
 
@@ -148,6 +161,9 @@ class Viewer:
     frames_shown, frames_skipped : int
     errors : dict or None
         The last frame's max / mean / tip error, m (None without a truth).
+    vendor_errors : dict or None
+        The last frame's max / mean / tip distance to the interrogator's own shape after the registration, m
+        (None when the frame had none).
     placement : str or None
         How the last reconstruction was placed.
     """
@@ -160,6 +176,8 @@ class Viewer:
         self.frames_skipped = 0
         self.placement: str | None = None
         self.errors: dict[str, float] | None = None
+        self.vendor_errors: dict[str, float] | None = None
+        self._vendor_shown = False
         self.info: dict[str, object] = {"calibration": calibration or "none"}
         self._due = -float("inf")
         self._framed = False
@@ -251,7 +269,7 @@ class Viewer:
         return (time.monotonic() if now is None else now) >= self._due
 
     def show(self, shape: Shape, truth: Truth | None = None, *, base_pose=None, fixture=None,
-             label: str | None = None, force: bool = False, reframe: bool = False) -> bool:
+             label: str | None = None, force: bool = False, reframe: bool = False, vendor=None) -> bool:
         """Draw one reconstruction, with its truth (centreline, errors) and fixture when given.
 
         Parameters
@@ -270,6 +288,10 @@ class Viewer:
             Draw even if the rate limiter would skip this frame.
         reframe : bool
             Frame the camera on this shape (the first one is framed anyway).
+        vendor : tuple of VendorSensor, or VendorSensor, optional
+            The interrogator's own reconstruction of the same frame (:attr:`twin.frames.Frame.vendor`; sensor
+            ``config.vendor_sensor`` of a tuple), drawn registered onto ``shape``. Without one, a vendor shape
+            drawn before is removed.
 
         Returns
         -------
@@ -289,7 +311,7 @@ class Viewer:
             return False
         self._queue = []
         try:
-            self._show(shape, truth, base_pose, fixture, label, reframe)
+            self._show(shape, truth, base_pose, fixture, label, reframe, vendor)
             if not self._closed and self.broken:
                 raise ViewerError(self.broken)
             self._client.send_many(self._queue)
@@ -300,7 +322,7 @@ class Viewer:
         self._update_hud(now, force=label is not None or self.frames_shown == 1)
         return True
 
-    def _show(self, shape: Shape, truth: Truth | None, base_pose, fixture, label, reframe) -> None:
+    def _show(self, shape: Shape, truth: Truth | None, base_pose, fixture, label, reframe, vendor) -> None:
         if shape.positions.ndim != 2:
             raise ValueError(f"Viewer.show takes one shape, got a batch of shape {shape.batch_shape}; index it")
         if not np.all(np.isfinite(shape.positions)):
@@ -330,8 +352,9 @@ class Viewer:
             ring_colors = geo.colormap(k_at, *cfg.curvature_range)
         if fixture is None and truth is not None:
             fixture = truth.fixture
+        vendor_pts = self._vendor_world(shape, vendor, R, p)
         if not self._framed or reframe:
-            sensed = world if truth_pts is None else np.concatenate([world, truth_pts])
+            sensed = np.concatenate([c for c in (world, truth_pts, vendor_pts) if c is not None])
             self._frame(sensed)
         if label is not None:
             self._label = label
@@ -349,6 +372,45 @@ class Viewer:
             # unlit and drawn last without depth test: the truth's own colour, even inside the tube
             mat = cmd.material("MeshBasicMaterial", cfg.truth_color, depthTest=False, transparent=True)
             self._send(cmd.set_object("/twin/truth", cmd.mesh(tv, tf, mat, render_order=10)))
+        self._draw_vendor(vendor_pts)
+
+    def _vendor_world(self, shape: Shape, vendor, R: np.ndarray, p: np.ndarray) -> np.ndarray | None:
+        """The interrogator's shape registered onto ``shape`` and placed like it (world, m), or None."""
+        self.vendor_errors = None
+        if vendor is None:
+            return None
+        block = vendor
+        if isinstance(vendor, tuple | list):
+            k = self.config.vendor_sensor
+            block = vendor[k] if len(vendor) > k else None
+        if block is None:
+            return None
+        from twin.io.illumisense_vendor import vendor_in_base
+
+        moved = vendor_in_base(shape.positions, shape.s, block.positions, block.s)
+        if moved is None:  # no overlap, or NaN points: nothing to show or report
+            return None
+        base, e = moved
+        self.vendor_errors = {"max": float(e.max), "mean": float(e.mean), "tip": float(e.tip)}
+        return base @ R.T + p
+
+    def _draw_vendor(self, points: np.ndarray | None) -> None:
+        cfg = self.config
+        if points is None or len(points) < 2:
+            if self._vendor_shown:
+                self._send(cmd.delete("/twin/vendor"))
+                self._vendor_shown = False
+            return
+        k = geo.subsample(len(points), cfg.max_rings)
+        verts, faces = tube_mesh(points[k], cfg.truth_radius, 8)
+        # like the truth: unlit, over the translucent tube (under the truth and the gratings)
+        mat = cmd.material("MeshBasicMaterial", cfg.vendor_color, depthTest=False, transparent=True)
+        # the object hangs under the node /twin/vendor, whose visibility (the page's scene controls, or
+        # show_vendor) therefore survives the next frame's object
+        self._send(cmd.set_object("/twin/vendor", cmd.mesh(verts, faces, mat, render_order=9)))
+        if not self._vendor_shown:
+            self._send(cmd.set_property("/twin/vendor", "visible", bool(cfg.show_vendor)))
+            self._vendor_shown = True
 
     def _draw_reconstruction(self) -> None:
         if self._last is None:
@@ -446,6 +508,9 @@ class Viewer:
                 self.placement or "", "at the true base pose")
             figures += [["error vs truth", how]] + [[f"{k} error", f"{1e3 * self.errors[k]:.3f} mm"]
                                                     for k in ("max", "mean", "tip")]
+        if self.vendor_errors is not None:
+            figures += [["vs interrogator's shape", "after Kabsch registration"]] + [
+                [f"{k} distance", f"{1e3 * self.vendor_errors[k]:.3f} mm"] for k in ("max", "mean")]
         if "rate_hz" in self.info:
             figures.append(["rate", f"{float(self.info['rate_hz']):.1f} Hz"])
         if "lost" in self.info:
@@ -465,6 +530,8 @@ class Viewer:
         legend = []
         if self._mode == "error":
             legend.append([_css(cfg.truth_color), "truth (centreline, drawn on top)"])
+        if self.vendor_errors is not None:
+            legend.append([_css(cfg.vendor_color), "interrogator's own shape (registered onto ours)"])
         legend += [["rgba(120,120,120,0.45)", "reconstruction (translucent tube, 8 Fr)"],
                    [_css(cfg.marker_color), "gratings"]]
         if self._fixture is not None:

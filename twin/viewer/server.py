@@ -71,7 +71,9 @@ class Scene:
             return
         node = self.nodes.setdefault(path, {"object": None, "properties": {}, "transform": None})
         if kind == "set_object":
-            node["object"], node["properties"] = data, {}
+            # meshcat puts the object under PATH/<object>: properties of the node PATH itself (its visibility)
+            # outlive it, as in the browser
+            node["object"] = data
         elif kind == "set_transform":
             node["transform"] = data
         elif kind == "set_property":

@@ -23,7 +23,8 @@ __all__ = ["ViewerSink"]
 class ViewerSink:
     """A :class:`twin.live.LiveLoop` sink drawing the latest usable shape of each batch, at most ``rate`` Hz.
 
-    The frame's truth is drawn when the source carries one; rate and lost frames go to the overlay. A frame
+    The frame's truth is drawn when the source carries one, and the interrogator's own shape when the frame
+    carries one (:attr:`Frame.vendor`); rate and lost frames go to the overlay. A frame
     dropped by the rate limit is kept and drawn at the next heartbeat. A stale stream turns the catheter grey.
     Nothing raises out of the sink (the loop would drop it): errors are counted in ``errors`` (the first one
     reported on ``stream``), and a viewer whose server is gone is left alone.
@@ -51,7 +52,7 @@ class ViewerSink:
         self.last_error: str | None = None
         self.frames_received = 0
         self.frames_shown = 0
-        self._pending: tuple[Shape, Truth | None] | None = None
+        self._pending: tuple[Shape, Truth | None, tuple | None] | None = None
         self._due = -float("inf")
         self._gave_up = False
 
@@ -70,7 +71,7 @@ class ViewerSink:
         if frames and shapes is not None:
             pick = geo.latest_usable(shapes, status.flags, len(frames))
             if pick is not None:
-                self._pending = (shapes[pick], frames[pick].truth)
+                self._pending = (shapes[pick], frames[pick].truth, frames[pick].vendor)
         v = self.viewer
         if v.closed or status.state == "ended":
             return
@@ -82,10 +83,10 @@ class ViewerSink:
         if self._pending is not None:
             now = time.monotonic()
             if now >= self._due:
-                shape, truth = self._pending
+                shape, truth, vendor = self._pending
                 self._pending = None
                 self._due = geo.next_due(self._due, now, self.period)
-                v.show(shape, truth, force=True)
+                v.show(shape, truth, force=True, vendor=vendor)
                 self.frames_shown += 1
         v.info.update(rate_hz=status.rate_hz, lost=status.lost_samples, frames=status.frames)
         detail = ""
