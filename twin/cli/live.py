@@ -13,7 +13,8 @@ frames before the damage instead).
 
 ``--viewer`` shows the shapes live in a browser (meshcat, :mod:`twin.viewer`; the URL to open is printed on
 stderr): the latest shape at most ``--viewer-rate`` times a second (30), the truth beside it when the source
-carries one (the simulator), grey when the stream is stale. The viewer's server stops when the run ends, or
+carries one (the simulator), the interrogator's own shape when the frames carry one (ILLumiSense sensor blocks,
+live or replayed), grey when the stream is stale. The viewer's server stops when the run ends, or
 with ``--keep-open`` stays until Ctrl-C.
 
 ``--igtl [HOST:]PORT`` serves the shapes over OpenIGTLink for 3D Slicer (:mod:`twin.igtl`; 127.0.0.1 unless a

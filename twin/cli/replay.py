@@ -7,10 +7,11 @@
 Reads a twin HDF5 recording (``twin live --record``; also one still being written or left by a killed
 process) or an ILLumiSense log file (:mod:`twin.io.illumisense_log`), reconstructs every frame in
 batches, and reports frames, time span, lost samples, partial and unusable frames, invalid nodes and the
-reconstruction speed. When the recording holds the simulator's truth, it also reports the shape error against
-it (after ``--register``; on at most ``--max-compare`` frames spread evenly over the recording, in mm). When
-an ILLumiSense log carries the interrogator's own shape (sensor blocks), it reports the distance between that
-shape and ours after a rigid registration (``vendor_distance_*_mm``, :mod:`twin.io.illumisense_vendor`).
+reconstruction speed, counted as ``twin live`` counts them. When the recording holds the simulator's truth, it
+also reports the shape error against it (after ``--register``; on at most ``--max-compare`` frames spread evenly
+over the recording, in mm). When the recording (a twin HDF5 recording or an ILLumiSense log) carries the
+interrogator's own shape (sensor blocks), it reports the distance between that shape and ours after a rigid
+registration (``vendor_distance_*_mm``, :mod:`twin.io.illumisense_vendor`).
 
 A damaged recording (cut short, or with chunks that fail their checksum) is an error (one line: how many frames
 are readable, what is damaged; exit status 2) unless ``--salvage`` is given: then the frames before the damage
@@ -81,7 +82,8 @@ def format_summary(s: ReplaySummary) -> str:
         f"{s.file}: {s.kind}, {s.frames} frames over {span}{rate}{state}",
         f"  lost samples {s.lost_samples} in {s.sequence_gaps} gaps, sequence resets {s.sequence_resets}",
         f"  frames complete {s.frames_complete}, partial {s.frames_partial}, unusable {s.frames_unusable}, "
-        f"with missing peaks {s.frames_missing_peaks}; invalid nodes {s.invalid_nodes}",
+        f"with missing peaks {s.frames_missing_peaks}; invalid nodes {s.invalid_nodes}; peaks outside their window "
+        f"{s.peaks_outside_window}",
     ]
     if s.reconstruct_frames_per_s:
         lines.append(f"  reconstructed at {s.reconstruct_frames_per_s:.0f} frames/s")
