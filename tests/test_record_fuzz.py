@@ -1,11 +1,13 @@
-"""Corruption fuzz of recordings (issue 11): twin HDF5 recordings and ILLumiSense text logs, truncated at random
-points and with random bytes flipped. For every case:
+"""Corruption fuzz of recordings (issue 11): twin HDF5 recordings (with and without the interrogator's sensor
+blocks, issue 13) and ILLumiSense text logs, truncated at random points and with random bytes flipped. For
+every case:
 
 - nothing hangs: opening and reading all frames takes under 5 s (measured; the test's timeout also bounds it);
 - nothing is "complete" that is damaged: an HDF5 recording read back as complete must equal the original
-  exactly (a flip can land in bytes HDF5 never reads, e.g. free space; then nothing was damaged), and a cut one
-  is never complete; a log cut inside a line is never complete (a log has no checksum: a flipped digit that
-  leaves a valid number cannot be detected, so flipped logs are checked for consistent accounting only);
+  exactly, sensor blocks included (a flip can land in bytes HDF5 never reads, e.g. free space; then nothing was
+  damaged), and a cut one is never complete; a log cut inside a line is never complete (a log has no checksum:
+  a flipped digit that leaves a valid number cannot be detected, so flipped logs are checked for consistent
+  accounting only);
 - nothing raises but one line: the only errors are ValueError/OSError whose message is one line naming the
   file; the CLI gives exit status 2 with one line, or 0 with ``--salvage``.
 
@@ -26,7 +28,9 @@ import pytest
 from io_helpers import synthetic_frames
 
 from twin import FiberModel
+from twin.frames import Frame
 from twin.io import illumisense
+from twin.io.illumisense import VendorSensor
 from twin.io.record import Recorder, open_recording
 
 TWIN = [sys.executable, "-m", "twin.cli"]
@@ -42,11 +46,23 @@ def originals(tmp_path_factory):
     with Recorder(h5, fiber=FiberModel.paper(), rate=100) as rec:
         for i in range(0, 300, 40):
             rec.append(frames[i : i + 40])
+    rng = np.random.default_rng(5)
+    with_blocks = [Frame(f.wavelengths, f.timestamp, f.sequence, f.powers, f.status, f.truth,
+                         None if i % 9 == 4 else (VendorSensor(rng.normal(size=18), rng.normal(size=18),
+                                                               rng.normal(size=(171, 3))),))
+                   for i, f in enumerate(frames)]
+    h5v = d / "v.h5"
+    with Recorder(h5v, fiber=FiberModel.paper(), rate=100) as rec:
+        for i in range(0, 300, 40):
+            rec.append(with_blocks[i : i + 40])
     log = d / "r.txt"
     log.write_bytes(b"Date\tTime\tSample\tChannels\r\n" + b"".join(illumisense.encode_payload(f) for f in frames[:60]))
     with open_recording(h5) as r:
         full = r.frames()
-    return {"h5": h5, "log": log, "frames": full}
+    with open_recording(h5v) as r:
+        (vendor,) = r.vendor()
+        assert vendor.present.sum() == 300 - 33
+    return {"h5": h5, "h5v": h5v, "log": log, "frames": full, "vendor": vendor}
 
 
 def _damage(src: Path, dst: Path, rng: random.Random, how: str) -> tuple[Path, dict]:
@@ -74,7 +90,8 @@ def _check_error(exc: BaseException, path: Path) -> None:
 def _read_all(path: Path):
     with open_recording(path) as r:
         frames = r.frames()
-        return r, frames
+        vendor = r.vendor()  # read it all too (damage found there is noted in r.damage)
+        return r, frames, vendor
 
 
 def _case(originals, tmp_path: Path, kind: str, how: str, seed: int) -> None:
@@ -83,13 +100,13 @@ def _case(originals, tmp_path: Path, kind: str, how: str, seed: int) -> None:
     path, info = _damage(src, tmp_path / f"case{seed}{src.suffix}", rng, how)
     t0 = time.monotonic()
     try:
-        r, frames = _read_all(path)
+        r, frames, vendor = _read_all(path)
     except Exception as exc:  # checked to be a one-line user error
         assert time.monotonic() - t0 < LIMIT_S
         _check_error(exc, path)
         return
     assert time.monotonic() - t0 < LIMIT_S, info
-    if kind == "h5":
+    if kind in ("h5", "h5v"):
         if how == "cut":
             assert not r.complete, info
         if r.complete:
@@ -99,6 +116,12 @@ def _case(originals, tmp_path: Path, kind: str, how: str, seed: int) -> None:
             np.testing.assert_array_equal(frames.sequence, orig.sequence)
             np.testing.assert_array_equal(frames.timestamp, orig.timestamp)
             np.testing.assert_array_equal(frames.status, orig.status)
+            if kind == "h5v":
+                (got,), want = vendor, originals["vendor"]
+                np.testing.assert_array_equal(got.present, want.present)
+                np.testing.assert_array_equal(got.positions, want.positions)
+                np.testing.assert_array_equal(got.curvature, want.curvature)
+                np.testing.assert_array_equal(got.angle, want.angle)
         else:
             assert r.damaged or not r._closed_cleanly, info
     else:
@@ -107,7 +130,8 @@ def _case(originals, tmp_path: Path, kind: str, how: str, seed: int) -> None:
         assert len(frames) == len(r)
 
 
-FAST = [(kind, how, seed) for kind in ("h5", "log") for how in ("cut", "flip") for seed in range(8)]
+FAST = [(kind, how, seed) for kind in ("h5", "log") for how in ("cut", "flip") for seed in range(8)] + [
+    ("h5v", how, seed) for how in ("cut", "flip") for seed in range(4)]
 
 
 @pytest.mark.timeout(60)
@@ -118,7 +142,7 @@ def test_damaged_recordings_fail_fast_and_say_so(originals, tmp_path, kind, how,
 
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
-@pytest.mark.parametrize(("kind", "how"), [(k, h) for k in ("h5", "log") for h in ("cut", "flip")])
+@pytest.mark.parametrize(("kind", "how"), [(k, h) for k in ("h5", "h5v", "log") for h in ("cut", "flip")])
 def test_damaged_recordings_many(originals, tmp_path, kind, how):
     for seed in range(100, 250):
         _case(originals, tmp_path, kind, how, seed)

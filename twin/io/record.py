@@ -336,7 +336,7 @@ class RecordingReader:
         :class:`~twin.io.illumisense_vendor.VendorArrays` per sensor (rows from 0 = frame ``start``; empty
         when the recording has none). Rows past damaged vendor chunks come back absent."""
         start, stop = self._span(start, stop)
-        if self._file is None:
+        if self._mem is not None:
             return tuple(a[start:stop] for a in self._vendor_mem)
         if not self._vendor_sensors:
             return ()
