@@ -265,3 +265,27 @@ def test_twin_replay_counts_like_the_live_loop(tmp_path):
                 "peaks_outside_window", "lost_samples", "sequence_gaps", "sequence_resets"):
         assert getattr(s, key) == books.c[key], key
     assert s.peaks_outside_window == 2 and s.frames_missing_peaks == 3 and s.lost_samples == 3
+
+
+def test_recording_an_illumisense_stream_keeps_its_sensor_blocks(tmp_path):
+    """End to end: the twin's ILLumiSense server (sensor blocks by default) → driver → live loop → recorder;
+    the recording replays with the blocks and `twin replay` compares ours with them."""
+    from sim_interrogator.servers import IllumisenseServer
+    from twin.io.synthetic import SyntheticSource
+
+    fiber = multicore_fiber(7, 18)
+    path = tmp_path / "stream.h5"
+    with IllumisenseServer(SyntheticSource(rate=500, fiber=fiber, noise=0.002, seed=4), port=0) as server:
+        src = open_source(f"illumisense://127.0.0.1:{server.address[1]}", fiber=fiber)
+        recorder = Recorder(path, fiber=fiber, rate=500)
+        summary = LiveLoop(src, Reconstructor(fiber), [recorder]).run(max_frames=200, duration=30,
+                                                                       handle_signals=False)
+    assert summary.status.frames >= 200 and recorder.vendor_dropped == 0
+    with open_recording(path) as r:
+        (s0,) = r.vendor()
+        assert len(r) == recorder.frames_written and s0.present.all() and s0.positions.shape[1:] == (171, 3)
+    first = next(iter(open_source(f"replay://{path}?speed=max")))
+    assert first.vendor is not None and first.vendor[0].positions.shape == (171, 3)
+    s = summarize(path)
+    assert s.vendor["vendor_frames_compared"] == s.frames_complete
+    assert s.vendor["vendor_distance_max_mm"] <= 0.02  # wire rounding only (tests/test_illumisense_io.py)

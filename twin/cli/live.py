@@ -149,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
     if recorder is not None:
         out["record_file"] = str(args.record)
         out["recorded_frames"] = recorder.frames_written
+        out["recorded_vendor_dropped"] = recorder.vendor_dropped
     if viewer_sink is not None:
         out["viewer_frames"] = viewer_sink.frames_shown
         out["viewer_errors"] = viewer_sink.errors
@@ -190,7 +191,9 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
         lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): max "
                      f"{out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
     if "record_file" in out:
-        lines.append(f"  recorded {out['recorded_frames']} frames to {out['record_file']}")
+        lines.append(f"  recorded {out['recorded_frames']} frames to {out['record_file']}"
+                     + (f"; {out['recorded_vendor_dropped']} sensor blocks not stored (a layout other than the "
+                        "recording's, docs/protocols-illumisense.md)" if out.get("recorded_vendor_dropped") else ""))
     for err in summary.sink_errors:
         lines.append(f"  error: {err}")
     return "\n".join(lines)
