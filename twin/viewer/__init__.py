@@ -131,6 +131,8 @@ class ViewerConfig:
                 raise ValueError(f"ViewerConfig.{name} must be positive and finite, got {v}")
         if not self.max_fps > 0:
             raise ValueError(f"ViewerConfig.max_fps must be positive (inf for no limit), got {self.max_fps}")
+        if self.vendor_sensor < 0:
+            raise ValueError(f"ViewerConfig.vendor_sensor must be a sensor index >= 0, got {self.vendor_sensor}")
         if self.sides < 3 or self.max_rings < 2:
             raise ValueError(f"ViewerConfig: sides >= 3 and max_rings >= 2 needed, got {self.sides}, "
                              f"{self.max_rings}")
