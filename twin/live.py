@@ -33,10 +33,10 @@ sink that raises is closed and dropped, and the error is reported in the summary
 
 Sinks are tiny: any callable ``sink(frames, shapes, status)`` with an optional ``close()``. ``frames`` is the
 list of frames of the batch, or one 1-D batch :class:`~twin.frames.Frame` when the source decodes in batches
-(the ILLumiSense driver: same ``len``, indexing and iteration), ``shapes`` the batched :class:`~twin.frames.Shape` (``shapes[i]`` belongs to
-``frames[i]``; None when the batch could not be reconstructed), ``status`` a :class:`LiveStatus`. Between
-batches sinks get ``sink([], None, status)`` heartbeats (at least every ``heartbeat`` s and on every state
-change).
+(the ILLumiSense driver: same ``len``, indexing and iteration), ``shapes`` the batched
+:class:`~twin.frames.Shape` (``shapes[i]`` belongs to ``frames[i]``; None when the batch could not be
+reconstructed), ``status`` a :class:`LiveStatus`. Between batches sinks get ``sink([], None, status)``
+heartbeats (at least every ``heartbeat`` s and on every state change).
 
 Why one module of this size: the loop, its status and counters and its summary are one state machine; split,
 the counters' one meaning would be spread over files.

@@ -6,6 +6,7 @@ importable from :mod:`twin.io.illumisense`, whose docstring describes the strate
 from __future__ import annotations
 
 from collections import Counter, deque
+from itertools import pairwise
 
 import numpy as np
 
@@ -292,7 +293,7 @@ class StreamDecoder:
                 self._hunting = False
             # runs of consecutive records of one group
             cuts = [0, *(np.flatnonzero(np.diff(gid[:n_ok])) + 1).tolist(), n_ok] if n_ok else [0]
-            for s0, s1 in zip(cuts[:-1], cuts[1:], strict=True):
+            for s0, s1 in pairwise(cuts):
                 grp = groups[int(gid[s0])]
                 key = grp.lay.key
                 i, i1 = int(gidx[s0]), int(gidx[s0]) + s1 - s0
