@@ -639,7 +639,7 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
     layouts = [] if layouts is None else layouts
     ntok = np.diff(counts)
     todo = np.flatnonzero(bad < 0)
-    for r in np.flatnonzero(bad >= 0).tolist():
+    for r in (np.flatnonzero(bad >= 0).tolist() if todo.size < n_rec else ()):
         errors[r] = FramingError("NUL, CR or LF inside the record", offset=int(bad[r]),
                                  expected="one line of text", protocol=PROTOCOL)
 

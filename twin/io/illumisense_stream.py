@@ -322,8 +322,9 @@ class StreamDecoder:
 
     def _count_seq(self, seqs: list) -> None:
         if seqs:
-            n = self.sequence.count_many(np.concatenate([np.atleast_1d(np.asarray(x, np.int64)) for x in seqs]))
-            self.records += n.size
+            seq = seqs[0] if len(seqs) == 1 and isinstance(seqs[0], np.ndarray) else np.concatenate(
+                [np.atleast_1d(np.asarray(x, np.int64)) for x in seqs])
+            self.records += self.sequence.count_many(seq).size
 
     def _count(self, out: list[Record]) -> list[Record]:
         if out:
