@@ -134,7 +134,9 @@ class StreamDecoder:
 
     Handles arbitrary chunking, refuses a length prefix above ``max_payload`` from its 4 bytes, never raises
     for bad bytes, counts framing errors and resynchronises (module docstring), decodes every complete record
-    of a chunk as one batch, and filters records through a :class:`LayoutConsensus`.
+    of a chunk as one batch, and filters records through a :class:`LayoutConsensus`. :meth:`feed_batch` hands
+    the records of a chunk over as one batch Frame (the live path), :meth:`feed` as one Frame per record,
+    :meth:`feed_records` as one :class:`Record` per record; all three count and filter alike.
 
     Parameters
     ----------
