@@ -237,6 +237,23 @@ class Frame:
             raise ValueError(f"Frame.truth: expected the batch shape {batch} of the wavelengths, got "
                              f"{self.truth.batch_shape}")
 
+    @classmethod
+    def _trusted(cls, wavelengths: np.ndarray, timestamp, sequence, powers: np.ndarray | None = None,
+                 status: np.ndarray | None = None, vendor: tuple | None = None) -> Frame:
+        """A Frame built WITHOUT the checks and conversions of ``__post_init__`` (private, for decoders).
+
+        The caller guarantees what ``__post_init__`` would establish: ``wavelengths`` float64 of shape
+        (..., n_gratings, n_cores); ``powers`` float64 and ``status`` uint8 of the same shape, or None; for a
+        single frame ``timestamp`` a Python float and ``sequence`` a Python int, for a batch float64 and int64
+        arrays of the batch shape; no truth. The ILLumiSense decoder uses it on its hot path (the checks cost
+        1.5–4 µs a frame, more than decoding the record); nothing here catches a wrong argument.
+        """
+        f = object.__new__(cls)
+        # a frozen dataclass refuses setattr; its fields live in the instance dict all the same
+        f.__dict__.update(wavelengths=wavelengths, timestamp=timestamp, sequence=sequence, powers=powers,
+                          status=status, truth=None, vendor=vendor)
+        return f
+
     @property
     def batch_shape(self) -> tuple[int, ...]:
         return self.wavelengths.shape[:-2]

@@ -32,10 +32,11 @@ error that makes every frame useless (frames whose shape does not match the fibr
 sink that raises is closed and dropped, and the error is reported in the summary.
 
 Sinks are tiny: any callable ``sink(frames, shapes, status)`` with an optional ``close()``. ``frames`` is the
-list of frames of the batch, ``shapes`` the batched :class:`~twin.frames.Shape` (``shapes[i]`` belongs to
-``frames[i]``; None when the batch could not be reconstructed), ``status`` a :class:`LiveStatus`. Between
-batches sinks get ``sink([], None, status)`` heartbeats (at least every ``heartbeat`` s and on every state
-change).
+list of frames of the batch, or one 1-D batch :class:`~twin.frames.Frame` when the source decodes in batches
+(the ILLumiSense driver: same ``len``, indexing and iteration), ``shapes`` the batched
+:class:`~twin.frames.Shape` (``shapes[i]`` belongs to ``frames[i]``; None when the batch could not be
+reconstructed), ``status`` a :class:`LiveStatus`. Between batches sinks get ``sink([], None, status)``
+heartbeats (at least every ``heartbeat`` s and on every state change).
 
 Why one module of this size: the loop, its status and counters and its summary are one state machine; split,
 the counters' one meaning would be spread over files.
@@ -70,6 +71,8 @@ __all__ = [
     "LiveSummary",
     "PrinterSink",
     "Sink",
+    "batch_timestamps",
+    "join_batches",
     "read_batch",
 ]
 
@@ -221,18 +224,24 @@ class LiveSummary:
         }
 
 
-def read_batch(source: Source, max_frames: int, timeout: float | None) -> list[Frame]:
+def read_batch(source: Source, max_frames: int, timeout: float | None) -> list[Frame] | Frame:
     """Every frame the source has ready, up to ``max_frames``, waiting up to ``timeout`` s for the first.
 
-    Uses the source's ``read_many`` when it has one (the drivers, synthetic and replay sources do), else
-    ``read(timeout)`` followed by ``read(0)`` until nothing is ready. An exception (SourceClosed included) is
-    raised only when no frame was read before it; otherwise the frames are returned and the exception is kept
-    on the source (``_twin_deferred``) and raised by the next call, so nothing received is dropped.
+    Uses the source's ``read_batches`` when it has one (a driver whose decoder makes batch Frames): when every
+    item is a 1-D batch of one shape, the result is ONE batch Frame (no Python object per frame), otherwise
+    the list of single frames. Else the source's ``read_many`` (the drivers, synthetic and replay sources
+    have one), else ``read(timeout)`` followed by ``read(0)`` until nothing is ready. An exception
+    (SourceClosed included) is raised only when no frame was read before it; otherwise the frames are
+    returned and the exception is kept on the source (``_twin_deferred``) and raised by the next call, so
+    nothing received is dropped.
     """
     deferred = getattr(source, "_twin_deferred", None)
     if deferred is not None:
         source._twin_deferred = None
         raise deferred
+    batches = getattr(source, "read_batches", None)
+    if batches is not None:
+        return join_batches(batches(max_frames, timeout))
     many = getattr(source, "read_many", None)
     if many is not None:
         return many(max_frames, timeout)
@@ -250,6 +259,17 @@ def read_batch(source: Source, max_frames: int, timeout: float | None) -> list[F
             break
         out.append(nxt)
     return out
+
+
+def join_batches(items: Sequence[Frame]) -> list[Frame] | Frame:
+    """Single frames and 1-D batch Frames (in order) as what :meth:`LiveLoop.process` takes: one batch Frame
+    when every item is a batch of one (n_gratings, n_cores) without truth, else the list of single frames."""
+    if items and all(f.batch_shape and f.truth is None for f in items) and \
+            len({f.wavelengths.shape[1:] for f in items}) == 1:
+        if len(items) == 1:
+            return items[0]
+        return Frame.stack(items)
+    return [g for f in items for g in (f if f.batch_shape else (f,))]
 
 
 # what a source may raise besides SourceClosed; anything else (a bug in a source) is reported the same way,
@@ -311,13 +331,20 @@ class LiveLoop:
         self._meter = RateMeter(window=self.rate_window)
 
     # ---------------------------------------------------------------- the hot path
-    def process(self, frames: Sequence[Frame]) -> tuple[list[Frame], Shape | None, np.ndarray]:
+    def process(self, frames: Sequence[Frame] | Frame) -> tuple[list[Frame] | Frame, Shape | None, np.ndarray]:
         """Check, reconstruct and count one batch.
+
+        Parameters
+        ----------
+        frames : list of Frame, or Frame
+            Single frames, or one 1-D batch Frame (what :func:`read_batch` gives for a driver that decodes in
+            batches: no Python object per frame on the hot path).
 
         Returns
         -------
-        frames : list of Frame
-            The frames that match the fibre model (the others are counted in ``frames_rejected``).
+        frames : list of Frame, or Frame
+            The frames that match the fibre model (the others are counted in ``frames_rejected``): a list for
+            a list, the batch (or an empty list) for a batch.
         shapes : Shape or None
             Batched reconstruction (None when nothing matched or the reconstructor raised).
         flags : ndarray of uint8 (n,)
@@ -330,21 +357,28 @@ class LiveLoop:
             error (wrong ``--fiber``), not a transient.
         """
         shape = self._shape
-        good = [f for f in frames if f.wavelengths.shape == shape]
-        if len(good) < len(frames):
-            self.c["frames_rejected"] += len(frames) - len(good)
-            if not good and not self._matched_any:
-                bad = frames[0].wavelengths.shape
-                raise ValueError(
-                    f"frames have {bad[0]} gratings × {bad[1]} cores but the fibre model has {shape[0]} × "
-                    f"{shape[1]}; give the sensor's fibre model (--fiber FILE)"
-                )
-        n = len(good)
+        if isinstance(frames, Frame):
+            if len(frames.batch_shape) != 1:
+                raise ValueError(f"LiveLoop.process: expected a 1-D batch Frame, got batch shape {frames.batch_shape}")
+            n = len(frames)
+            if frames.wavelengths.shape[1:] == shape:
+                good, w, seq = frames, frames.wavelengths, frames.sequence
+            else:
+                good, w, seq = [], None, None
+                self._reject(n, frames.wavelengths.shape[1:])
+                n = 0
+        else:
+            good = [f for f in frames if f.wavelengths.shape == shape]
+            if len(good) < len(frames):
+                self._reject(len(frames) - len(good), frames[0].wavelengths.shape, any_good=bool(good))
+            n = len(good)
+            if n:
+                w = np.stack([f.wavelengths for f in good]) if n > 1 else good[0].wavelengths[None]
+                seq = [f.sequence for f in good]
         if n == 0:
-            return good, None, np.zeros(0, np.uint8)
+            return [] if isinstance(good, Frame) else good, None, np.zeros(0, np.uint8)
         self._matched_any = True
-        w = np.stack([f.wavelengths for f in good]) if n > 1 else good[0].wavelengths[None]
-        shapes, flags = self.process_arrays(w, [f.sequence for f in good])
+        shapes, flags = self.process_arrays(w, seq)
         return good, shapes, flags
 
     def process_arrays(self, w: np.ndarray, sequence) -> tuple[Shape | None, np.ndarray]:
@@ -404,6 +438,17 @@ class LiveLoop:
             last = n - 1 if not unusable[-1] else int(np.flatnonzero(~unusable)[-1])
             self._tip = shapes.positions[last, -1].copy()
         return shapes, flags
+
+    def _reject(self, n: int, bad: tuple, any_good: bool = False) -> None:
+        """Count n frames of another (n_gratings, n_cores) than the fibre model's; a configuration error when
+        nothing has ever matched."""
+        self.c["frames_rejected"] += n
+        if not any_good and not self._matched_any:
+            shape = self._shape
+            raise ValueError(
+                f"frames have {bad[0]} gratings × {bad[1]} cores but the fibre model has {shape[0]} × "
+                f"{shape[1]}; give the sensor's fibre model (--fiber FILE)"
+            )
 
     def _count_sequence(self, seq, flags: np.ndarray) -> None:
         """Count gaps and resets of the sequence numbers; flag the frames that follow a gap."""
@@ -509,7 +554,7 @@ class LiveLoop:
                 wait = self.poll
                 if duration is not None:
                     wait = max(0.0, min(wait, self._t0 + duration - now))
-                frames: list[Frame] = []
+                frames: list[Frame] | Frame = []
                 if self.source is None:
                     if reopen_at is not None and now >= reopen_at:
                         try:
@@ -547,7 +592,7 @@ class LiveLoop:
                 if frames:
                     good, shapes, flags = self.process(frames)
                     t = time.monotonic()
-                    if good and self._meter.add(np.fromiter((f.timestamp for f in good), float, len(good)), t):
+                    if good and self._meter.add(batch_timestamps(good), t):
                         self._say_behind()
                     if self.c["frames"] and backoff.failures:
                         backoff.reset()
@@ -615,6 +660,13 @@ class LiveLoop:
                 signal.signal(sig, h)
 
         return restore
+
+
+def batch_timestamps(frames: Sequence[Frame] | Frame) -> np.ndarray:
+    """Timestamps of a list of frames or of a batch Frame, s, shape (n,)."""
+    if isinstance(frames, Frame):
+        return np.asarray(frames.timestamp, dtype=np.float64)
+    return np.fromiter((f.timestamp for f in frames), float, len(frames))
 
 
 def _nominal_rate(source) -> float | None:

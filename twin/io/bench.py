@@ -6,14 +6,19 @@ CPU; docs/protocols-illumisense.md for the layout):
 
 ``max_frames_per_s``
     Sustained throughput of the live path without the network: the pre-encoded byte stream, cut into 64 KiB
-    pieces as ``recv`` would return them, goes through :class:`twin.io.illumisense.StreamDecoder` and then
-    :meth:`twin.live.LiveLoop.process` (shape check, sequence and validity bookkeeping, one batched
+    pieces as ``recv`` would return them, goes through what :class:`twin.io.illumisense_driver.IllumisenseSource`
+    and :class:`twin.live.LiveLoop` do with each piece: :meth:`~twin.io.illumisense.StreamDecoder.feed_batch`
+    (one batch Frame per piece), :func:`twin.live.join_batches` (what :func:`twin.live.read_batch` hands the
+    loop) and :meth:`twin.live.LiveLoop.process` (shape check, sequence and validity bookkeeping, one batched
     :class:`~twin.reconstruct.Reconstructor` call per piece, ~28 frames), over the whole stream again and again
     for three windows of ≥ 0.5 s (1 s without ``quick``); the best window is reported, as a shared machine
-    slows the others down. Goal ≥ 5,000 frames/s.
+    slows the others down. Goal ≥ 40,000 frames/s (issue 13).
 ``decode_frames_per_s`` / ``reconstruct_frames_per_s``
-    The two stages alone, same data (decode: :class:`~twin.io.illumisense.StreamDecoder` from bytes to
-    :class:`~twin.frames.Frame` objects, through its compiled tokenizer and batch decode). Goal ≥ 60,000.
+    The two stages alone, same data (decode: ``feed_batch`` from bytes to batch Frames, the live path's
+    decode, through the compiled tokenizer and batch decode). Goal ≥ 60,000 (issue 13).
+``decode_list_frames_per_s``
+    Decoding through :meth:`~twin.io.illumisense.StreamDecoder.feed`, which returns one single
+    :class:`~twin.frames.Frame` per record (other callers than the live loop).
 ``*_per_cpu_s``
     The same counts per CPU second of the benchmark process (``time.process_time``): on a machine shared with
     other work the wall-clock rates drop with the load, these much less.
@@ -22,12 +27,13 @@ CPU; docs/protocols-illumisense.md for the layout):
     block (curvature, angle, 171 shape points × 3; ≈ 6.9 kB).
 ``loopback_frames_per_s``
     The same through a real loopback TCP connection: a sender process pushes the records as fast as the
-    socket takes them and :class:`twin.io.illumisense_driver.IllumisenseSource` + ``LiveLoop.process`` consume them.
+    socket takes them and :class:`twin.io.illumisense_driver.IllumisenseSource` + :func:`twin.live.read_batch` +
+    ``LiveLoop.process`` consume them.
 ``latency_us_p50`` / ``latency_us_p99`` / ``latency_us_max``
     From a frame's send to its shape, at a realistic 1 kHz on loopback: the sender process writes the wall
     clock into each record's time field (microseconds) just before ``sendall``; the receiver reads with
-    ``read_many``, reconstructs, and takes ``time.time()`` when the batch's shapes exist. Both clocks are the
-    same system clock. 2 s (quick) or 5 s of frames.
+    :func:`twin.live.read_batch`, reconstructs, and takes ``time.time()`` when the batch's shapes exist. Both
+    clocks are the same system clock. 2 s (quick) or 5 s of frames.
 """
 
 from __future__ import annotations
@@ -68,16 +74,19 @@ def _stream_bytes(frames, fiber=None) -> bytes:
 
 def _throughput(blob: bytes, fiber, seconds: float, vendor_blob: bytes | None = None) -> dict:
     from twin.io import illumisense
-    from twin.live import LiveLoop
+    from twin.live import LiveLoop, join_batches
     from twin.reconstruct import Reconstructor
 
     rec = Reconstructor(fiber)
     loop = LiveLoop(None, rec, [])
     pieces = [blob[i : i + _CHUNK] for i in range(0, len(blob), _CHUNK)]
     # warm-up: compiled kernels, caches
-    dec = illumisense.StreamDecoder()
+    dec, dec_batch = illumisense.StreamDecoder(), illumisense.StreamDecoder()
     for p in pieces[:4]:
         loop.process(dec.feed(p))
+        items = dec_batch.feed_batch(p)
+        if items:
+            loop.process(join_batches(items))
 
     cpu_rates: dict = {}
 
@@ -95,12 +104,19 @@ def _throughput(blob: bytes, fiber, seconds: float, vendor_blob: bytes | None = 
         return max(rates)
 
     def full_pass() -> int:
+        # the driver's _pump (feed_batch) and the loop's read_batch (join_batches), then process
         dec, n = illumisense.StreamDecoder(), 0
         for p in pieces:
-            n += len(loop.process(dec.feed(p))[0])
+            items = dec.feed_batch(p)
+            if items:
+                n += len(loop.process(join_batches(items))[0])
         return n
 
     def decode_pass() -> int:
+        dec = illumisense.StreamDecoder()
+        return sum(len(f) if f.batch_shape else 1 for p in pieces for f in dec.feed_batch(p))
+
+    def decode_list_pass() -> int:
         dec = illumisense.StreamDecoder()
         return sum(len(dec.feed(p)) for p in pieces)
 
@@ -115,9 +131,10 @@ def _throughput(blob: bytes, fiber, seconds: float, vendor_blob: bytes | None = 
 
     total = best(full_pass, key="max_frames_per_cpu_s")
     decode = best(decode_pass, key="decode_frames_per_cpu_s")
+    decode_list = best(decode_list_pass, key="decode_list_frames_per_cpu_s")
     reconstruct = best(reconstruct_pass, key="reconstruct_frames_per_cpu_s")
     out = {"max_frames_per_s": round(total), "decode_frames_per_s": round(decode),
-           "reconstruct_frames_per_s": round(reconstruct)}
+           "decode_list_frames_per_s": round(decode_list), "reconstruct_frames_per_s": round(reconstruct)}
     if vendor_blob is not None:
         vendor_pieces = [vendor_blob[i : i + _CHUNK] for i in range(0, len(vendor_blob), _CHUNK)]
 
@@ -142,7 +159,7 @@ def _start_sender(mode: str, seconds: float, rate: float = 0.0) -> tuple[subproc
 
 def _loopback(fiber, seconds: float) -> dict:
     from twin.io.illumisense_driver import IllumisenseSource
-    from twin.live import LiveLoop
+    from twin.live import LiveLoop, read_batch
     from twin.reconstruct import Reconstructor
 
     loop = LiveLoop(None, Reconstructor(fiber), [])
@@ -150,10 +167,10 @@ def _loopback(fiber, seconds: float) -> dict:
     src = IllumisenseSource("127.0.0.1", port)
     try:
         for _ in range(20):  # warm-up
-            loop.process(src.read_many(256, 1.0))
+            loop.process(read_batch(src, 256, 1.0))
         n, t0 = 0, time.perf_counter()
         while time.perf_counter() - t0 < seconds:
-            good, _, _ = loop.process(src.read_many(256, 1.0))
+            good, _, _ = loop.process(read_batch(src, 256, 1.0))
             n += len(good)
         rate = n / (time.perf_counter() - t0)
         lost = src.stats()["lost_samples"]
@@ -166,7 +183,7 @@ def _loopback(fiber, seconds: float) -> dict:
 
 def _latency(fiber, seconds: float, rate: float = 1000.0) -> dict:
     from twin.io.illumisense_driver import IllumisenseSource
-    from twin.live import LiveLoop
+    from twin.live import LiveLoop, batch_timestamps, read_batch
     from twin.reconstruct import Reconstructor
 
     loop = LiveLoop(None, Reconstructor(fiber), [])
@@ -177,14 +194,14 @@ def _latency(fiber, seconds: float, rate: float = 1000.0) -> dict:
     try:
         t_end = time.monotonic() + seconds + 10
         while time.monotonic() < t_end:
-            frames = src.read_many(256, 0.5)
+            frames = read_batch(src, 256, 0.5)
             if not frames:
                 if proc.poll() is not None:
                     break
                 continue
             good, _, _ = loop.process(frames)
             done = time.time()
-            sent = np.fromiter((f.timestamp for f in good), dtype=np.float64, count=len(good))
+            sent = batch_timestamps(good)
             lat.append(done - sent)
             if len(frames) and src.stats()["state"] != "connected":
                 break

@@ -14,7 +14,8 @@ Common behaviour
 - **Counters** in :meth:`stats`: ``state`` (connected / disconnected / closed), ``frames``, ``framing_errors``,
   ``lost_samples`` and ``sequence_gaps`` (from the source's sample numbers), ``disconnects``, ``reconnects``
   (successful connections after the first), ``connect_failures``, ``last_error`` (text).
-- :meth:`read_many` returns every frame already received (a burst after a stall is reconstructed as one batch).
+- :meth:`read_many` returns every frame already received (a burst after a stall is reconstructed as one batch);
+  :meth:`read_batches` returns them as the decoder made them (1-D batch Frames kept whole), for the live loop.
 
 The protocols' drivers: :mod:`twin.io.illumisense_driver`, :mod:`twin.io.hyperion_driver`,
 :mod:`twin.io.fispec_driver`.
@@ -62,7 +63,7 @@ class Driver(Source):
         self.url = url
         self.backoff = backoff or Backoff()
         self.retry_for = retry_for
-        self._queue: deque[Frame] = deque()
+        self._queue: deque[Frame] = deque()  # single frames and 1-D batch Frames
         self._connected = False
         self._closed = False
         self._ever_connected = False
@@ -135,18 +136,17 @@ class Driver(Source):
         self._next_attempt = time.monotonic() + delay
 
     def _push(self, frames: Sequence[Frame]) -> None:
+        """Queue decoded frames: single frames, or 1-D batch Frames (a batch decoder's output, kept whole)."""
         if frames:
+            n = sum(len(f) if f.batch_shape else 1 for f in frames)
             self._queue.extend(frames)
-            self.counters["frames"] += len(frames)
-            self._frames_since_connect += len(frames)
+            self.counters["frames"] += n
+            self._frames_since_connect += n
             if self.backoff.failures:
                 self.backoff.reset()
 
-    def read_many(self, max_frames: int = 1 << 30, timeout: float | None = None) -> list[Frame]:
-        """Frames received so far (up to ``max_frames``), waiting up to ``timeout`` s for the first one.
-
-        Returns an empty list when nothing arrived in time (also while disconnected and retrying).
-        """
+    def _wait(self, timeout: float | None) -> None:
+        """Pump until something is queued or ``timeout`` s have passed (connecting and reconnecting as needed)."""
         if self._closed:
             raise SourceClosed(f"{self.url}: closed")
         deadline = None if timeout is None else time.monotonic() + timeout
@@ -173,10 +173,49 @@ class Driver(Source):
                 self._pump(0.5 if remaining is None else min(remaining, 0.5))
             except (ConnectionLost, OSError, FramingError) as exc:
                 self._disconnect(exc)
-        out = []
-        while self._queue and len(out) < max_frames:
-            out.append(self._queue.popleft())
+
+    def _take(self, max_frames: int) -> list[Frame]:
+        """Queued items holding at most ``max_frames`` frames (a batch cut at the limit leaves its rest queued)."""
+        out: list[Frame] = []
+        room = max_frames
+        q = self._queue
+        while q and room > 0:
+            item = q[0]
+            n = len(item) if item.batch_shape else 1
+            if n > room:
+                q[0] = item[room:]
+                item, n = item[:room], room
+            else:
+                q.popleft()
+            out.append(item)
+            room -= n
         return out
+
+    def read_many(self, max_frames: int = 1 << 30, timeout: float | None = None) -> list[Frame]:
+        """Frames received so far (up to ``max_frames``), waiting up to ``timeout`` s for the first one.
+
+        Returns an empty list when nothing arrived in time (also while disconnected and retrying).
+        """
+        self._wait(timeout)
+        out: list[Frame] = []
+        for item in self._take(max_frames):
+            if item.batch_shape:
+                out.extend(item)
+            else:
+                out.append(item)
+        return out
+
+    def read_batches(self, max_frames: int = 1 << 30, timeout: float | None = None) -> list[Frame]:
+        """Like :meth:`read_many`, but frames a driver decoded as a batch stay one 1-D batch Frame.
+
+        Returns
+        -------
+        list of Frame
+            Single frames and 1-D batches, in order, holding at most ``max_frames`` frames in all
+            (:func:`twin.live.read_batch` joins them into one batch for the live loop when it can).
+        """
+        self._wait(timeout)
+        return self._take(max_frames)
 
     def read(self, timeout: float | None = None) -> Frame | None:
         frames = self.read_many(1, timeout)

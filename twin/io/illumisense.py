@@ -43,8 +43,11 @@ with a CHANNEL_ERROR peak, sensor blocks with curvature 6 decimals (1/cm), angle
 decimals (cm), line ending CR LF.
 
 Speed: payloads are tokenized in one compiled pass (:func:`twin.io.illumisense_scan.scan`); records whose
-layout matches a known layout (same token count, counts, labels) are checked and extracted as one numpy batch;
-only the others are walked field by field, which also builds the layout for the next ones.
+layout matches a known layout (same token count, counts, labels) are checked and extracted as one batch
+(compiled: :func:`~twin.io.illumisense_scan.match_layout`, :func:`~twin.io.illumisense_scan.channels`); only
+the others are walked field by field, which also builds the layout for the next ones. The batch stays a set
+of arrays until a caller asks for Records (:func:`decode_many`) or frames; the stream decoder's
+``feed_batch`` hands it over as one batch Frame.
 
 Stream (:class:`StreamDecoder`): the payload is printable text with no NUL and no LF before its end, and the
 length prefix of any payload under 16 MiB starts with a NUL byte. After an error the decoder hunts: it skips
@@ -540,48 +543,160 @@ def _walk(t: _Tokens, channels_as: str, n_cores: int | None, max_cells: int) -> 
 
 def _matches(lay: _Layout, K: np.ndarray, V: np.ndarray) -> np.ndarray:
     """Rows of (K, V) (tokens of records with ``lay.n`` tokens) that are records of this layout."""
-    ok = (K[:, lay.ints] == _scan.INT).all(axis=1)
-    ok &= (V[:, lay.fixed] == lay.fixed_val).all(axis=1)
-    kn = K[:, lay.numbers]
-    ok &= ((kn == _scan.INT) | (kn == _scan.DEC)).all(axis=1)
-    if lay.labels.size:
-        ok &= (K[:, lay.labels] == _scan.TEXT).all(axis=1) & (V[:, lay.labels] == lay.label_hash).all(axis=1)
-    return ok
+    return _scan.match_layout(K, V, lay.ints, lay.fixed, lay.fixed_val, lay.numbers, lay.labels, lay.label_hash)
 
 
-def _extract(lay: _Layout, V: np.ndarray, seq: np.ndarray, stamps: np.ndarray, dates: list, times: list
-             ) -> list[Record]:
-    """Records of layout ``lay`` from their token values V (n, lay.n)."""
-    m = V.shape[0]
-    Vx = np.concatenate([V, np.full((m, 1), np.nan)], axis=1)
-    lam, pw = Vx[:, lay.wl], Vx[:, lay.pw]  # (m, c, g)
-    pad = lay.wl == lay.n
-    status4 = V[:, lay.status].astype(np.int64)  # (m, c, 4)
-    st = np.zeros(lam.shape, np.uint8)
-    st[:, pad] = _MISSING
-    st[(status4 != 0).any(axis=2)] |= _CHANNEL_ERROR
-    zero = lam == 0.0
-    invalid = ~(np.isfinite(lam) & (lam > 0)) & ~zero & ~pad
-    st[zero] |= _MISSING
-    st[invalid] |= _INVALID
-    lam[zero | invalid] = np.nan
-    pw[zero] = np.nan
-    if lay.single:
-        lam, pw, st = (a.reshape(m, lay.single, -1) for a in (lam, pw, st))
-    lam, pw, st = (np.ascontiguousarray(a.transpose(0, 2, 1)) for a in (lam, pw, st))
-    sens = []
-    for curv, ang, xyz, (ks, as_, ps) in lay.sensors:
-        sens.append((V[:, curv] * ks, V[:, ang] * as_, V[:, xyz] * ps))
+@dataclass(frozen=True, eq=False)
+class _Group:
+    """Records of one layout decoded as one batch: the arrays a Frame batch is made of, and what a
+    :class:`Record` adds, built per record only when asked for (:meth:`record`, :meth:`frame`)."""
+
+    lay: _Layout
+    wavelengths: np.ndarray  # (m, n_gratings, n_cores) float64
+    powers: np.ndarray  # (m, n_gratings, n_cores) float64
+    status: np.ndarray  # (m, n_gratings, n_cores) uint8
+    status4: np.ndarray  # (m, c, 4) int64
+    sequence: np.ndarray  # (m,) int64
+    timestamp: np.ndarray  # (m,) float64
+    sensors: tuple  # ((m, G) 1/m, (m, G) rad, (m, N, 3) m) per sensor block
+    engineering: np.ndarray | None  # (m, E)
+    data: bytes
+    dt_bounds: np.ndarray  # (m, 4): date start, date end, time start, time end in data
+
+    def vendor(self, i: int) -> tuple:
+        return tuple(VendorSensor(k[i], a[i], p[i]) for k, a, p in self.sensors)
+
+    def frame(self, i: int, vendor: tuple | None = None) -> Frame:
+        """The single Frame of row i (no validation: the arrays are built with the dtypes and shapes it needs)."""
+        if vendor is None and self.sensors:
+            vendor = self.vendor(i)
+        return Frame._trusted(self.wavelengths[i], float(self.timestamp[i]), int(self.sequence[i]),
+                              self.powers[i], self.status[i], vendor or None)
+
+    def batch(self, i0: int, i1: int) -> Frame:
+        """Rows i0:i1 as one batch Frame (views; the vendor blocks are not carried, as in any batch Frame)."""
+        return Frame._trusted(self.wavelengths[i0:i1], self.timestamp[i0:i1], self.sequence[i0:i1],
+                              self.powers[i0:i1], self.status[i0:i1])
+
+    def record(self, i: int) -> Record:
+        lay = self.lay
+        v = self.vendor(i)
+        d0, d1, t0, t1 = self.dt_bounds[i].tolist()
+        eng = self.engineering[i] if self.engineering is not None else np.zeros(0)
+        return Record(self.frame(i, v), np.array(lay.key[0], dtype=np.int64), np.array(lay.key[1], dtype=np.int64),
+                      self.status4[i], v, eng, self.data[d0:d1].decode("latin-1"),
+                      self.data[t0:t1].decode("latin-1"), lay.extra, lay.key)
+
+
+def _extract(lay: _Layout, V: np.ndarray, seq: np.ndarray, stamps: np.ndarray, data: bytes,
+             dt_bounds: np.ndarray) -> _Group:
+    """Records of layout ``lay`` from their token values V (m, lay.n), as one batch."""
+    lam, pw, st, status4 = _scan.channels(V, lay.wl, lay.pw, lay.status, lay.single or lay.wl.shape[0],
+                                          _MISSING, _CHANNEL_ERROR, _INVALID)
+    sens = tuple((V[:, curv] * ks, V[:, ang] * as_, V[:, xyz] * ps) for curv, ang, xyz, (ks, as_, ps) in lay.sensors)
     eng = V[:, lay.eng] if lay.eng is not None else None
-    numbers = np.array(lay.key[0], dtype=np.int64)
-    gcounts = np.array(lay.key[1], dtype=np.int64)
-    engs = [np.zeros(0)] * m if eng is None else list(eng)
-    vendors = ([tuple(VendorSensor(k[r], a[r], p[r]) for k, a, p in sens) for r in range(m)] if sens
-               else [()] * m)
-    extra, key = lay.extra, lay.key
-    return [Record(Frame(w, t, q, p, s, vendor=v or None), numbers, gcounts, s4, v, e, d, tm, extra, key)
-            for w, t, q, p, s, v, s4, e, d, tm in zip(list(lam), stamps.tolist(), seq.tolist(), list(pw), list(st),
-                                                     vendors, list(status4), engs, dates, times, strict=True)]
+    return _Group(lay, lam, pw, st, status4, np.asarray(seq, np.int64), np.asarray(stamps, np.float64), sens, eng,
+                  data, dt_bounds)
+
+
+def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "cores", n_cores: int | None = None,
+                   max_cells: int = 1 << 20, layouts: list | None = None
+                   ) -> tuple[list, list[_Group], np.ndarray, np.ndarray]:
+    """:func:`decode_many` without building a Record per record.
+
+    Returns
+    -------
+    errors : list
+        Per payload, the FramingError it raised, or None.
+    groups : list of _Group
+    gid, gidx : ndarray of int64 (n,)
+        Payload i is row ``gidx[i]`` of ``groups[gid[i]]`` (−1 for an error). The rows of a group are in
+        payload order.
+    """
+    if channels_as not in ("cores", "single"):
+        raise ValueError(f"channels_as: expected 'cores' or 'single', got {channels_as!r}")
+    starts = np.asarray(starts, dtype=np.int64)
+    ends = np.asarray(ends, dtype=np.int64)
+    n_rec = starts.size
+    gid = np.full(n_rec, -1, np.int64)
+    gidx = np.full(n_rec, -1, np.int64)
+    errors: list = [None] * n_rec
+    groups: list[_Group] = []
+    if n_rec == 0:
+        return errors, groups, gid, gidx
+    buf = np.frombuffer(data, np.uint8)
+    counts, kind, value, ts, te, stamp, bad, _ = _scan.scan(buf, starts, ends)
+    for j in np.flatnonzero(kind == _scan.SLOW).tolist():
+        try:
+            value[j] = float(data[ts[j] : te[j]])
+            kind[j] = _scan.DEC
+        except ValueError:
+            kind[j] = _scan.TEXT
+            value[j] = 0.0
+    for r in np.flatnonzero(stamp == _scan.TIME_SLOW).tolist():
+        c0 = counts[r]
+        stamp[r] = parse_timestamp(data[ts[c0] : te[c0]], data[ts[c0 + 1] : te[c0 + 1]])
+    layouts = [] if layouts is None else layouts
+    ntok = np.diff(counts)
+    todo = np.flatnonzero(bad < 0)
+    for r in (np.flatnonzero(bad >= 0).tolist() if todo.size < n_rec else ()):
+        errors[r] = FramingError("NUL, CR or LF inside the record", offset=int(bad[r]),
+                                 expected="one line of text", protocol=PROTOCOL)
+
+    def dt_bounds(rows):
+        c0 = counts[rows]
+        return np.stack([ts[c0], te[c0], ts[c0 + 1], te[c0 + 1]], axis=1)
+
+    def add(rows, grp):
+        gid[rows] = len(groups)
+        gidx[rows] = np.arange(rows.size)
+        groups.append(grp)
+
+    single = n_cores if channels_as == "single" else 0
+    while todo.size:
+        done = np.zeros(todo.size, bool)
+        for lay in layouts:
+            if lay.extra or lay.single != single:
+                continue
+            sel = np.flatnonzero(~done & (ntok[todo] == lay.n))
+            if not sel.size:
+                continue
+            rows = todo[sel]
+            first = counts[rows[0]]
+            if rows[-1] - rows[0] == rows.size - 1 and counts[rows[-1] + 1] - first == rows.size * lay.n:
+                K = kind[first : first + rows.size * lay.n].reshape(rows.size, lay.n)  # consecutive: a view
+                V = value[first : first + rows.size * lay.n].reshape(rows.size, lay.n)
+            else:
+                idx = counts[rows][:, None] + np.arange(lay.n)
+                K, V = kind[idx], value[idx]
+            ok = _matches(lay, K, V)
+            if not ok.all():
+                if not ok.any():
+                    continue
+                rows, V = rows[ok], V[ok]
+            add(rows, _extract(lay, V, V[:, 2].astype(np.int64), stamp[rows], data, dt_bounds(rows)))
+            done[sel[ok]] = True
+        rest = todo[~done]
+        if not rest.size:
+            break
+        r = int(rest[0])
+        a, b = counts[r], counts[r + 1]
+        tok = _Tokens(data, int(starts[r]), kind[a:b], value[a:b], ts[a:b], te[a:b])
+        try:
+            lay = _walk(tok, channels_as, n_cores, max_cells)
+        except FramingError as exc:
+            errors[r] = exc
+            todo = rest[1:]
+            continue
+        if not lay.extra and not any(x.n == lay.n and x.key == lay.key and np.array_equal(x.labels, lay.labels)
+                                     for x in layouts):
+            layouts.insert(0, lay)
+            del layouts[8:]
+        rows = np.array([r])
+        seq = np.array([tok.int(2, "sample number")], dtype=np.int64)
+        add(rows, _extract(lay, value[a:b][None], seq, stamp[rows], data, dt_bounds(rows)))
+        todo = rest[1:]
+    return errors, groups, gid, gidx
 
 
 def decode_many(
@@ -611,86 +726,9 @@ def decode_many(
     list of Record or FramingError
         One per payload, in order: the record, or the error that payload raised (offsets within the payload).
     """
-    if channels_as not in ("cores", "single"):
-        raise ValueError(f"channels_as: expected 'cores' or 'single', got {channels_as!r}")
-    starts = np.asarray(starts, dtype=np.int64)
-    ends = np.asarray(ends, dtype=np.int64)
-    n_rec = starts.size
-    if n_rec == 0:
-        return []
-    buf = np.frombuffer(data, np.uint8)
-    counts, kind, value, ts, te, stamp, bad, _ = _scan.scan(buf, starts, ends)
-    for j in np.flatnonzero(kind == _scan.SLOW).tolist():
-        try:
-            value[j] = float(data[ts[j] : te[j]])
-            kind[j] = _scan.DEC
-        except ValueError:
-            kind[j] = _scan.TEXT
-            value[j] = 0.0
-    for r in np.flatnonzero(stamp == _scan.TIME_SLOW).tolist():
-        c0 = counts[r]
-        stamp[r] = parse_timestamp(data[ts[c0] : te[c0]], data[ts[c0 + 1] : te[c0 + 1]])
-    layouts = [] if layouts is None else layouts
-    out: list = [None] * n_rec
-    ntok = np.diff(counts)
-    todo = np.flatnonzero(bad < 0)
-    for r in np.flatnonzero(bad >= 0).tolist():
-        out[r] = FramingError("NUL, CR or LF inside the record", offset=int(bad[r]),
-                              expected="one line of text", protocol=PROTOCOL)
-
-    def strings(rows):
-        c0 = counts[rows]
-        a, b = ts[c0].tolist(), te[c0].tolist()
-        a2, b2 = ts[c0 + 1].tolist(), te[c0 + 1].tolist()
-        return ([data[i:j].decode("latin-1") for i, j in zip(a, b, strict=True)],
-                [data[i:j].decode("latin-1") for i, j in zip(a2, b2, strict=True)])
-
-    while todo.size:
-        done = np.zeros(todo.size, bool)
-        for lay in layouts:
-            if lay.extra or lay.single != (n_cores if channels_as == "single" else 0):
-                continue
-            sel = np.flatnonzero(~done & (ntok[todo] == lay.n))
-            if not sel.size:
-                continue
-            rows = todo[sel]
-            first = counts[rows[0]]
-            if rows[-1] - rows[0] == rows.size - 1 and counts[rows[-1] + 1] - first == rows.size * lay.n:
-                K = kind[first : first + rows.size * lay.n].reshape(rows.size, lay.n)  # consecutive: a view
-                V = value[first : first + rows.size * lay.n].reshape(rows.size, lay.n)
-            else:
-                idx = counts[rows][:, None] + np.arange(lay.n)
-                K, V = kind[idx], value[idx]
-            ok = _matches(lay, K, V)
-            if not ok.any():
-                continue
-            rows, V = rows[ok], V[ok]
-            d, t = strings(rows)
-            for r, rec in zip(rows.tolist(), _extract(lay, V, V[:, 2].astype(np.int64), stamp[rows], d, t),
-                              strict=True):
-                out[r] = rec
-            done[sel[ok]] = True
-        rest = todo[~done]
-        if not rest.size:
-            break
-        r = int(rest[0])
-        a, b = counts[r], counts[r + 1]
-        tok = _Tokens(data, int(starts[r]), kind[a:b], value[a:b], ts[a:b], te[a:b])
-        try:
-            lay = _walk(tok, channels_as, n_cores, max_cells)
-        except FramingError as exc:
-            out[r] = exc
-            todo = rest[1:]
-            continue
-        if not lay.extra and not any(x.n == lay.n and x.key == lay.key and np.array_equal(x.labels, lay.labels)
-                                     for x in layouts):
-            layouts.insert(0, lay)
-            del layouts[8:]
-        d, t = strings(np.array([r]))
-        seq = np.array([tok.int(2, "sample number")], dtype=np.int64)
-        out[r] = _extract(lay, value[a:b][None], seq, stamp[r : r + 1], d, t)[0]
-        todo = rest[1:]
-    return out
+    errors, groups, gid, gidx = _decode_groups(data, starts, ends, channels_as=channels_as, n_cores=n_cores,
+                                               max_cells=max_cells, layouts=layouts)
+    return [e if g < 0 else groups[g].record(i) for e, g, i in zip(errors, gid.tolist(), gidx.tolist(), strict=True)]
 
 
 def decode_record(payload: bytes, *, channels_as: ChannelsAs = "cores", n_cores: int | None = None,

@@ -69,7 +69,7 @@ class IllumisenseSource(Driver):
     def _pump(self, timeout: float) -> None:
         data = self._client.recv(timeout)
         if data:
-            self._push(self.decoder.feed(data))
+            self._push(self.decoder.feed_batch(data))
         if self.decoder.holding:  # records wait for the layout decision: not for long
             now = time.monotonic()
             self._held_since = self._held_since or now

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["DEC", "EMPTY", "INT", "SLOW", "TEXT", "TIME_SLOW", "scan"]
+__all__ = ["DEC", "EMPTY", "INT", "SLOW", "TEXT", "TIME_SLOW", "channels", "match_layout", "scan", "spans"]
 
 INT = 0  #: optional sign and 1–15 digits: value exact
 DEC = 1  #: decimal number on the exact fast path
@@ -232,15 +232,61 @@ def _scan(buf, starts, ends, pow10):
         a, e = starts[r], body_end[r]
         t = counts[r]
         p = a
-        for i in range(a, e + 1):
+        while True:
+            # the fast path in the same pass that finds the token's end: [sign] digits [. digits], at most 15
+            # digits in all (exact in float64 whatever their significance); anything else goes to _token,
+            # which decides it exactly as before
+            i = p
+            neg = False
+            if i < e:
+                c = buf[i]
+                if c == 45:
+                    neg = True
+                    i += 1
+                elif c == 43:
+                    i += 1
+            d0 = i
+            mant = 0
+            while i < e:
+                d = np.int64(buf[i]) - 48
+                if d < 0 or d > 9:
+                    break
+                mant = mant * 10 + d
+                i += 1
+            n_int = i - d0
+            k = -1
+            v = 0.0
             if i == e or buf[i] == 9:
-                tstart[t] = p
-                tend[t] = i
+                if 0 < n_int <= 15:
+                    k = INT
+                    v = float(mant)
+            elif buf[i] == 46 and n_int > 0:
+                i += 1
+                f0 = i
+                while i < e:
+                    d = np.int64(buf[i]) - 48
+                    if d < 0 or d > 9:
+                        break
+                    mant = mant * 10 + d
+                    i += 1
+                n_frac = i - f0
+                if (i == e or buf[i] == 9) and n_frac > 0 and n_int + n_frac <= 15:
+                    k = DEC
+                    v = float(mant) / pow10[n_frac]
+            if k < 0:
+                while i < e and buf[i] != 9:
+                    i += 1
                 k, v = _token(buf, p, i, pow10)
-                kind[t] = k
-                value[t] = v
-                t += 1
-                p = i + 1
+            elif neg:
+                v = -v
+            tstart[t] = p
+            tend[t] = i
+            kind[t] = k
+            value[t] = v
+            t += 1
+            if i >= e:
+                break
+            p = i + 1
         if counts[r + 1] - counts[r] >= 2:
             c0 = counts[r]
             stamp[r] = _timestamp(buf, tstart[c0], tend[c0], tstart[c0 + 1], tend[c0 + 1], pow10)
@@ -276,6 +322,162 @@ def scan(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray):
         End of each payload's fields in ``buf`` (line ending and trailing TAB stripped).
     """
     return _scan(buf, np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(ends, np.int64), _POW10)
+
+
+@njit(cache=True)
+def _channels(V, wl, pw, status, n_cores, missing, channel_error, invalid):
+    m = V.shape[0]
+    c, g = wl.shape
+    pad = V.shape[1]
+    gg = c * g // n_cores
+    lam = np.empty((m, gg, n_cores))
+    power = np.empty((m, gg, n_cores))
+    st = np.empty((m, gg, n_cores), np.uint8)
+    status4 = np.empty((m, c, 4), np.int64)
+    nan = np.nan
+    for r in range(m):
+        for k in range(c):
+            err = np.uint8(0)
+            for q in range(4):
+                v = np.int64(V[r, status[k, q]])
+                status4[r, k, q] = v
+                if v != 0:
+                    err = channel_error
+            for j in range(g):
+                f = k * g + j
+                core = f // gg
+                row = f - core * gg
+                a = wl[k, j]
+                if a == pad:
+                    x, y, s = nan, nan, missing
+                else:
+                    x = V[r, a]
+                    y = V[r, pw[k, j]]
+                    s = np.uint8(0)
+                    if x == 0.0:
+                        x, y, s = nan, nan, missing
+                    elif not (np.isfinite(x) and x > 0.0):
+                        x, s = nan, invalid
+                lam[r, row, core] = x
+                power[r, row, core] = y
+                st[r, row, core] = s | err
+    return lam, power, st, status4
+
+
+def channels(V: np.ndarray, wl: np.ndarray, pw: np.ndarray, status: np.ndarray, n_cores: int, missing: int,
+             channel_error: int, invalid: int):
+    """The channel blocks of records of one layout as Frame arrays, in one compiled pass.
+
+    Parameters
+    ----------
+    V : ndarray of float64, shape (m, n_tokens)
+        Token values of m records.
+    wl, pw : ndarray of int64, shape (c, g)
+        Token index of each channel's wavelengths and powers; ``n_tokens`` marks the padding of a short
+        channel (a MISSING peak).
+    status : ndarray of int64, shape (c, 4)
+        Token index of each channel's four status integers.
+    n_cores : int
+        Cores of the output: c, or for one channel holding every core (core-major) the number of cores.
+    missing, channel_error, invalid : int
+        The PeakStatus bits: MISSING for a padding or a zero wavelength (its power NaN too), CHANNEL_ERROR on
+        every peak of a channel with a non-zero status, INVALID_VALUE for a negative or non-finite wavelength.
+
+    Returns
+    -------
+    wavelengths, powers : ndarray of float64, shape (m, c·g / n_cores, n_cores)
+        nm (NaN where missing or invalid), powers as sent (NaN where missing).
+    status : ndarray of uint8, same shape
+    status4 : ndarray of int64, shape (m, c, 4)
+    """
+    if wl.shape[0] == 0:  # no channel: no gratings, no cores
+        m = V.shape[0]
+        return (np.empty((m, 0, 0)), np.empty((m, 0, 0)), np.empty((m, 0, 0), np.uint8),
+                np.empty((m, 0, 4), np.int64))
+    return _channels(np.ascontiguousarray(V, np.float64), wl, pw, status, int(n_cores), np.uint8(missing),
+                     np.uint8(channel_error), np.uint8(invalid))
+
+
+@njit(cache=True)
+def _spans(buf, p, min_payload, max_payload):
+    n = buf.size
+    starts = np.empty((n - p) // (4 + min_payload) + 1, np.int64)
+    ends = np.empty_like(starts)
+    k = 0
+    while n - p >= 4:
+        length = (np.int64(buf[p]) << 24) | (np.int64(buf[p + 1]) << 16) | (np.int64(buf[p + 2]) << 8) | \
+            np.int64(buf[p + 3])
+        if length < min_payload or length > max_payload:
+            break
+        end = p + 4 + length
+        if end > n:
+            break
+        starts[k] = p
+        ends[k] = end
+        k += 1
+        p = end
+    return starts[:k], ends[:k]
+
+
+def spans(buf: np.ndarray, p: int, min_payload: int, max_payload: int) -> tuple[np.ndarray, np.ndarray]:
+    """The complete length-prefixed payloads from offset p on, while in sync.
+
+    Parameters
+    ----------
+    buf : ndarray of uint8
+    p : int
+        Offset of a 4-byte big-endian length prefix.
+    min_payload, max_payload : int
+        Accepted payload lengths, bytes; the first prefix outside them ends the run (the caller decides).
+
+    Returns
+    -------
+    prefix, end : ndarray of int64 (k,)
+        Offset of each record's prefix and end of its payload; they stop at the first bad or incomplete one.
+    """
+    return _spans(buf, int(p), int(min_payload), int(max_payload))
+
+
+@njit(cache=True)
+def _match_layout(K, V, ints, fixed, fixed_val, numbers, labels, label_hash):
+    m = K.shape[0]
+    ok = np.empty(m, np.bool_)
+    for r in range(m):
+        good = True
+        for j in ints:
+            if K[r, j] != INT:
+                good = False
+                break
+        if good:
+            for q in range(fixed.size):
+                if V[r, fixed[q]] != fixed_val[q]:
+                    good = False
+                    break
+        if good:
+            for j in numbers:
+                k = K[r, j]
+                if k != INT and k != DEC:
+                    good = False
+                    break
+        if good:
+            for q in range(labels.size):
+                j = labels[q]
+                if K[r, j] != TEXT or V[r, j] != label_hash[q]:
+                    good = False
+                    break
+        ok[r] = good
+    return ok
+
+
+def match_layout(K: np.ndarray, V: np.ndarray, ints: np.ndarray, fixed: np.ndarray, fixed_val: np.ndarray,
+                 numbers: np.ndarray, labels: np.ndarray, label_hash: np.ndarray) -> np.ndarray:
+    """Which rows of token kinds K and values V (m, n) are records of one layout, in one compiled pass.
+
+    A row matches when the tokens at ``ints`` are INT, those at ``fixed`` hold ``fixed_val``, those at
+    ``numbers`` are INT or DEC and those at ``labels`` are TEXT with the hashes ``label_hash`` (all index
+    arrays int64, values float64). Returns a bool array (m,).
+    """
+    return _match_layout(K, V, ints, fixed, fixed_val, numbers, labels, label_hash)
 
 
 def text_hash(text: bytes) -> float:

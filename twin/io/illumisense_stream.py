@@ -6,8 +6,12 @@ importable from :mod:`twin.io.illumisense`, whose docstring describes the strate
 from __future__ import annotations
 
 from collections import Counter, deque
+from itertools import pairwise
+
+import numpy as np
 
 from twin.frames import Frame
+from twin.io import illumisense_scan as _scan
 from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
 from twin.io.illumisense import (
     _PREFIX_LIMIT,
@@ -16,7 +20,7 @@ from twin.io.illumisense import (
     PROTOCOL,
     ChannelsAs,
     Record,
-    decode_many,
+    _decode_groups,
 )
 from twin.io.sequence import SequenceCounter
 
@@ -87,6 +91,17 @@ class LayoutConsensus:
             return out
         return []
 
+    def admits(self, key) -> bool:
+        """Whether a record of layout ``key`` would pass :meth:`push` at once (and alone)."""
+        return self.quorum == 0 or (self.layout is not None and key == self.layout)
+
+    def admit(self, n: int) -> None:
+        """Account for ``n`` records that :meth:`admits` passes, as ``n`` calls of :meth:`push` would (the batch
+        path of the stream decoder: the records are not built)."""
+        if n and self.quorum:
+            self.odd += len(self._run)
+            self._run = []
+
     def settle(self) -> list[Record]:
         """Decide now on the records held so far (the most frequent layout, ties to the latest)."""
         if not self._held:
@@ -119,7 +134,9 @@ class StreamDecoder:
 
     Handles arbitrary chunking, refuses a length prefix above ``max_payload`` from its 4 bytes, never raises
     for bad bytes, counts framing errors and resynchronises (module docstring), decodes every complete record
-    of a chunk as one batch, and filters records through a :class:`LayoutConsensus`.
+    of a chunk as one batch, and filters records through a :class:`LayoutConsensus`. :meth:`feed_batch` hands
+    the records of a chunk over as one batch Frame (the live path), :meth:`feed` as one Frame per record,
+    :meth:`feed_records` as one :class:`Record` per record; all three count and filter alike.
 
     Parameters
     ----------
@@ -195,38 +212,121 @@ class StreamDecoder:
 
     def feed(self, data: bytes) -> list[Frame]:
         """Consume bytes; return the frames of every record completed (and admitted) by them, in order."""
-        return [r.frame for r in self.feed_records(data)]
+        out = []
+        for item in self._feed(data):
+            if isinstance(item, Record):
+                out.append(item.frame)
+            else:
+                grp, i0, i1 = item
+                out += [grp.frame(i) for i in range(i0, i1)]
+        return out
 
     def feed_records(self, data: bytes) -> list[Record]:
         """Like :meth:`feed`, returning the full :class:`Record` of each record."""
+        out = []
+        for item in self._feed(data):
+            if isinstance(item, Record):
+                out.append(item)
+            else:
+                grp, i0, i1 = item
+                out += [grp.record(i) for i in range(i0, i1)]
+        return out
+
+    def feed_batch(self, data: bytes) -> list[Frame]:
+        """Like :meth:`feed`, with the frames of consecutive records of one layout as ONE batch Frame.
+
+        The batch-first path of the live loop: no Python object is built per record. Records with sensor
+        blocks (:attr:`Frame.vendor` is one frame only) and records released by the layout consensus come as
+        single frames; a layout change starts a new batch.
+
+        Returns
+        -------
+        list of Frame
+            Single frames and 1-D batches, in record order; ``sum(len(f) if f.batch_shape else 1 ...)`` frames
+            in all, the same (values, sequence numbers, timestamps) as :meth:`feed` would return.
+        """
+        out: list[Frame] = []
+        run: list[Frame] = []  # consecutive batches of one shape, concatenated into one
+
+        def close_run():
+            if len(run) > 1:
+                out.append(Frame._trusted(*(np.concatenate([getattr(f, k) for f in run]) for k in
+                                            ("wavelengths", "timestamp", "sequence", "powers", "status"))))
+            else:
+                out.extend(run)
+            run.clear()
+
+        for item in self._feed(data):
+            if isinstance(item, Record):
+                close_run()
+                out.append(item.frame)
+                continue
+            grp, i0, i1 = item
+            if grp.sensors:
+                close_run()
+                out += [grp.frame(i) for i in range(i0, i1)]
+                continue
+            if run and run[0].wavelengths.shape[1:] != grp.wavelengths.shape[1:]:
+                close_run()
+            run.append(grp.batch(i0, i1))
+        close_run()
+        return out
+
+    def _feed(self, data: bytes) -> list:
+        """Consume bytes; the admitted records in order, as Records (released by the consensus) and
+        (group, i0, i1) runs of rows of one decoded group that the consensus admits without building them."""
         self._buf += data
-        out: list[Record] = []
+        out: list = []
+        seqs: list = []
+        cons = self.consensus
         while True:
             spans = self._frame()
             if not spans:
                 break
-            lo, hi = spans[0][0], spans[-1][1]
-            chunk = bytes(self._buf[lo:hi])
-            res = decode_many(chunk, [p + 4 - lo for p, _ in spans], [e - lo for _, e in spans],
-                              layouts=self._layouts, **self._kw)
-            failed = False
-            for (p, end), r in zip(spans, res, strict=True):
-                if isinstance(r, FramingError):
-                    off = None if r.offset is None else self._base + p + 4 + r.offset
-                    self._fail(p, type(r)(r.what, offset=off, expected=r.expected, protocol=PROTOCOL))
-                    failed = True
-                    break
-                self._pos = end
+            lo = spans[0][0]
+            chunk = bytes(memoryview(self._buf)[lo : spans[-1][1]])  # one copy (the view is released at once)
+            errors, groups, gid, gidx = _decode_groups(chunk, [p + 4 - lo for p, _ in spans],
+                                                       [e - lo for _, e in spans], layouts=self._layouts, **self._kw)
+            failed = np.flatnonzero(gid < 0)
+            n_ok = int(failed[0]) if failed.size else len(spans)
+            if n_ok:
+                self._pos = spans[n_ok - 1][1]
                 self._scanned = 0
                 self._hunting = False
-                out += self.consensus.push(r)
-            if not failed and self._pos < spans[-1][1]:
+            # runs of consecutive records of one group
+            cuts = [0, *(np.flatnonzero(np.diff(gid[:n_ok])) + 1).tolist(), n_ok] if n_ok else [0]
+            for s0, s1 in pairwise(cuts):
+                grp = groups[int(gid[s0])]
+                key = grp.lay.key
+                i, i1 = int(gidx[s0]), int(gidx[s0]) + s1 - s0
+                while i < i1 and not cons.admits(key):  # the layout is being decided: record by record
+                    released = cons.push(grp.record(i))
+                    out += released
+                    seqs += [x.frame.sequence for x in released]
+                    i += 1
+                if i < i1:
+                    cons.admit(i1 - i)
+                    out.append((grp, i, i1))
+                    seqs.append(grp.sequence[i:i1])
+            if n_ok < len(spans):
+                p = spans[n_ok][0]
+                e = errors[n_ok]
+                off = None if e.offset is None else self._base + p + 4 + e.offset
+                self._fail(p, type(e)(e.what, offset=off, expected=e.expected, protocol=PROTOCOL))
+            elif self._pos < spans[-1][1]:
                 break
         if self._pos > 65536 and self._pos * 2 > len(self._buf):
             del self._buf[: self._pos]
             self._base += self._pos
             self._pos = 0
-        return self._count(out)
+        self._count_seq(seqs)
+        return out
+
+    def _count_seq(self, seqs: list) -> None:
+        if seqs:
+            seq = seqs[0] if len(seqs) == 1 and isinstance(seqs[0], np.ndarray) else np.concatenate(
+                [np.atleast_1d(np.asarray(x, np.int64)) for x in seqs])
+            self.records += self.sequence.count_many(seq).size
 
     def _count(self, out: list[Record]) -> list[Record]:
         if out:
@@ -238,6 +338,14 @@ class StreamDecoder:
         """Complete candidate records from the current position: (prefix offset, payload end) in the buffer.
         While hunting, at most one (it is accepted only if it decodes)."""
         buf = self._buf
+        if not self._hunting and len(buf) - self._pos >= 4:
+            # in sync, the run of well-formed prefixes is found in one compiled pass; a bad prefix after
+            # them is left to the loop below on the next call
+            view = np.frombuffer(buf, np.uint8)
+            prefix, end = _scan.spans(view, self._pos, MIN_PAYLOAD, self.max_payload)
+            del view  # a live view would forbid resizing the bytearray
+            if prefix.size:
+                return list(zip(prefix.tolist(), end.tolist(), strict=True))
         spans: list[tuple[int, int]] = []
         p = self._pos
         while True:
