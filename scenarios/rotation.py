@@ -233,7 +233,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     t = ser.t
     win = common.windows(t, setup.dwell_ends, params.window)
     last = int(win[-1][-1])
-    em = common.em_readings(ser.tip, params.em_noise, params.seed)
+    em = common.em_readings(ser.tip, params.em_noise, params.seed + common.EM_STREAM)
 
     def avg(x):
         return np.stack([x[w].mean(axis=0) for w in win])
