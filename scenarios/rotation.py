@@ -51,6 +51,7 @@ from scenarios._common import sheath as common
 from scenarios._common.calibration import calibration_for
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import DEG, option
+from scenarios._common.series import to_world
 from scenarios.report import (
     Report,
     curvature_profiles,
@@ -251,7 +252,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
         if mode == "default":
             common.show_frames(viewer, shape, ser)
         measured["s"] = shape.s
-        measured[mode] = avg(common.place(shape, ser.base_positions, ser.base_frames))
+        measured[mode] = avg(to_world(shape, ser))
         registered[mode] = registered_deviation(measured[mode])
         deviation[mode], deviation_truth[mode], absolute[mode], frame_error[mode] = {}, {}, {}, {}
         for base, (bp, bf) in bases.items():

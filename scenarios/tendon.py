@@ -425,7 +425,7 @@ def _overlays(rep, result: Result, count: int = 5) -> None:
     if idx.size == 0:
         return
     names = [f"t = {result.t[i]:.1f} s, T = {result.tension[i]:+.1f} N" for i in idx]
-    recon = {m: to_world(result.shapes[m][idx], _subseries(series, idx)) for m in ("default", "paper")}
+    recon = {m: to_world(result.shapes[m][idx], series, idx) for m in ("default", "paper")}
     panels, along = overlay_panels(names, series.truth_positions[idx], series.truth_s, recon,
                                    result.shapes["default"].s)
     rep.figure("shape_overlays", shape_overlays(panels, "Reconstructions over the catheter (registered onto it; mm)",
@@ -433,12 +433,6 @@ def _overlays(rep, result: Result, count: int = 5) -> None:
     fig = error_along_arc(result.shapes["default"].s, {n: along["default"][i] * 1e3 for i, n in enumerate(names)},
                           "Error along the arc length, default pipeline", rep.calibration)
     rep.figure("error_along_arc", fig, "distance of the registered reconstruction from the catheter")
-
-
-def _subseries(series: Series, idx: np.ndarray) -> Series:
-    from dataclasses import replace
-
-    return replace(series, base_positions=series.base_positions[idx], base_frames=series.base_frames[idx])
 
 
 def show(viewer, result: Result, most: int = 150) -> None:

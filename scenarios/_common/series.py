@@ -100,9 +100,14 @@ def collect(sim: SimInterrogator, n_frames: int, every: int = 1,
     )
 
 
-def to_world(shape: Shape, series: Series) -> np.ndarray:
-    """Reconstructed positions (n, n_points, 3) placed in the world with the true base pose of each frame."""
-    return np.einsum("nij,npj->npi", series.base_frames, shape.positions) + series.base_positions[:, None, :]
+def to_world(shape: Shape, series: Series, index=None) -> np.ndarray:
+    """Reconstructed positions (n, n_points, 3) placed in the world with the true base pose of each frame.
+
+    ``index``: the series' frames ``shape`` holds (an index array of n frames); default all of them, in order."""
+    frames, positions = series.base_frames, series.base_positions
+    if index is not None:
+        frames, positions = frames[index], positions[index]
+    return np.einsum("nij,npj->npi", frames, shape.positions) + positions[:, None, :]
 
 
 def errors(rec: Reconstructor, series: Series, register: str = "kabsch") -> tuple[Shape, metrics.ErrorStats]:

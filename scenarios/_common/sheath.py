@@ -27,9 +27,9 @@ from scenarios._common.pipelines import MODES, reconstructors
 from scenarios._common.series import Series, collect, em_readings, show_frames
 from sim_interrogator.sheath import SheathSetup
 from sim_interrogator.sim import SimInterrogator
-from twin import FiberModel, Shape
+from twin import FiberModel
 
-__all__ = ["EM_STREAM", "MODES", "Run", "calibration_field", "em_readings", "optics_field", "paper_table", "place",
+__all__ = ["EM_STREAM", "MODES", "Run", "calibration_field", "em_readings", "optics_field", "paper_table",
            "reconstructors", "run_setup", "seed_field", "show_frames", "windows"]
 
 #: Added to ``--seed`` for the EM sensor's noise stream (:func:`em_readings`), apart from the interrogator's.
@@ -145,11 +145,6 @@ def windows(t: np.ndarray, ends: np.ndarray, length: float) -> list[np.ndarray]:
         idx = np.flatnonzero((t > e - length - 1e-9) & (t <= e + 1e-9))
         out.append(idx if idx.size else np.array([int(np.argmin(np.abs(t - e)))]))
     return out
-
-
-def place(shape: Shape, positions: np.ndarray, frames: np.ndarray) -> np.ndarray:
-    """Reconstructed points (n, p, 3) placed in the world with base poses (n, 3) and frames (n, 3, 3)."""
-    return np.einsum("nij,npj->npi", frames, shape.positions) + positions[:, None, :]
 
 
 # ------------------------------------------------------------------------------------------------ reports
