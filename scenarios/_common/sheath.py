@@ -1,7 +1,8 @@
 """What the three sheath experiments (rotation, repeatability, sheath-motion) share: running a sheath setup into a
-:class:`~scenarios._common.series.Series` with a few extra per-frame records, the reconstructors, an EM-sensor-like tip
-reading, the viewer hook, the parameters every sheath experiment has and report pieces. The command-line glue,
-the calibration and the optics are every scenario's (:mod:`scenarios._common`).
+:class:`~scenarios._common.series.Series` with a few extra per-frame records, the EM sensor's noise stream,
+measurement windows, the parameters every sheath experiment has and report pieces. The command-line glue, the
+calibration, the optics, the three pipelines, EM-sensor-like readings and the viewer replay are every scenario's
+(:mod:`scenarios._common`), handed on from here as ``common.NAME``.
 
 The EM sensor. The paper measured the tip with an electromagnetic tracker (an NDI Aurora 6-DOF sensor at the tip).
 It is modelled as the true position of the end of the sensed region plus white Gaussian noise of ``em_noise`` per
