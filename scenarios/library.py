@@ -16,9 +16,9 @@ import numpy as np
 
 from scenarios._common import entry
 from scenarios._common.entry import option
-from twin import FiberModel, Reconstructor, metrics, shapes, strain
+from scenarios._common.pipelines import MODES, reconstructors
+from twin import FiberModel, metrics, shapes, strain
 
-MODES = ("default", "paper", "paper-literal")
 KEY = {"default": "default", "paper": "paper", "paper-literal": "paper_literal"}  #: JSON key prefixes
 CALIBRATION = {"name": "nominal", "description": "none needed: wavelengths from the nominal fibre's forward model"}
 
@@ -34,8 +34,7 @@ class Params:
 
 def run_experiment(params: Params, progress=None) -> dict:
     fiber = FiberModel.paper()
-    modes = {"default": Reconstructor(fiber), "paper": Reconstructor.paper(fiber),
-             "paper-literal": Reconstructor.paper(fiber, kappa_min=0.0)}
+    modes = reconstructors(fiber)
     rng = np.random.default_rng(params.seed)
     rows, curves = [], {"names": [], "truth": [], "truth_s": [], **{m: [] for m in MODES}}
     for curve in shapes.library():

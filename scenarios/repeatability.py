@@ -221,7 +221,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
 
     rel = ser.tip - ser.base_positions
     true_fibre = np.einsum("nji,nj->ni", ser.base_frames, rel)  # true tip in the true base frame
-    em = common.em_readings(ser.tip, params.em_noise, params.seed)
+    em = common.em_readings(ser.tip, params.em_noise, params.seed + common.EM_STREAM)
     tips = {"fibre": {}, "world": {}, "true": avg(true_fibre), "true_world": avg(ser.tip), "em": avg(em)}
     tip_error, frame_error = {}, {}
     trajectories = {"truth": ser.tip}

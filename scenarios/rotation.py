@@ -51,6 +51,7 @@ from scenarios._common import sheath as common
 from scenarios._common.calibration import calibration_for
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import DEG, option
+from scenarios._common.series import to_world
 from scenarios.report import (
     Report,
     curvature_profiles,
@@ -233,7 +234,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     t = ser.t
     win = common.windows(t, setup.dwell_ends, params.window)
     last = int(win[-1][-1])
-    em = common.em_readings(ser.tip, params.em_noise, params.seed)
+    em = common.em_readings(ser.tip, params.em_noise, params.seed + common.EM_STREAM)
 
     def avg(x):
         return np.stack([x[w].mean(axis=0) for w in win])
@@ -251,7 +252,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
         if mode == "default":
             common.show_frames(viewer, shape, ser)
         measured["s"] = shape.s
-        measured[mode] = avg(common.place(shape, ser.base_positions, ser.base_frames))
+        measured[mode] = avg(to_world(shape, ser))
         registered[mode] = registered_deviation(measured[mode])
         deviation[mode], deviation_truth[mode], absolute[mode], frame_error[mode] = {}, {}, {}, {}
         for base, (bp, bf) in bases.items():

@@ -35,7 +35,7 @@ from scenarios._common import sheath as common
 from scenarios._common.calibration import calibration_for
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
-from scenarios._common.series import errors
+from scenarios._common.series import errors, to_world
 from scenarios.report import (
     Report,
     curvature_profiles,
@@ -249,7 +249,7 @@ def snapshots(shapes: dict, ser, max_error: np.ndarray, count: int = 4) -> dict:
         idx = np.unique(np.append(idx[:-1], int(np.nanargmax(max_error))))
     out = {"index": idx, "t": ser.t[idx], "truth": ser.truth_positions[idx], "truth_s": ser.truth_s}
     for mode, shape in shapes.items():
-        out[mode] = common.place(shape[idx], ser.base_positions[idx], ser.base_frames[idx])
+        out[mode] = to_world(shape[idx], ser, idx)
         out["s"] = shape.s
     return out
 

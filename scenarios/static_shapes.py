@@ -39,9 +39,9 @@ import numpy as np
 
 from scenarios._common import entry
 from scenarios._common.calibration import (
-    CALIBRATIONS,
     LAB_SHAPES,
     UsedCalibration,
+    calibration_field,
     calibration_for,
     check_calibration,
     fixture_observation,
@@ -51,7 +51,8 @@ from scenarios._common.calibration import (
 )
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
-from scenarios._common.optics import OPTICS, optics_config
+from scenarios._common.optics import optics_config, optics_field
+from scenarios._common.pipelines import MODES, reconstructors
 from scenarios._common.static import fixture_for, measure
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import StaticShape
@@ -59,8 +60,6 @@ from sim_interrogator.sim import SimInterrogator
 from twin import FiberModel, Reconstructor, shapes
 
 FIXTURES = ("connect", "tube", "paper")
-#: Ours, the paper's with θ_b held through low curvature (κ_min = 1 1/m), the paper's literal transcription.
-MODES = ("default", "paper", "paper-literal")
 #: The paper's static results after identification (hardware, its pipeline), mm.
 PAPER_MAX_MM, PAPER_MEAN_MM = 2.52, 0.70
 
@@ -73,9 +72,8 @@ class Params:
     repeats: int = field(default=5, metadata=option("frames per shape, fresh noise each"))
     fixture: str = field(default="connect", metadata=option(
         "connect constraints (exact), a 3 mm tube, or paper (groove/tube)", choices=FIXTURES))
-    optics: str = field(default="realistic", metadata=option("synthetic interrogator effects", choices=OPTICS))
-    calibration: str = field(default="lab", metadata=option(
-        f"{', '.join(CALIBRATIONS)} or a calibration TOML (see above)", metavar="CAL"))
+    optics: str = optics_field()
+    calibration: str = calibration_field()
     segments: int = field(default=100, metadata=option("rod segments"))
     seed: int = field(default=0, metadata=option("noise seed"))
     record: str | None = field(default=None, metadata=option(
@@ -230,8 +228,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     for (name, kind, sim, frames, settle_s), cal in zip(settled, per_shape, strict=True):
         if params.record:
             record(Path(params.record), name, sim, frames, cal, params.record_truth)
-        recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal),
-                "paper-literal": Reconstructor.paper(fiber, cal, kappa_min=0.0)}
+        recs = reconstructors(fiber, cal)
         lost = int(sum(np.isnan(f.wavelengths).sum() for f in frames))
         results.append(ShapeResult(name, shapes.get(name).planar, kind, settle_s,
                                    measure(sim, frames, recs, curves), lost))

@@ -46,18 +46,17 @@ import numpy as np
 from scipy.spatial.distance import pdist
 
 from scenarios._common import entry
-from scenarios._common.calibration import CALIBRATIONS, calibration_for, check_calibration
+from scenarios._common.calibration import calibration_field, calibration_for, check_calibration
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
-from scenarios._common.optics import OPTICS, optics_config
+from scenarios._common.optics import optics_config, optics_field
+from scenarios._common.pipelines import MODES, reconstructors
 from scenarios._common.series import Series, collect
 from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.thermal import PROFILES, Bath
 from twin import FiberModel, Reconstructor, Shape, metrics, shapes
 from twin.frames import Truth
 
-#: Ours, the paper's with θ_b held through low curvature (κ_min = 1 1/m), the paper's literal transcription.
-MODES = ("default", "paper", "paper-literal")
 PAPER_TIP_VARIATION_MM = 0.29  #: Al-Ahmad et al.: tip variation over 30 K (60 → 30 °C)
 
 
@@ -82,9 +81,8 @@ class Params:
     rate: float = field(default=25.0, metadata=option("interrogator rate, Hz"))
     average: float = field(default=1.0, metadata=option("averaging window, s (0: none)"))
     mismatches: tuple[float, ...] = (0.003, 0.0)  # --mismatch-percent, in add_arguments
-    optics: str = field(default="realistic", metadata=option("synthetic interrogator effects", choices=OPTICS))
-    calibration: str = field(default="lab", metadata=option(
-        f"{', '.join(CALIBRATIONS)} or a calibration TOML (scenarios/_common/calibration.py)", metavar="CAL"))
+    optics: str = optics_field()
+    calibration: str = calibration_field()
     segments: int = field(default=100, metadata=option("rod segments"))
     seed: int = field(default=0, metadata=option("seed of the interrogator's noise and drift"))
     fiber_seed: int = field(default=0, metadata=option(
@@ -305,8 +303,7 @@ def run_bath(params: Params, mismatch: float, fiber: FiberModel,
     w, t, temp, mid = _windows(series, n_avg)
     used = calibration_for(params.calibration, sim.optics, fiber, progress=say)
     cal = used.calibration
-    recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal),
-            "paper-literal": Reconstructor.paper(fiber, cal, kappa_min=0.0)}
+    recs = reconstructors(fiber, cal)
     rot, pos = series.base_frames[0], series.base_positions[0]
     true_tip = (series.tip[mid] - pos) @ rot
     tips, errors, curv, shp = {}, {}, {}, {}
@@ -539,16 +536,9 @@ def _tip_scatter(result: Result):
 
 
 def _cli_args(p: Params) -> list[str]:
-    d = Params()
-    out = []
-    for name, flag in (("shape", "--shape"), ("fixture", "--fixture"), ("duration", "--duration"),
-                       ("rate", "--rate"), ("average", "--average"), ("profile", "--profile"),
-                       ("calibration", "--calibration"), ("optics", "--optics"), ("seed", "--seed"),
-                       ("fiber_seed", "--fiber-seed")):
-        if getattr(p, name) != getattr(d, name):
-            out += [flag, str(getattr(p, name))]
-    if p.mismatches != d.mismatches:
-        out += ["--mismatch-percent", ",".join(f"{m * 100:g}" for m in p.mismatches)]
+    out = entry.command_line(p)
+    if p.mismatches != Params().mismatches:
+        out.append("--mismatch-percent " + ",".join(f"{m * 100:g}" for m in p.mismatches))
     return out
 
 

@@ -41,7 +41,6 @@ a calibration TOML. ``--report DIR`` writes DIR/report.md with trajectory, devia
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -51,18 +50,16 @@ from pathlib import Path
 import numpy as np
 
 from scenarios._common import entry
-from scenarios._common.calibration import CALIBRATIONS, calibration_for, check_calibration
+from scenarios._common.calibration import calibration_field, calibration_for, check_calibration
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
-from scenarios._common.optics import OPTICS, optics_config
-from scenarios._common.series import Series, collect, to_world
+from scenarios._common.optics import optics_config, optics_field
+from scenarios._common.pipelines import MODES, reconstructors
+from scenarios._common.series import Series, collect, em_readings, show_frames, to_world
 from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.tendon import Tendon
-from twin import FiberModel, Reconstructor, metrics
-from twin.frames import Truth
+from twin import FiberModel, metrics
 
-#: Ours, the paper's with θ_b held through low curvature (κ_min = 1 1/m), the paper's literal transcription.
-MODES = ("default", "paper", "paper-literal")
 PAPER_MAX_DEVIATION_MM = 2.1  #: Al-Ahmad et al.: max deviation of the reconstructed tip from the EM sensor
 
 
@@ -85,9 +82,8 @@ class Params:
     rate: float = field(default=20.0, metadata=option("interrogator and EM rate, Hz"))
     em_noise: float = field(default=0.3e-3, metadata=option("EM sensor noise per axis, mm", flag="--em-noise-mm",
                                                             scale=1e-3))
-    optics: str = field(default="realistic", metadata=option("synthetic interrogator effects", choices=OPTICS))
-    calibration: str = field(default="lab", metadata=option(
-        f"{', '.join(CALIBRATIONS)} or a calibration TOML (scenarios/_common/calibration.py)", metavar="CAL"))
+    optics: str = optics_field()
+    calibration: str = calibration_field()
     segments: int = field(default=100, metadata=option("rod segments"))
     seed: int = field(default=0, metadata=option("seed of the interrogator's and the EM sensor's noise"))
     fiber_seed: int = field(default=0, metadata=option("which as-built fibre"))
@@ -232,11 +228,10 @@ def run_experiment(params: Params, progress: Callable[[str], None] | None = None
 
     series = collect(sim, n_frames, progress=tick)
     t = series.t
-    em = series.tip + np.random.default_rng([params.seed, 1]).normal(0.0, params.em_noise, series.tip.shape)
+    em = em_readings(series.tip, params.em_noise, [params.seed, 1])
     used = calibration_for(params.calibration, sim.optics, fiber, progress=progress)
     cal = used.calibration
-    recs = {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal),
-            "paper-literal": Reconstructor.paper(fiber, cal, kappa_min=0.0)}
+    recs = reconstructors(fiber, cal)
     tips, reg, errors, curv, shp = {}, {}, {}, {}, {}
     for mode, rec in recs.items():
         shape = rec(series.wavelengths)
@@ -414,7 +409,7 @@ def write_report(result: Result, directory: str | Path) -> Path:
                f"Wire tension and curvature at the grating at {fiber.grating_s[g] * 1e3:.0f} mm (in the section)")
     if result.series is not None and result.shapes:
         _overlays(rep, result)
-    rep.text("Run: `twin run tendon " + " ".join(_cli_args(p)) + "`")
+    rep.text("Run: `twin run tendon " + " ".join(entry.command_line(p)) + "`")
     return rep.write()
 
 
@@ -430,7 +425,7 @@ def _overlays(rep, result: Result, count: int = 5) -> None:
     if idx.size == 0:
         return
     names = [f"t = {result.t[i]:.1f} s, T = {result.tension[i]:+.1f} N" for i in idx]
-    recon = {m: to_world(result.shapes[m][idx], _subseries(series, idx)) for m in ("default", "paper")}
+    recon = {m: to_world(result.shapes[m][idx], series, idx) for m in ("default", "paper")}
     panels, along = overlay_panels(names, series.truth_positions[idx], series.truth_s, recon,
                                    result.shapes["default"].s)
     rep.figure("shape_overlays", shape_overlays(panels, "Reconstructions over the catheter (registered onto it; mm)",
@@ -440,44 +435,11 @@ def _overlays(rep, result: Result, count: int = 5) -> None:
     rep.figure("error_along_arc", fig, "distance of the registered reconstruction from the catheter")
 
 
-def _subseries(series: Series, idx: np.ndarray) -> Series:
-    from dataclasses import replace
-
-    return replace(series, base_positions=series.base_positions[idx], base_frames=series.base_frames[idx])
-
-
-def _cli_args(p: Params) -> list[str]:
-    d = Params()
-    flags = {"max_tension": "--max-tension", "period": "--period", "cycles": "--cycles", "wires": "--wires",
-             "rate": "--rate", "optics": "--optics", "calibration": "--calibration", "seed": "--seed",
-             "fiber_seed": "--fiber-seed", "segments": "--segments"}
-    def changed(name: str) -> bool:
-        a, b = getattr(p, name), getattr(d, name)
-        return not math.isclose(a, b, rel_tol=1e-9) if isinstance(a, float) else a != b
-
-    out = [f"{flag} {getattr(p, name)}" for name, flag in flags.items() if changed(name)]
-    for name, flag in (("deflectable_length", "--deflectable-mm"), ("tendon_offset", "--offset-mm"),
-                       ("em_noise", "--em-noise-mm")):
-        if changed(name):
-            out.append(f"{flag} {getattr(p, name) * 1e3:g}")
-    if changed("axial_stiffness"):
-        out.append(f"--axial-stiffness {p.axial_stiffness:g}")
-    return out
-
-
 def show(viewer, result: Result, most: int = 150) -> None:
     """Replay up to ``most`` frames in a viewer (``viewer.show(shape, truth, base_pose=…)``), paced by its rate
     limiter."""
-    series, shape = result.series, result.shapes["default"]
-    for i in np.unique(np.linspace(0, len(series) - 1, min(most, len(series))).round().astype(int)):
-        if not np.isfinite(shape.positions[i]).all():
-            continue
-        ready = getattr(viewer, "ready", None)
-        while ready is not None and not ready():
-            time.sleep(0.005)
-        truth = Truth(s=series.truth_s, positions=series.truth_positions[i], curvature=series.truth_curvature[i])
-        viewer.show(shape[int(i)], truth, base_pose=(series.base_frames[i], series.base_positions[i]),
-                    label=f"tendon T = {result.tension[i]:+.1f} N")
+    show_frames(viewer, result.shapes["default"], result.series, count=min(most, len(result.series)), pause=None,
+                label=lambda i: f"tendon T = {result.tension[i]:+.1f} N")
 
 
 # ------------------------------------------------------------------------------------------------ command line

@@ -229,19 +229,10 @@ class Optics:
         d_t = cfg.temperature if delta_T is None else delta_T
         axial = self._per_grating(axial_strain, batch, n_f)
         temp = self._per_grating(d_t, batch, n_f)
-        step = 0.0
-        if cfg.drift and t is not None:
-            if self._t_last is not None and t > self._t_last:
-                step = cfg.drift * np.sqrt(t - self._t_last)
-            self._t_last = t
-        # one draw per call: drift increments (first slice) and white noise
-        z = self._rng.standard_normal((n_f + 1, n_g, n_c)) if cfg.noise or step else self._no_noise
-        w = np.empty((n_f, n_g, n_c))
-        status = np.zeros((n_f, n_g, n_c), np.uint8)
-        _effects(k.reshape(n_f, n_g, 2), axial, temp, self._design, fiber.lambda0, self.nominal.lambda0,
-                 fiber.strain_sensitivity, self._s_t, cfg.fiber_offset, self._drift, step, z, cfg.noise,
-                 cfg.quantisation, cfg.slot_half_width or 0.0, cfg.min_peak_separation, float(cfg.band[0]),
-                 float(cfg.band[1]), self._order, self._lost_flag, w, status)
+        e = np.empty((n_f, n_g, n_c))
+        _design_strain(k.reshape(n_f, n_g, 2), axial, temp, self._design, fiber.strain_sensitivity, self._s_t,
+                       cfg.fiber_offset, e)
+        w, status = self._effects(e, t)
         if not batch:
             return w[0], status[0]
         return w.reshape(*batch, n_g, n_c), status.reshape(*batch, n_g, n_c)
@@ -276,42 +267,29 @@ class Optics:
         mech = spun.exact_strain(fiber, k, tau, eps0, s=s, twist=phase).reshape(n_f, n_g, n_sub, n_c)
         e = fiber.strain_sensitivity * np.einsum("fgsc,s->fgc", mech, self._weights)
         e += temp[..., None] * self._s_t
-        w, status = self._effects_numpy(e, n_f, t)
+        w, status = self._effects(np.ascontiguousarray(e), t)
         if not batch:
             return w[0], status[0]
         return w.reshape(*batch, n_g, n_c), status.reshape(*batch, n_g, n_c)
 
-    def _effects_numpy(self, e: np.ndarray, n_f: int, t: float | None):
-        """Drift, noise, quantisation and peak loss on optical strains ``e`` (n_f, n_g, n_c), as :func:`_effects`
-        does for the design form (the same random draws, so a straight fibre gets the same noise)."""
-        cfg, fiber = self.config, self.true_fiber
+    def _effects(self, e: np.ndarray, t: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """Wavelengths (nm, NaN where lost) and status from optical strains ``e`` (n_f, n_g, n_c) with drift,
+        noise, quantisation and peak loss (:func:`_apply_effects`): one implementation for the design form and
+        the spun fibre's exact path lengths, so a straight fibre gets the same noise from the same seed."""
+        cfg = self.config
         step = 0.0
         if cfg.drift and t is not None:
             if self._t_last is not None and t > self._t_last:
                 step = cfg.drift * np.sqrt(t - self._t_last)
             self._t_last = t
-        z = self._rng.standard_normal((n_f + 1, *e.shape[1:])) if cfg.noise or step else None
-        if step > 0:
-            self._drift += step * z[0]
-        w = fiber.lambda0 * (1.0 + e) + self._drift
-        if cfg.noise > 0:
-            w = w + cfg.noise * z[1:]
-        if cfg.quantisation > 0:
-            w = np.round(w / cfg.quantisation) * cfg.quantisation
-        lost = (w < cfg.band[0]) | (w > cfg.band[1])
-        if cfg.slot_half_width:
-            lost |= np.abs(w - self.nominal.lambda0) > cfg.slot_half_width
-        if cfg.min_peak_separation > 0:
-            order = np.broadcast_to(self._order, w.shape)
-            close = np.abs(np.diff(np.take_along_axis(w, order, axis=1), axis=1)) < cfg.min_peak_separation
-            by_rank = np.zeros(w.shape, bool)
-            by_rank[:, :-1] |= close
-            by_rank[:, 1:] |= close
-            merged = np.zeros(w.shape, bool)
-            np.put_along_axis(merged, order, by_rank, axis=1)
-            lost |= merged
-        status = np.where(lost, np.uint8(self._lost_flag), np.uint8(0))
-        return np.where(lost, np.nan, w), status
+        # one draw per call: drift increments (first slice) and white noise
+        z = self._rng.standard_normal((e.shape[0] + 1, *e.shape[1:])) if cfg.noise or step else self._no_noise
+        w = np.empty(e.shape)
+        status = np.zeros(e.shape, np.uint8)
+        _apply_effects(e, self.true_fiber.lambda0, self.nominal.lambda0, self._drift, step, z, cfg.noise,
+                       cfg.quantisation, cfg.slot_half_width or 0.0, cfg.min_peak_separation, float(cfg.band[0]),
+                       float(cfg.band[1]), self._order, self._lost_flag, w, status)
+        return w, status
 
     def _per_grating(self, value, batch: tuple, n_f: int) -> np.ndarray:
         """A scalar or (..., n_gratings) value as a (n_f, n_gratings) array (a zero-stride view if scalar)."""
@@ -352,14 +330,27 @@ class Optics:
 
 
 @njit(cache=True, nogil=True)
-def _effects(k, axial, temp, design, lam0, lam0_nominal, s_eps, s_t, offset, drift, drift_step, z, noise, quant,
-             slot, separation, band_lo, band_hi, order, lost_flag, w, status):
-    """Wavelengths with every effect for F states, compiled because it runs at up to 1 kHz.
+def _design_strain(k, axial, temp, design, s_eps, s_t, offset, e):
+    """Optical strain ``e`` (F, n_g, n_c) of F states in design form: c_i + D_i1 k_x + D_i2 k_y with
+    c_i = S_ε ε_axial + S_T,i ΔT, the linear model of :func:`twin.strain.forward` (tests/test_sim.py checks the
+    two agree); compiled because it runs at up to 1 kHz."""
+    n_f, n_g, n_c = e.shape
+    for f in range(n_f):
+        for g in range(n_g):
+            kx, ky = k[f, g, 0], k[f, g, 1]
+            eps = axial[f, g] - offset * kx
+            for c in range(n_c):
+                e[f, g, c] = design[g, c, 1] * kx + design[g, c, 2] * ky + s_eps * eps + s_t[c] * temp[f, g]
 
-    The deterministic part is :func:`twin.strain.forward` in design form, λ = λ0 (1 + c_i + D_i1 k_x + D_i2 k_y)
-    with c_i = S_ε ε_axial + S_T,i ΔT (tests/test_sim.py checks the two agree); then drift, noise,
-    quantisation and peak loss. ``z[0]`` drives the drift's random walk (step ``drift_step`` nm), ``z[1 + f]``
-    the noise of state f; ``order[:, c]`` lists core c's gratings by nominal wavelength.
+
+@njit(cache=True, nogil=True)
+def _apply_effects(e, lam0, lam0_nominal, drift, drift_step, z, noise, quant, slot, separation, band_lo, band_hi,
+                   order, lost_flag, w, status):
+    """Wavelengths λ = λ0 (1 + e) with drift, noise, quantisation and peak loss for F states of optical strain
+    ``e`` (F, n_g, n_c), into ``w`` and ``status``; compiled because it runs at up to 1 kHz.
+
+    ``z[0]`` drives the drift's random walk (step ``drift_step`` nm), ``z[1 + f]`` the noise of state f;
+    ``order[:, c]`` lists core c's gratings by nominal wavelength.
     """
     n_f, n_g, n_c = w.shape
     if drift_step > 0.0:
@@ -368,11 +359,8 @@ def _effects(k, axial, temp, design, lam0, lam0_nominal, s_eps, s_t, offset, dri
                 drift[g, c] += drift_step * z[0, g, c]
     for f in range(n_f):
         for g in range(n_g):
-            kx, ky = k[f, g, 0], k[f, g, 1]
-            eps = axial[f, g] - offset * kx
             for c in range(n_c):
-                e = design[g, c, 1] * kx + design[g, c, 2] * ky + s_eps * eps + s_t[c] * temp[f, g]
-                lam = lam0[g, c] * (1.0 + e) + drift[g, c]
+                lam = lam0[g, c] * (1.0 + e[f, g, c]) + drift[g, c]
                 if noise > 0.0:
                     lam += noise * z[1 + f, g, c]
                 if quant > 0.0:

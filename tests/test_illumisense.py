@@ -510,14 +510,41 @@ def corrupted(draw):
     return payload[:i] + bytes([draw(st.integers(0, 255))]) + payload[i + 1 :]
 
 
+def assert_same_record(a: illumisense.Record, b: illumisense.Record) -> None:
+    """Two decodings of the same payload hold the same values (NaN where NaN)."""
+    for name in ("wavelengths", "powers", "status"):
+        np.testing.assert_array_equal(getattr(a.frame, name), getattr(b.frame, name))
+    assert a.frame.sequence == b.frame.sequence
+    np.testing.assert_array_equal(a.frame.timestamp, b.frame.timestamp)
+    for name in ("channel_numbers", "grating_counts", "channel_status", "engineering"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert (a.date, a.time, a.extra_fields, a.layout) == (b.date, b.time, b.extra_fields, b.layout)
+    assert len(a.sensors) == len(b.sensors)
+    for x, y in zip(a.sensors, b.sensors, strict=True):
+        for name in ("curvature", "angle", "positions"):
+            np.testing.assert_array_equal(getattr(x, name), getattr(y, name))
+
+
 @FUZZ
 @given(corrupted())
+@example(illumisense.encode_payload(Frame(np.full((2, 2), 1530.0), 0.0, 3)).replace(b"\t3\t", b"\t\n\t", 1))
 def test_fuzz_corrupted_byte_decodes_only_to_what_the_bytes_say(bad):
+    """One corrupted byte in a record: the single-record reading (decode_record), the stream decoder (the same
+    payload as a wire record, its batch path) and the plain reading of the layout all accept it with the same
+    values, or all refuse it."""
+    stream = illumisense.StreamDecoder(layout_quorum=0)
+    streamed = stream.feed_records(len(bad).to_bytes(4, "big") + bad)
+    assert stream.finish() == []
     try:
         rec = illumisense.decode_record(bad)
     except FramingError:
+        with pytest.raises((ValueError, IndexError)):
+            reference(bad)
+        assert streamed == [] and stream.framing_errors == 1
         return
     assert_matches_reference(rec, reference(bad))
+    assert len(streamed) == 1 and stream.framing_errors == 0
+    assert_same_record(streamed[0], rec)
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])

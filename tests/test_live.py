@@ -292,10 +292,14 @@ def _check_load(out: dict, duration: float, memory: bool) -> None:
         f"{out['rss_mib_start']:.1f} → {out['rss_mib_end']:.1f} MiB (growth {out['rss_growth_mib']:+.2f} MiB)")
     print(f"\nload {duration:g} s at 1 kHz, 7 × 18: {out['frames']} frames, lost {out['lost_samples']}, framing "
           f"errors {out['framing_errors']}, client RSS from {duration / 3:.0f} s to the end: {mem}")
-    assert out["lost_samples"] == 0 and out["sequence_gaps"] == 0 and out["framing_errors"] == 0
-    assert out["disconnects"] == 0 and out["frames_unusable"] == 0
-    # 1 kHz for the duration, less the client's connection time (generous: the machine may be loaded)
-    assert out["frames"] > 0.8 * 1000 * duration
+    # every frame sent after the client joined arrived, in order and whole: no gap, no reset, nothing unusable
+    # (how fast the client keeps up is `twin bench`'s to measure, not a timed assertion's)
+    assert out["reason"] == "duration" and out["frames"] > 0
+    assert out["lost_samples"] == 0 and out["sequence_gaps"] == 0 and out["sequence_resets"] == 0
+    assert out["framing_errors"] == 0 and out["disconnects"] == 0
+    assert out["frames_unusable"] == 0 and out["frames_complete"] == out["frames"]
+    # the rate readout is the server's 1 kHz, read on its timestamps whatever the load
+    assert out["rate_hz"] == pytest.approx(1000.0, rel=1e-4)
     if memory:
         # flat memory: nothing is kept per frame. 40 s of frames kept as Frame objects would take ~100 MiB;
         # 8 MiB allows for allocator noise. (A 3 s run would still measure its own warm-up on a loaded machine,
@@ -488,12 +492,22 @@ class _BurstySource(Source):
 def test_rate_readout_matches_the_source_whatever_the_bursts():
     """Issue 14: the readout jumped between 122 and 246 Hz for a 100 Hz source."""
     f = FiberModel.paper()
-    seen: list[tuple[float, float]] = []
-    loop = LiveLoop(_BurstySource(f), Reconstructor(f),
-                    [lambda frames, shapes, st: seen.append((st.elapsed, st.rate_hz)) if frames else None])
-    summary = loop.run(duration=3.0, handle_signals=False)
-    late = [r for t, r in seen if t > 0.5]
-    assert summary.status.frames > 250 and len(late) > 5
+    source = _BurstySource(f)
+    seen: list[tuple[int, float]] = []
+    sequences: list[int] = []
+
+    def sink(frames, shapes, st):
+        if frames:
+            seen.append((st.frames, st.rate_hz))
+            sequences.extend(fr.sequence for fr in frames)
+
+    summary = LiveLoop(source, Reconstructor(f), [sink]).run(duration=3.0, handle_signals=False)
+    # every frame the source released reached the sinks, in order, none lost
+    assert sequences == list(range(source.sent)) and summary.status.frames == source.sent
+    assert summary.status.lost_samples == 0
+    # from the second frame on (two timestamps make a rate), over every burst after the first
+    late = [r for n, r in seen if n >= 2]
+    assert late
     assert max(abs(r - 100.0) for r in late) < 0.01  # the source's clock: exact up to float rounding
     assert not summary.status.behind and summary.status.behind_events == 0
 
@@ -516,15 +530,48 @@ class _SlowSource(Source):
         return Frame(self.w, self.k * 0.01, self.k)
 
 
+def assert_arrival_matches_the_counts(seen: list[tuple[float, int, float]], window: float) -> None:
+    """The arrival readout of each batch, ``seen`` = (elapsed s, frames, arrival Hz) as the sinks got them, is the
+    frames counted since a batch about ``window`` s earlier over the elapsed time between the two
+    (:class:`twin.io.rate.RateMeter`: the anchor is the last batch at or before the window's start).
+
+    The sinks read the elapsed time a little after the meter read the clock, so the anchor may be a neighbour of
+    the one found on the sinks' times, and the rates agree to the few ms of that lag over the window: 5 %."""
+    e = np.array([x[0] for x in seen])
+    n = np.array([x[1] for x in seen], float)
+    checked = 0
+    for j in np.flatnonzero(e >= e[0] + 1.2 * window):
+        before = np.flatnonzero(e <= e[j] - window)
+        a0 = int(before[-1]) if before.size else 0
+        rates = [(n[j] - n[i]) / (e[j] - e[i]) for i in (a0 - 1, a0, a0 + 1) if 0 <= i < j]
+        assert any(r == pytest.approx(seen[j][2], rel=0.05) for r in rates), (seen[j], rates)
+        checked += 1
+    assert checked
+
+
 @pytest.mark.parametrize("nominal", [100.0, None])
 def test_a_source_behind_real_time_is_said_once_and_counted(capsys, nominal):
     f = FiberModel.paper()
-    loop = LiveLoop(_SlowSource(f, nominal), Reconstructor(f), rate_window=1.0)
+    seen: list[tuple[float, int, float]] = []
+    sequences: list[int] = []
+
+    def sink(frames, shapes, st):
+        if frames:
+            seen.append((st.elapsed, st.frames, st.arrival_hz))
+            sequences.extend(fr.sequence for fr in frames)
+
+    loop = LiveLoop(_SlowSource(f, nominal), Reconstructor(f), [sink], rate_window=1.0)
     summary = loop.run(duration=2.5, handle_signals=False)
     s = summary.status
     err = capsys.readouterr().err
     assert s.behind and s.behind_events == 1 and err.count("behind real time") == 1
-    assert abs(s.arrival_hz - 60.0) < 6.0 and abs(s.rate_hz - 100.0) < 0.01
+    # nothing lost on the way: the frames the source gave, in order
+    assert sequences == list(range(1, s.frames + 1)) and s.lost_samples == 0
+    # the readouts: the source's own rate from its timestamps (10 ms apart), and the arrival rate as counted —
+    # below what leaving the behind state needs, (1 + 0.9)/2 of the expected 100 Hz
+    assert abs(s.rate_hz - 100.0) < 0.01
+    assert 0 < s.arrival_hz < 95.0
+    assert_arrival_matches_the_counts(seen, loop.rate_window)
     assert "arrive at" in err and ("nominal rate" if nominal else "timestamps advance") in err
     from twin.live import format_status
 

@@ -1,5 +1,5 @@
-"""A spun fibre in the twin: the optics' exact helical path lengths, their noise and peak loss against the
-compiled effects, the grating-length average, and the SimInterrogator reading the rod's own twist
+"""A spun fibre in the twin: the optics' exact helical path lengths against the linear model on a straight fibre
+(noise and peak loss included), the grating-length average, and the SimInterrogator reading the rod's own twist
 (docs/spun-fibres.md §6)."""
 
 import numpy as np
@@ -20,9 +20,10 @@ TAU = RNG.uniform(-15, 15, (6, 18))
     OpticsConfig(grating_length=0.0, seed=4),
     OpticsConfig.ideal(min_peak_separation=1.0, band=(1512.0, 1600.0), noise=1e-3, seed=5),
 ])
-def test_numpy_effects_match_the_compiled_ones_on_a_straight_fibre(cfg):
-    """With Ω = 0 and τ = 0 the exact path length is the linear model, so the spun path (numpy effects) and the
-    compiled one must give the same wavelengths, noise, drift, quantisation and lost peaks from the same seed."""
+def test_the_spun_path_on_a_straight_fibre_is_the_linear_model_with_the_same_effects(cfg):
+    """With Ω = 0 and τ = 0 the exact path length is the linear model, so the spun path (exact strains) and the
+    design form must give the same wavelengths, noise, drift, quantisation and lost peaks from the same seed
+    (both go through the one compiled effects kernel; the strains differ only by rounding)."""
     fibre = FiberModel.paper()
     a, b = Optics(fibre, cfg), Optics(fibre, cfg)
     k = K.copy()

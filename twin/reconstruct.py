@@ -269,12 +269,8 @@ class Reconstructor:
         else:
             pos = np.full((n_f, n_steps + 1, 3), np.nan)
             frames = np.full((n_f, n_steps + 1, 3, 3), np.nan)
-            patterns, which = np.unique(vf, axis=0, return_inverse=True)
-            for p, nodes in enumerate(patterns):
-                if not nodes.any():
-                    continue
-                sel = np.flatnonzero(which.ravel() == p)
-                rates, r0, theta = self._profiles(kf[sel][:, nodes], self._prepare(nodes))
+            for sel, nodes, prep in self._groups(vf):
+                rates, r0, theta = self._profiles(kf[sel][:, nodes], prep)
                 pos[sel], frames[sel] = self._integrate(rates, r0, theta)
         return Shape(
             s=self.s,
@@ -284,6 +280,21 @@ class Reconstructor:
             grating_s=self.fiber.grating_s,
             valid=valid,
         )
+
+    def _groups(self, valid: np.ndarray):
+        """The frames of ``valid`` (n_frames, n_gratings) grouped by which gratings they have: (frame indices,
+        valid gratings, the interpolation operators for them) per pattern; frames with none are left out."""
+        patterns, which = np.unique(valid, axis=0, return_inverse=True)
+        for p, nodes in enumerate(patterns):
+            if nodes.any():
+                yield np.flatnonzero(which.ravel() == p), nodes, self._prepare(nodes)
+
+    def _accumulate(self, rate: np.ndarray) -> np.ndarray:
+        """∫ rate ds from the base to every output point, (F, n_points), from a rate at the integrator's samples
+        (F, n_steps · m), by the integrator's own quadrature."""
+        steps = rate.reshape(rate.shape[0], -1, self._m)
+        d = self.h * (steps @ np.asarray(_QUADRATURE[self._m]))
+        return np.concatenate([np.zeros((steps.shape[0], 1)), np.cumsum(d, axis=1)], axis=1)
 
     def _profiles(self, k: np.ndarray, prep: dict):
         """Rates at the integrator's samples (F, 2, n_steps, m), initial frames and, for the Frenet pipeline,
@@ -319,10 +330,7 @@ class Reconstructor:
             kap = curve.interpolate(prep["s_nodes"], kappa[..., None], self._samples, self.interpolation)[..., 0]
         rates = np.stack([tau, kap], axis=1).reshape(shape_r)
         # bend-plane angle along the output points: θ(0) plus the integrator's own quadrature of τ
-        tau_steps = tau.reshape(n_f, -1, self._m)
-        weights = _QUADRATURE[self._m]
-        dtheta = self.h * (tau_steps @ np.asarray(weights))
-        theta_out = theta0[:, :1] + np.concatenate([np.zeros((n_f, 1)), np.cumsum(dtheta, axis=1)], axis=1)
+        theta_out = theta0[:, :1] + self._accumulate(tau)
         c0, s0 = np.cos(theta_out[:, 0]), np.sin(theta_out[:, 0])
         r0 = _frenet_from_material(c0, s0)
         return rates, r0, theta_out
@@ -340,17 +348,9 @@ class Reconstructor:
         tf = tau.reshape(-1, tau.shape[-1])
         vf = valid.reshape(-1, valid.shape[-1])
         out = np.full((tf.shape[0], self.s.size), np.nan)
-        patterns, which = np.unique(vf, axis=0, return_inverse=True)
-        w = np.asarray(_QUADRATURE[self._m])
-        for p, nodes in enumerate(patterns):
-            if not nodes.any():
-                continue
-            sel = np.flatnonzero(which.ravel() == p)
-            prep = self._prepare(nodes)
-            samples = curve.interpolate(prep["s_nodes"], tf[sel][:, nodes, None], self._samples,
-                                        self.interpolation)[..., 0].reshape(sel.size, -1, self._m)
-            out[sel, 0] = 0.0
-            out[sel, 1:] = np.cumsum(self.h * (samples @ w), axis=1)
+        for sel, nodes, prep in self._groups(vf):
+            tau_s = curve.interpolate(prep["s_nodes"], tf[sel][:, nodes, None], self._samples, self.interpolation)
+            out[sel] = self._accumulate(tau_s[..., 0].reshape(sel.size, -1))
         return out.reshape((*batch, self.s.size))
 
     def _integrate(self, rates, r0, theta):

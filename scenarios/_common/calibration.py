@@ -30,11 +30,12 @@ import hashlib
 import json
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from scenarios._common.entry import option
 from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.setups import CalibrationPoses, StaticShape
 from sim_interrogator.sim import SimInterrogator
@@ -43,8 +44,9 @@ from twin.calibration import CalibrationReport
 from twin.calibration import two_step as calibration_two_step
 from twin.calibration.identify import Observation, identify
 
-__all__ = ["CALIBRATIONS", "LAB_SHAPES", "UsedCalibration", "cache_dir", "calibration_for", "check_calibration",
-           "fixture_observation", "identify_on_fixtures", "lab_calibration", "label", "paper_fixture"]
+__all__ = ["CALIBRATIONS", "LAB_SHAPES", "UsedCalibration", "cache_dir", "calibration_field", "calibration_for",
+           "check_calibration", "fixture_observation", "identify_on_fixtures", "lab_calibration", "label",
+           "paper_fixture"]
 
 #: What ``--calibration`` accepts besides a calibration TOML.
 CALIBRATIONS = ("lab", "true", "lambda0", "nominal")
@@ -98,6 +100,13 @@ def label(name: str) -> str:
     if isinstance(name, dict):
         name = str(name.get("name", "?"))
     return f"calibration: {name}" + (f" ({_SHORT[name]})" if name in _SHORT else "")
+
+
+def calibration_field(default: str = "lab"):
+    """The ``calibration`` field of a scenario's ``Params``: ``--calibration``, resolved by
+    :func:`calibration_for`."""
+    return field(default=default, metadata=option(
+        f"{', '.join(CALIBRATIONS)} or a calibration TOML (scenarios/_common/calibration.py)", metavar="CAL"))
 
 
 def check_calibration(kind: str) -> str:

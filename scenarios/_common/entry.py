@@ -41,7 +41,7 @@ from collections.abc import Mapping
 
 from twin import jsonout
 
-__all__ = ["DEG", "add_arguments", "main", "option", "params_from_args", "run", "say"]
+__all__ = ["DEG", "add_arguments", "command_line", "main", "option", "params_from_args", "run", "say"]
 
 #: ``scale`` for an option given in degrees and held in radians.
 DEG = math.pi / 180.0
@@ -106,6 +106,29 @@ def params_from_args(params_cls, args: argparse.Namespace, **extra):
         values[f.name] = v
     values.update(extra)
     return params_cls(**values)
+
+
+def command_line(params) -> list[str]:
+    """The options that give ``params`` (a ``Params``) from the defaults, one ``"--flag value"`` string each, in
+    the option's unit (value / ``scale``): the reproduction line of a report. Fields without :func:`option`
+    metadata are the module's to add."""
+    out = []
+    for f, meta, flag, _ in _options(type(params)):
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        value = getattr(params, f.name)
+        if isinstance(value, float) and isinstance(default, float):
+            if math.isclose(value, default, rel_tol=1e-9):
+                continue
+        elif value == default:
+            continue
+        if isinstance(value, bool):
+            out.append(flag if value else "--no-" + flag.removeprefix("--"))
+        elif isinstance(value, tuple):
+            out.append(f"{flag} {','.join(map(str, value))}")
+        else:
+            shown = _shown(value, meta["scale"])
+            out.append(f"{flag} {shown:.12g}" if isinstance(shown, float) else f"{flag} {shown}")
+    return out
 
 
 def run(name: str, module, args: argparse.Namespace) -> int:

@@ -7,9 +7,12 @@
 
 from __future__ import annotations
 
+from dataclasses import field
+
+from scenarios._common.entry import option
 from sim_interrogator.optics import OpticsConfig
 
-__all__ = ["OPTICS", "optics_config"]
+__all__ = ["OPTICS", "optics_config", "optics_field"]
 
 OPTICS = ("realistic", "ideal")
 
@@ -21,3 +24,8 @@ def optics_config(name: str, seed: int = 0) -> OpticsConfig:
     if name == "ideal":
         return OpticsConfig.ideal()
     raise ValueError(f"optics must be one of {', '.join(OPTICS)}; got {name!r}")
+
+
+def optics_field(default: str = "realistic"):
+    """The ``optics`` field of a scenario's ``Params``: ``--optics``, one of :data:`OPTICS`."""
+    return field(default=default, metadata=option("synthetic interrogator effects", choices=OPTICS))

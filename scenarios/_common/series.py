@@ -9,6 +9,7 @@ tip truth can be compared with it directly.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -16,8 +17,9 @@ import numpy as np
 
 from sim_interrogator.sim import SimInterrogator
 from twin import Reconstructor, Shape, metrics
+from twin.frames import Truth
 
-__all__ = ["Series", "collect", "errors", "to_world"]
+__all__ = ["Series", "collect", "em_readings", "errors", "show_frames", "to_world"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,9 +100,14 @@ def collect(sim: SimInterrogator, n_frames: int, every: int = 1,
     )
 
 
-def to_world(shape: Shape, series: Series) -> np.ndarray:
-    """Reconstructed positions (n, n_points, 3) placed in the world with the true base pose of each frame."""
-    return np.einsum("nij,npj->npi", series.base_frames, shape.positions) + series.base_positions[:, None, :]
+def to_world(shape: Shape, series: Series, index=None) -> np.ndarray:
+    """Reconstructed positions (n, n_points, 3) placed in the world with the true base pose of each frame.
+
+    ``index``: the series' frames ``shape`` holds (an index array of n frames); default all of them, in order."""
+    frames, positions = series.base_frames, series.base_positions
+    if index is not None:
+        frames, positions = frames[index], positions[index]
+    return np.einsum("nij,npj->npi", frames, shape.positions) + positions[:, None, :]
 
 
 def errors(rec: Reconstructor, series: Series, register: str = "kabsch") -> tuple[Shape, metrics.ErrorStats]:
@@ -119,3 +126,38 @@ def errors(rec: Reconstructor, series: Series, register: str = "kabsch") -> tupl
     else:
         err = metrics.shape_error(shape.positions, series.truth_positions, s=shape.s, truth_s=series.truth_s)
     return shape, err
+
+
+def em_readings(tip: np.ndarray, sigma: float, seed) -> np.ndarray:
+    """EM-sensor-like tip readings: ``tip`` (n, 3) m plus white Gaussian noise of ``sigma`` m per axis.
+
+    ``seed``: anything :func:`numpy.random.default_rng` takes; each experiment keeps the EM sensor's noise
+    stream apart from the interrogator's with its own seed."""
+    return tip + sigma * np.random.default_rng(seed).standard_normal(tip.shape)
+
+
+def show_frames(viewer, shapes: Shape, series: Series, count: int = 40, pause: float | None = 0.1,
+                label: Callable[[int], str] | None = None) -> None:
+    """Replay about ``count`` evenly spaced frames in a viewer (:class:`twin.viewer.Viewer` or anything with its
+    ``show(shape, truth, *, base_pose, label[, force])``), each placed with the fibre base's tracked pose; nothing
+    without a viewer. Frames with no usable grating (NaN shape) are skipped.
+
+    ``pause``: seconds between frames, each forced past the viewer's rate limiter; None: paced by the viewer's
+    own rate limiter (``viewer.ready()``). ``label(i)``: the text for frame ``i`` (default its time)."""
+    if viewer is None:
+        return
+    for i in np.unique(np.linspace(0, len(series) - 1, count).round().astype(int)):
+        i = int(i)
+        if not np.all(np.isfinite(shapes.positions[i])):
+            continue
+        if pause is None:
+            ready = getattr(viewer, "ready", None)
+            while ready is not None and not ready():
+                time.sleep(0.005)
+        truth = Truth(s=series.truth_s, positions=series.truth_positions[i], frames=None,
+                      curvature=series.truth_curvature[i], fixture=series.fixture)
+        viewer.show(shapes[i], truth, base_pose=(series.base_frames[i], series.base_positions[i]),
+                    label=label(i) if label else f"t = {series.t[i]:.1f} s", **({} if pause is None else
+                                                                                {"force": True}))
+        if pause is not None:
+            time.sleep(pause)

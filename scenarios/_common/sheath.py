@@ -1,7 +1,8 @@
 """What the three sheath experiments (rotation, repeatability, sheath-motion) share: running a sheath setup into a
-:class:`~scenarios._common.series.Series` with a few extra per-frame records, the reconstructors, an EM-sensor-like tip
-reading, the viewer hook, the parameters every sheath experiment has and report pieces. The command-line glue,
-the calibration and the optics are every scenario's (:mod:`scenarios._common`).
+:class:`~scenarios._common.series.Series` with a few extra per-frame records, the EM sensor's noise stream,
+measurement windows, the parameters every sheath experiment has and report pieces. The command-line glue, the
+calibration, the optics, the three pipelines, EM-sensor-like readings and the viewer replay are every scenario's
+(:mod:`scenarios._common`), handed on from here as ``common.NAME``.
 
 The EM sensor. The paper measured the tip with an electromagnetic tracker (an NDI Aurora 6-DOF sensor at the tip).
 It is modelled as the true position of the end of the sensed region plus white Gaussian noise of ``em_noise`` per
@@ -18,27 +19,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scenarios._common.calibration import CALIBRATIONS
+# MODES, reconstructors, the optics and calibration fields, em_readings and show_frames are every experiment's,
+# reached from here as ``common.NAME`` by the sheath experiments
+from scenarios._common.calibration import calibration_field
 from scenarios._common.entry import option
-from scenarios._common.optics import OPTICS, optics_config
-from scenarios._common.series import Series, collect
+from scenarios._common.optics import optics_config, optics_field
+from scenarios._common.pipelines import MODES, reconstructors
+from scenarios._common.series import Series, collect, em_readings, show_frames
 from sim_interrogator.sheath import SheathSetup
 from sim_interrogator.sim import SimInterrogator
-from twin import Calibration, FiberModel, Reconstructor, Shape
-from twin.frames import Truth
+from twin import FiberModel
 
-#: The pipelines every sheath experiment runs: ours, the paper's with θ_b held through low curvature
-#: (``Reconstructor.paper``, κ_min = 1 1/m) and the paper's literal transcription (κ_min = 0).
-MODES = ("default", "paper", "paper-literal")
+__all__ = ["EM_STREAM", "MODES", "Run", "calibration_field", "em_readings", "optics_field", "paper_table",
+           "reconstructors", "run_setup", "seed_field", "show_frames", "windows"]
 
-
-def optics_field(default: str = "realistic"):
-    return field(default=default, metadata=option("synthetic interrogator effects", choices=OPTICS))
-
-
-def calibration_field(default: str = "lab"):
-    return field(default=default, metadata=option(
-        f"{', '.join(CALIBRATIONS)} or a calibration TOML (scenarios/_common/calibration.py)", metavar="CAL"))
+#: Added to ``--seed`` for the EM sensor's noise stream (:func:`em_readings`), apart from the interrogator's.
+EM_STREAM = 7919
 
 
 def seed_field():
@@ -112,12 +108,6 @@ class _Recording:
         return f
 
 
-def reconstructors(fiber: FiberModel, cal: Calibration | None) -> dict[str, Reconstructor]:
-    """The pipelines of :data:`MODES`, with the same calibration."""
-    return {"default": Reconstructor(fiber, cal), "paper": Reconstructor.paper(fiber, cal),
-            "paper-literal": Reconstructor.paper(fiber, cal, kappa_min=0.0)}
-
-
 def run_setup(setup: SheathSetup, *, optics: str, seed: int, rate: float, label: str,
               progress: Callable[[str], None] | None = None) -> Run:
     """Build and settle ``setup``, then read frames at ``rate`` over its whole duration (progress on the way)."""
@@ -149,12 +139,6 @@ def run_setup(setup: SheathSetup, *, optics: str, seed: int, rate: float, label:
     return run
 
 
-def em_readings(tip: np.ndarray, sigma: float, seed: int) -> np.ndarray:
-    """EM-sensor-like tip readings: ``tip`` (n, 3) m plus white Gaussian noise of ``sigma`` m per axis."""
-    rng = np.random.default_rng(seed + 7919)
-    return tip + sigma * rng.standard_normal(tip.shape)
-
-
 def windows(t: np.ndarray, ends: np.ndarray, length: float) -> list[np.ndarray]:
     """Indices of the frames in (end − length, end] for each end time (at least the frame nearest the end)."""
     out = []
@@ -162,28 +146,6 @@ def windows(t: np.ndarray, ends: np.ndarray, length: float) -> list[np.ndarray]:
         idx = np.flatnonzero((t > e - length - 1e-9) & (t <= e + 1e-9))
         out.append(idx if idx.size else np.array([int(np.argmin(np.abs(t - e)))]))
     return out
-
-
-def place(shape: Shape, positions: np.ndarray, frames: np.ndarray) -> np.ndarray:
-    """Reconstructed points (n, p, 3) placed in the world with base poses (n, 3) and frames (n, 3, 3)."""
-    return np.einsum("nij,npj->npi", frames, shape.positions) + positions[:, None, :]
-
-
-def show_frames(viewer, shapes: Shape, series: Series, count: int = 40, pause: float = 0.1) -> None:
-    """Replay about ``count`` evenly spaced frames in a viewer (:class:`twin.viewer.Viewer` or anything with its
-    ``show(shape, truth, *, base_pose, label, force)``), ``pause`` s apart, each placed with the fibre base's
-    tracked pose; nothing without a viewer. Frames with no usable grating (NaN shape) are skipped."""
-    if viewer is None:
-        return
-    for i in np.unique(np.linspace(0, len(series) - 1, count).round().astype(int)):
-        i = int(i)
-        if not np.all(np.isfinite(shapes.positions[i])):
-            continue
-        truth = Truth(s=series.truth_s, positions=series.truth_positions[i], frames=None,
-                      curvature=series.truth_curvature[i], fixture=series.fixture)
-        viewer.show(shapes[i], truth, base_pose=(series.base_frames[i], series.base_positions[i]),
-                    label=f"t = {series.t[i]:.1f} s", force=True)
-        time.sleep(pause)
 
 
 # ------------------------------------------------------------------------------------------------ reports

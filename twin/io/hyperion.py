@@ -56,7 +56,6 @@ import numpy as np
 
 from twin.frames import Frame, PeakStatus
 from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
-from twin.io.sequence import SequenceCounter
 
 __all__ = [
     "COMMAND_PORT",
@@ -414,7 +413,6 @@ class ResponseDecoder(_Incremental):
         super().__init__()
         self.max_content = max_content
         self.n_gratings = n_gratings
-        self.sequence = SequenceCounter()
 
     def feed(self, data: bytes) -> list[Response]:
         """Consume bytes; return the complete responses among them."""
@@ -425,7 +423,8 @@ class ResponseDecoder(_Incremental):
         )
 
     def feed_frames(self, data: bytes) -> list[Frame]:
-        """Consume peak-stream bytes (port 51972); return the decoded frames, counting sequence gaps."""
+        """Consume peak-stream bytes (port 51972); return the decoded frames. Their sequence numbers are the
+        driver's to count (:class:`twin.io.hyperion_driver.HyperionSource`, across reconnects)."""
         frames: list[Frame] = []
         for r in self.feed(data):
             if not r.ok:
@@ -443,7 +442,6 @@ class ResponseDecoder(_Incremental):
             except FramingError as exc:
                 self._fail(exc)
                 return self._finish(frames)
-            self.sequence.count(f.sequence)
             frames.append(f)
         return frames
 
