@@ -9,6 +9,7 @@ number beyond int64.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 __all__ = ["SequenceCounter"]
 
@@ -52,27 +53,39 @@ class SequenceCounter:
             # corrupt, not a count: unknown
             seq = np.array([s if -(2**63) <= s < 2**63 else -1 for s in np.asarray(sequences, dtype=object).ravel()],
                            dtype=np.int64)
-        lost = np.zeros(seq.shape, dtype=np.int64)
-        known = np.flatnonzero(seq >= 0)
-        if known.size == 0:
-            return lost
-        s = seq[known]
-        prev = np.empty_like(s)
-        prev[1:] = s[:-1]
-        if self.last is None:
-            prev[0] = s[0] - 1  # the first number ever seen opens the books
-        else:
-            prev[0] = self.last
-        d = s - prev
-        gaps = d > 1
-        lost[known[gaps]] = d[gaps] - 1
-        self.sequence_gaps += int(np.count_nonzero(gaps))
-        self.lost_samples += int(lost.sum())
-        self.sequence_resets += int(np.count_nonzero(d <= 0))
-        self.last = int(s[-1])
+        lost, gaps, resets, last = _count(seq, -1 if self.last is None else self.last, self.last is None)
+        if last >= 0:
+            self.sequence_gaps += gaps
+            self.lost_samples += int(lost.sum())
+            self.sequence_resets += resets
+            self.last = last
         return lost
 
     def as_dict(self) -> dict[str, int]:
         """The three counters, JSON-ready."""
         return {"sequence_gaps": self.sequence_gaps, "lost_samples": self.lost_samples,
                 "sequence_resets": self.sequence_resets}
+
+
+@njit(cache=True, nogil=True)
+def _count(seq, last, first):
+    """Per number, the samples lost just before it; the gaps, resets and last number (−1: none known).
+    One compiled pass: the numpy form cost ≈ 15 µs of array calls per batch, twice per batch in the live path."""
+    lost = np.zeros(seq.size, np.int64)
+    gaps = 0
+    resets = 0
+    for i in range(seq.size):
+        s = seq[i]
+        if s < 0:
+            continue
+        if first:  # the first number ever seen opens the books
+            first = False
+        else:
+            d = s - last
+            if d > 1:
+                lost[i] = d - 1
+                gaps += 1
+            elif d <= 0:
+                resets += 1
+        last = s
+    return lost, gaps, resets, last
