@@ -93,10 +93,6 @@ class FibreSpec:
         viscosity μN/|v| is applied explicitly and capped at 0.5·m/dt (2.5 N·s/m at the defaults): uncapped,
         μN/slip_speed reached 10 N·s/m at 50 mN of wall force and the fibre went unstable within a second;
         with the cap a load below μN creeps at ≤ F / 2.5 N·s/m instead of sticking.
-    roll_stiffness : float
-        Torsional spring holding the fibre's roll at each glued edge, N·m/rad. Explicit, so bounded by the
-        twist body's inertia (≈ m r²/2 = 5e-11 kg·m² at the defaults): k·dt² / I < 1 needs k < 1.2e-5;
-        2e-4 went unstable within a second.
     drag : float
         Viscous drag per vertex against the lumen's motion, N·s/m: numerical, it settles the fibre where
         nothing else holds it (0.1 mN at 1 mm/s of sliding, below the friction at a loaded contact).
@@ -120,13 +116,12 @@ class FibreSpec:
     wall_stiffness: float = 600.0
     wall_damping: float = 2.0
     slip_speed: float = 1e-3
-    roll_stiffness: float = 5e-6
     drag: float = 0.1
 
     def __post_init__(self) -> None:
         for k in ("clearance", "friction", "dx_prox", "fixation_spacing", "glue_length", "tail", "offset",
                   "bending_stiffness", "torsional_stiffness", "diameter", "vertex_mass", "wall_stiffness",
-                  "wall_damping", "slip_speed", "roll_stiffness", "drag"):
+                  "wall_damping", "slip_speed", "drag"):
             v = getattr(self, k)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"FibreSpec.{k}: expected a finite number >= 0, got {v!r}")
@@ -173,6 +168,8 @@ class FibreHandle:
         Vertices held by glue.
     lumen_end : float
         Catheter arc length of the lumen's end, m.
+    glued_edges : ndarray of int
+        Fibre edges whose roll the glue holds (a joint equality with the catheter edge beside each).
     """
 
     spec: FibreSpec
@@ -181,6 +178,7 @@ class FibreHandle:
     first: int
     glued: np.ndarray
     lumen_end: float
+    glued_edges: np.ndarray
 
 
 def add_fibre(scene: Scene, rod: RodHandle, spec: FibreSpec | None = None, world_pose: Pose | None = None
@@ -243,10 +241,35 @@ def add_fibre(scene: Scene, rod: RodHandle, spec: FibreSpec | None = None, world
         # the catheter's side is the lumen offset, rewritten by the coupler when the lumen is off-axis.
         scene.add_equality("connect", name=f"{spec.name}_glue_{k}", body1=f"{spec.name}_{k}",
                            body2=f"{cath.name}_{first + k}", anchor="0 0 0", solref=solref, solimp=_fmt(cath.solimp))
+    edges = glued_edges(glued)
+    for e in edges:
+        # The glue holds the roll: the fibre edge's twist angle equals that of the catheter edge beside it. Both
+        # angles turn the edges' reference directors, which MuJoCo transports in time along the same tangents
+        # (the glue keeps them parallel), so their difference stays what it was at the first step: a constant
+        # roll, which the coupler measures once (LumenCoupler.roll0). An implicit constraint: explicit roll
+        # springs on the twist bodies' tiny inertia could not hold it (docs/integration.md).
+        scene.add_equality("joint", name=f"{spec.name}_glue_roll_{e}", joint1=_twist_joint(spec.name, e, n),
+                           joint2=_twist_joint(cath.name, first + e, cath.n_segments), polycoef="0 1 0 0 0",
+                           solref=solref, solimp=_fmt(cath.solimp))
     scene.add_numeric(f"{spec.name}_s0", s[0])
     scene.add_numeric(f"{spec.name}_sensed_length", cath.sensed_length)
     scene.add_numeric(f"{spec.name}_vertex_damping", cath.dof_damping)
-    return FibreHandle(spec, cath, s, first, glued, float(lumen_end))
+    return FibreHandle(spec, cath, s, first, glued, float(lumen_end), edges)
+
+
+def _twist_joint(rod: str, edge: int, n_edges: int) -> str:
+    """MuJoCo's name of the twist hinge of ``edge`` of a rod with ``n_edges`` edges (flexcomp dim=1)."""
+    return f"{rod}_twist" if edge == n_edges - 1 else f"{rod}_twist_{edge}"
+
+
+def glued_edges(glued: np.ndarray) -> np.ndarray:
+    """Fibre edges whose roll the glue holds: those with both vertices glued or, for a glue spot shorter than an
+    edge (one vertex), the edge distal of it (proximal at the fibre's tip)."""
+    both = glued[:-1] & glued[1:]
+    lone = np.flatnonzero(glued & ~np.r_[False, both] & ~np.r_[both, False])
+    out = set(np.flatnonzero(both).tolist())
+    out.update(int(min(k, glued.size - 2)) for k in lone)
+    return np.array(sorted(out), dtype=np.int64)
 
 
 def place_fibre(model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle) -> None:
@@ -295,14 +318,7 @@ class LumenCoupler:
         self._dof = model.jnt_dofadr[j0[:, None] + np.arange(3)]  # (nf, 3)
         self._axes = model.jnt_axis[j0[:, None] + np.arange(3)]  # (nf, 3 joints, 3) in the parent frame
         model.body_gravcomp[bodies] = 1.0
-        names = [f"{spec.name}_twist_{e}" for e in range(nf - 2)] + [f"{spec.name}_twist"]
-        tw = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names])
-        edge_glued = h.glued[:-1] & h.glued[1:]
-        if spec.n_fixations and not edge_glued.any():
-            edge_glued[np.flatnonzero(h.glued)[0] - (1 if np.flatnonzero(h.glued)[0] == nf - 1 else 0)] = True
-        self.glued_edges = np.flatnonzero(edge_glued)  #: fibre edges whose roll the glue holds
-        self._roll_edges = np.flatnonzero(edge_glued & (tw >= 0))
-        self._roll_dof = model.jnt_dofadr[tw[self._roll_edges]] if self._roll_edges.size else np.zeros(0, int)
+        self.glued_edges = h.glued_edges  #: fibre edges whose roll the glue holds
         self._glue_eq = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, f"{spec.name}_glue_{k}")
                                   for k in np.flatnonzero(h.glued)], dtype=int)
         self._glue_idx = np.flatnonzero(h.glued)
@@ -403,7 +419,7 @@ class LumenCoupler:
         along = np.einsum("ni,ni->n", force, t)
         self.tension = np.cumsum(along[::-1])[::-1][1:]
         data.qfrc_applied[self._dof] = np.einsum("ni,nji->nj", force, axes_w)
-        # glue: the connect anchors follow the lumen's offset; the roll springs hold the fibre's roll
+        # glue: the connect anchors follow the lumen's offset (the roll is held by joint equalities)
         if self._glue_eq.size and spec.offset:
             model.eq_data[self._glue_eq, 3:6] = (spec.offset * self._cframes[np.minimum(
                 h.first + self._glue_idx, self._cframes.shape[0] - 1), :, 0]) @ data.xmat[
@@ -412,10 +428,6 @@ class LumenCoupler:
         if not self._roll_ready and (data.plastic[pa + 3] or data.plastic[pa + 4] or data.plastic[pa + 5]):
             self.calibrate_roll(data)  # MuJoCo has chosen the fibre's reference directors (after the first step)
             self._roll_ready = True
-        if self._roll_dof.size and self._roll_ready:
-            self.fibre_reader.compute(data, self._fframes, self._fdarb)
-            phi = self.roll_error(self._fframes, self._roll_edges)
-            data.qfrc_applied[self._roll_dof] = -spec.roll_stiffness * phi
 
     # -- observables --
     def slide(self) -> np.ndarray:

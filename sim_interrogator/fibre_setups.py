@@ -75,9 +75,6 @@ class _FibreMixin:
         self.handle = add_fibre(scene, rod, self.fibre, world_pose)
         scene.on_build(lambda m, d: place_fibre(m, d, self.handle))
 
-    #: m, the gratings' arc lengths (the paper's fibre), where a glued fibre's roll is pinned
-    fibre_grating_s = 0.01 * np.arange(18)
-
     def _install(self, model, data, carrier_acceleration=None) -> None:
         self.coupler = LumenCoupler(model, data, self.handle, carrier_acceleration)
         self._data = data
@@ -85,29 +82,19 @@ class _FibreMixin:
         self._va, self._nv = int(model.flex_vertadr[fid]), int(model.flex_vertnum[fid])
         self._l0 = np.diff(self.handle.s)
 
-    def optics_roll(self, grating_s: np.ndarray | None = None) -> float | np.ndarray:
-        """The roll from the fibre's material frame to the one it reads in, rad: MuJoCo's director turned to
-        the catheter's convention, and the fibre's whole-body roll pinned at its glue.
+    def optics_roll(self) -> float:
+        """The constant roll from MuJoCo's director of the fibre to the catheter's convention, rad (measured once
+        after the first step: MuJoCo picks each rod's first reference director by itself). The glue holds the
+        roll through joint equalities (:func:`models.fibre.add_fibre`), so nothing else is needed; without
+        fixations nothing holds it, as in a real catheter."""
+        return 0.0 if self.coupler is None else self.coupler.roll0
 
-        A glue spot holds the fibre's roll to the catheter's rigidly; the model's roll springs cannot (they are
-        explicit and the twist bodies' inertia tiny: in the sheath the roll drifted by 3–4°). So the fibre is
-        read in its own frame turned by the roll it has lost at the most distal glue spot — its own twist
-        beyond the glue is kept — and a glued fibre at each grating by the loss there. Without fixations
-        nothing holds the roll: the constant convention only."""
+    def roll_loss(self) -> np.ndarray:
+        """Roll of the fibre against the catheter at its glued edges now, rad (0 when the glue holds it)."""
         c = self.coupler
-        if c is None:
-            return 0.0
-        edges = c.glued_edges
-        if edges.size == 0:
-            return c.roll0
         c.fibre_reader.compute(self._data, c._fframes, c._fdarb)
         c.cath_reader.compute(self._data, c._cframes, c._cdarb)
-        phi = c.roll_error(c._fframes, edges)
-        if self.fibre.glued:
-            g = self.fibre_grating_s if grating_s is None else grating_s
-            mid = 0.5 * (self.handle.s[edges] + self.handle.s[edges + 1])
-            return c.roll0 - np.interp(g, mid, np.unwrap(phi))
-        return c.roll0 - float(phi[np.argmax(edges)])
+        return c.roll_error(c._fframes, c.glued_edges)
 
     def fibre_axial_strain(self, grating_s: np.ndarray) -> np.ndarray:
         """The fibre's axial strain at the gratings: its tension from friction and the lumen's end over EA.
