@@ -45,7 +45,13 @@ import numpy as np
 from models.catheter import CatheterSpec, Pose, RodHandle, Scene, _fmt, set_rod_positions
 from models.rod_state import RodReader
 
-__all__ = ["FibreHandle", "FibreSpec", "LumenCoupler", "add_fibre", "place_fibre", "settle_fibre"]
+__all__ = ["PLACEMENT_RAMP", "TRACTION_RAMP", "FibreHandle", "FibreSpec", "LumenCoupler", "add_fibre", "place_fibre",
+           "settle_fibre"]
+
+#: s, over which the lead's traction is ramped in from the first step (quasi-static loading)
+TRACTION_RAMP = 1.0
+#: m, over which a randomly placed fibre leaves the axis beyond its most distal glue spot (place_fibre)
+PLACEMENT_RAMP = 0.01
 
 
 @dataclass(frozen=True)
@@ -96,6 +102,15 @@ class FibreSpec:
     drag : float
         Viscous drag per vertex against the lumen's motion, N·s/m: numerical, it settles the fibre where
         nothing else holds it (0.1 mN at 1 mm/s of sliding, below the friction at a loaded contact).
+    lead_tension : float
+        Axial pull of the fibre's proximal lead (toward the connector), N, reacted by the base glue. An
+        assumption (docs/integration.md: no published value); negative is a push.
+    hub_share : float
+        Fraction of the hub's axial force that reaches the lead in the sheath setups (the shaft carries the
+        rest): pushing the hub in shortens the shaft against the lead and slackens it, pulling stretches it.
+    glue_eccentricity : float
+        Lever of the traction at the most distal glue spot, m: glue on one side of the fibre (its radius), so
+        the traction enters the fibre as a couple T·e where it leaves the glue.
     """
 
     name: str = "fibre"
@@ -117,16 +132,20 @@ class FibreSpec:
     wall_damping: float = 2.0
     slip_speed: float = 1e-3
     drag: float = 0.1
+    lead_tension: float = 0.02
+    hub_share: float = 0.05
+    glue_eccentricity: float = 1e-4
 
     def __post_init__(self) -> None:
         for k in ("clearance", "friction", "dx_prox", "fixation_spacing", "glue_length", "tail", "offset",
                   "bending_stiffness", "torsional_stiffness", "diameter", "vertex_mass", "wall_stiffness",
-                  "wall_damping", "slip_speed", "drag"):
+                  "wall_damping", "slip_speed", "drag", "hub_share", "glue_eccentricity"):
             v = getattr(self, k)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"FibreSpec.{k}: expected a finite number >= 0, got {v!r}")
-        if not math.isfinite(self.dx_dist):
-            raise ValueError(f"FibreSpec.dx_dist: expected a finite number, got {self.dx_dist!r}")
+        for k in ("dx_dist", "lead_tension"):
+            if not (isinstance(getattr(self, k), int | float) and math.isfinite(getattr(self, k))):
+                raise ValueError(f"FibreSpec.{k}: expected a finite number, got {getattr(self, k)!r}")
         if self.n_fixations not in (0, 1, 2, 3):
             raise ValueError(f"FibreSpec.n_fixations: expected 0–3, got {self.n_fixations!r}")
         if self.glued and self.offset:
@@ -149,7 +168,7 @@ class FibreSpec:
     def describe(self) -> dict:
         return {"clearance_m": self.clearance, "friction": self.friction, "n_fixations": self.n_fixations,
                 "dx_prox_m": self.dx_prox, "dx_dist_m": self.dx_dist, "offset_m": self.offset,
-                "glued": self.glued}
+                "glued": self.glued, "lead_tension_n": self.lead_tension, "hub_share": self.hub_share}
 
 
 @dataclass(frozen=True)
@@ -272,13 +291,27 @@ def glued_edges(glued: np.ndarray) -> np.ndarray:
     return np.array(sorted(out), dtype=np.int64)
 
 
-def place_fibre(model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle) -> None:
+def place_fibre(model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle,
+                rng: np.random.Generator | None = None) -> None:
     """Put the fibre on the lumen's axis of the catheter as it is now, at rest and untwisted (calls
-    ``mj_forward``). Run it after the catheter has been placed (e.g. as a later :meth:`Scene.on_build` hook)."""
+    ``mj_forward``). Run it after the catheter has been placed (e.g. as a later :meth:`Scene.on_build` hook).
+
+    With ``rng`` and a clearance, the fibre beyond its most distal glue spot starts off the axis instead, as a
+    threaded fibre lies anywhere in its lumen: by a random fraction of the clearance toward a random direction
+    of the cross-section, reached smoothly over :data:`PLACEMENT_RAMP` from the glue (the whole fibre without
+    fixations)."""
     state = RodReader(model, handle.catheter.name).read(data)
     pts = state.positions_at(handle.s)
+    frames = state.frames_at(handle.s)
     if handle.spec.offset:
-        pts = pts + handle.spec.offset * state.frames_at(handle.s)[:, :, 0]
+        pts = pts + handle.spec.offset * frames[:, :, 0]
+    if rng is not None and handle.spec.clearance > 0:
+        r = handle.spec.clearance * rng.uniform()
+        psi = rng.uniform(0.0, 2 * math.pi)
+        glued = np.flatnonzero(handle.glued)
+        s0 = handle.s[glued.max()] if glued.size else -np.inf
+        w = np.clip((handle.s - s0) / PLACEMENT_RAMP, 0.0, 1.0)
+        pts = pts + (r * w)[:, None] * (math.cos(psi) * frames[:, :, 0] + math.sin(psi) * frames[:, :, 1])
     set_rod_positions(model, data, pts, handle.spec.name)
 
 
@@ -294,9 +327,11 @@ class LumenCoupler:
     """
 
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle,
-                 carrier_acceleration: Callable[[mujoco.MjData], np.ndarray] | None = None) -> None:
+                 carrier_acceleration: Callable[[mujoco.MjData], np.ndarray] | None = None,
+                 traction: Callable[[mujoco.MjData], float] | None = None) -> None:
         self.handle = h = handle
         self.carrier_acceleration = carrier_acceleration
+        self.traction = traction or (lambda data: handle.spec.lead_tension)
         self.spec = spec = handle.spec
         cath = handle.catheter
         self.cath_reader = RodReader(model, cath.name)
@@ -322,6 +357,12 @@ class LumenCoupler:
         self._glue_eq = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, f"{spec.name}_glue_{k}")
                                   for k in np.flatnonzero(h.glued)], dtype=int)
         self._glue_idx = np.flatnonzero(h.glued)
+        # the traction's couple acts on the first free edge beyond the most distal glued vertex (none when the
+        # whole fibre is glued or nothing is)
+        k = int(self._glue_idx.max()) if self._glue_idx.size else nf - 1
+        self._couple_k = k if k < nf - 1 else None
+        self._t_first: float | None = None
+        self.glue_moment = 0.0  # N·m, the couple T·e entering the fibre at the most distal glue spot (last step)
         cs = cath.vertex_s
         self._cs0, self._l = float(cs[0]), cath.segment_length
         self.sigma = handle.s.copy()  # lumen coordinate (catheter arc length) of each fibre vertex, m
@@ -418,6 +459,8 @@ class LumenCoupler:
         # the fibre's axial force: tension at each edge = the wall's and end's axial push on everything distal
         along = np.einsum("ni,ni->n", force, t)
         self.tension = np.cumsum(along[::-1])[::-1][1:]
+        if self._couple_k is not None:
+            self._glue_couple(data, x_f, force)
         data.qfrc_applied[self._dof] = np.einsum("ni,nji->nj", force, axes_w)
         # glue: the connect anchors follow the lumen's offset (the roll is held by joint equalities)
         if self._glue_eq.size and spec.offset:
@@ -428,6 +471,33 @@ class LumenCoupler:
         if not self._roll_ready and (data.plastic[pa + 3] or data.plastic[pa + 4] or data.plastic[pa + 5]):
             self.calibrate_roll(data)  # MuJoCo has chosen the fibre's reference directors (after the first step)
             self._roll_ready = True
+
+    def _glue_couple(self, data: mujoco.MjData, x_f: np.ndarray, force: np.ndarray) -> None:
+        """The lead's traction T through the eccentric glue: a couple T·e on the fibre's first free edge, as a
+        force pair ±T·e/l across it (added to ``force``).
+
+        The glue sits on the catheter's d1 side of the fibre (an assumption: which side only turns the
+        disturbance's direction). The glue pulls that side of the fibre's surface distally (T > 0) while the lead
+        pulls the axis proximally, so the couple is e·T (d1 × t) = −e·T d2: it tilts the free edge toward −d1.
+        The fibre's rotation at the glue's exit is held by its own bending across the last glued vertex; beyond,
+        the lumen's wall and the fibre's stiffness decide how fast the moment dies out."""
+        k = self._couple_k
+        edge = x_f[k + 1] - x_f[k]
+        le = math.sqrt(float(edge @ edge))
+        t = edge / le
+        g = self._cframes[min(self.handle.first + k, self._cframes.shape[0] - 1), :, 0]
+        n = g - (g @ t) * t
+        n /= math.sqrt(float(n @ n))
+        # ramped in over TRACTION_RAMP from the first step: applied at once, it sent a bending wave down the fibre
+        # that the lumen's friction froze into a snake from wall to wall (curvature ≈ 4 1/m along the whole
+        # fibre at 0.1 mm clearance)
+        if self._t_first is None:
+            self._t_first = float(data.time)
+        ramp = min(1.0, (float(data.time) - self._t_first) / TRACTION_RAMP)
+        self.glue_moment = ramp * float(self.traction(data)) * self.spec.glue_eccentricity
+        f = (self.glue_moment / le) * n
+        force[k] += f
+        force[k + 1] -= f
 
     # -- observables --
     def slide(self) -> np.ndarray:
@@ -443,9 +513,11 @@ class LumenCoupler:
 
 
 def settle_fibre(model: mujoco.MjModel, data: mujoco.MjData, step: Callable[[], None], *, tol: float = 1e-6,
-                 window: float = 0.05, max_time: float = 10.0, label: str = "fibre") -> float:
+                 window: float = 0.05, max_time: float = 10.0, min_time: float = TRACTION_RAMP,
+                 label: str = "fibre") -> float:
     """Step (``step()`` applies the coupler and steps once) until no flex vertex moves more than ``tol`` (m) over
-    ``window`` (s); the settling time (s). Raises ``SettleError`` after ``max_time`` or on instability.
+    ``window`` (s), and at least ``min_time`` (s: the lead's traction is ramped in over it); the settling time
+    (s). Raises ``SettleError`` after ``max_time`` or on instability.
 
     :func:`models.fixtures.settle` steps MuJoCo in blocks; the fibre needs its coupler before every step."""
     from models.fixtures.settle import UNSTABLE_WARNINGS, SettleError
@@ -460,7 +532,7 @@ def settle_fibre(model: mujoco.MjModel, data: mujoco.MjData, step: Callable[[], 
         moved = np.linalg.norm(data.flexvert_xpos - start, axis=1)
         if not np.all(np.isfinite(moved)) or [data.warning[w].number for w in UNSTABLE_WARNINGS] != warned:
             raise SettleError(f"{label}: the simulation became unstable while settling the fibre")
-        if moved.max() < tol:
+        if moved.max() < tol and data.time - t0 >= min_time:
             return float(data.time - t0)
         if data.time - t0 > max_time:
             raise SettleError(f"{label}: not settled after {max_time:g} s simulated: a vertex still moved "

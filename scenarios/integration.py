@@ -43,7 +43,12 @@ PAPER = ("(a) minimal clearance, preferably a low-friction lining; (b) one, pref
          "Δx_prox ≥ 15 mm; (c) tip free, Δx_dist 1–2 mm from the lumen's end; a constant offset is allowed")
 
 BASELINE = {"clearance": 1e-4, "friction": 0.2, "fixations": 2, "dx_prox": 0.015, "dx_dist": 0.002,
-            "offset": 0.0, "glued": False}
+            "offset": 0.0, "glued": False, "lead_tension": 0.02}
+#: N, the lead tensions of the Δx_prox sensitivity (the baseline's 0.02 N is an assumption: docs/integration.md)
+LEAD_TENSIONS = (0.0, 0.1)
+#: relative 1σ of the sheath's friction coefficient between seeds (one catheter, sheath and hand are never quite
+#: the same twice)
+SHEATH_FRICTION_SPREAD = 0.1
 DEFAULT_SHAPES = ("arc", "s-curve", "helix", "two-plane")
 
 
@@ -96,6 +101,8 @@ def design_points(kind: str = "guidelines") -> list[dict]:
     pts += [point("clearance 0.1 mm, lining μ 0.05", friction=0.05)]
     pts += [point(f"{n} fixation(s)", fixations=n) for n in (0, 1)]
     pts += [point(f"dx_prox {d * 1e3:g} mm", dx_prox=d) for d in (0.0, 0.005, 0.025)]
+    pts += [point(f"dx_prox {d * 1e3:g} mm, lead {t:g} N", dx_prox=d, lead_tension=t)
+            for t in LEAD_TENSIONS for d in (0.0, 0.005, 0.015, 0.025)]
     pts += [point("dx_dist 0 (contact)", dx_dist=0.0)]
     # the baseline itself is "clearance 0.1 mm" (2 fixations, dx_prox 15 mm, dx_dist 2 mm)
     return pts
@@ -103,12 +110,12 @@ def design_points(kind: str = "guidelines") -> list[dict]:
 
 def _fibre_kw(point: dict) -> dict:
     return {k: point[k] for k in ("clearance", "friction", "dx_prox", "dx_dist", "offset", "glued")} | {
-        "fixations": int(point["fixations"])}
+        "fixations": int(point["fixations"]), "lead_tension": float(point.get("lead_tension", 0.0))}
 
 
 def static_part(point: dict, params: Params, fiber: FiberModel) -> dict:
     """Max/mean error over the static shapes (m), lost peaks, tip contacts and the largest slide."""
-    maxima, means, lost, contact, slide, unsettled = [], [], 0, 0, 0.0, 0
+    maxima, means, tips, lost, contact, slide, unsettled = [], [], [], 0, 0, 0.0, 0
     for i, name in enumerate(params.shapes):
         setup = FibreStatic(name, "connect", segments=params.segments, seed=params.seed + i, **_fibre_kw(point))
         sim = SimInterrogator(setup, fiber, OpticsConfig(seed=params.seed + i))
@@ -119,17 +126,24 @@ def static_part(point: dict, params: Params, fiber: FiberModel) -> dict:
         err = metrics.shape_error(shape.positions, truth.positions, s=shape.s, truth_s=truth.s)
         maxima.append(float(np.max(err.max)))
         means.append(float(np.mean(err.mean)))
+        # the tip in the base frame at s = 0, unregistered: an angle error at the first gratings (the fibre's
+        # transition out of the glue) moves the tip, which the Kabsch registration above absorbs
+        true_tip = truth.frames[0].T @ (truth.positions[-1] - truth.positions[0])
+        tips.append(float(np.linalg.norm(shape.positions[:, -1] - true_tip, axis=-1).max()))
         lost += int(sum(np.isnan(f.wavelengths).sum() for f in frames))
         contact += setup.contact_frames
         slide = max(slide, float(np.abs(setup.coupler.slide()).max()))
         unsettled += not setup.settled
     return {"max_error": max(maxima), "mean_error": float(np.mean(means)), "per_shape_max": maxima,
-            "lost_peaks": lost, "contact_frames": contact, "slide_max": slide, "unsettled": unsettled}
+            "tip_error": max(tips), "lost_peaks": lost, "contact_frames": contact, "slide_max": slide,
+            "unsettled": unsettled}
 
 
 def cycle_part(point: dict, params: Params, fiber: FiberModel) -> dict:
     """Spread of the reconstructed tip over the returns to the reference (m), peaks lost in the run."""
-    setup = FibreSheathCycle(cycles=params.cycles, segments=params.cycle_segments, seed=params.seed, **_fibre_kw(point))
+    mu = 0.2 * max(0.5, 1.0 + SHEATH_FRICTION_SPREAD * np.random.default_rng([params.seed, 2]).standard_normal())
+    setup = FibreSheathCycle(cycles=params.cycles, segments=params.cycle_segments, seed=params.seed,
+                             sheath_friction=mu, **_fibre_kw(point))
     sim = SimInterrogator(setup, fiber, OpticsConfig(seed=params.seed), rate=params.rate)
     n = round(setup.duration * params.rate) + 1
     frames = [sim.read() for _ in range(n)]
@@ -163,10 +177,12 @@ def run_point(point: dict, params: Params | None = None) -> dict:
     t0 = time.perf_counter()
     row = {"label": point.get("label", ""), "clearance_mm": point["clearance"] * 1e3, "friction": point["friction"],
            "fixations": int(point["fixations"]), "dx_prox_mm": point["dx_prox"] * 1e3,
-           "dx_dist_mm": point["dx_dist"] * 1e3, "offset_mm": point["offset"] * 1e3, "glued": bool(point["glued"])}
+           "dx_dist_mm": point["dx_dist"] * 1e3, "offset_mm": point["offset"] * 1e3, "glued": bool(point["glued"]),
+           "lead_tension_n": float(point.get("lead_tension", 0.0)), "seed": params.seed}
     if params.shapes:
         s = static_part(point, params, fiber)
         row |= {"max_error_mm": s["max_error"] * 1e3, "mean_error_mm": s["mean_error"] * 1e3,
+                "static_tip_error_mm": s["tip_error"] * 1e3,
                 "static_lost_peaks": s["lost_peaks"], "static_contact_frames": s["contact_frames"],
                 "static_slide_max_mm": s["slide_max"] * 1e3, "static_still_sliding": s["unsettled"]}
     if params.cycles:

@@ -73,10 +73,12 @@ class _FibreMixin:
 
     def _add_fibre(self, scene: Scene, rod, world_pose=None) -> None:
         self.handle = add_fibre(scene, rod, self.fibre, world_pose)
-        scene.on_build(lambda m, d: place_fibre(m, d, self.handle))
+        # the seed places the fibre within its clearance (a threaded fibre lies anywhere in its lumen)
+        rng = np.random.default_rng([self.seed, 1])
+        scene.on_build(lambda m, d: place_fibre(m, d, self.handle, rng))
 
-    def _install(self, model, data, carrier_acceleration=None) -> None:
-        self.coupler = LumenCoupler(model, data, self.handle, carrier_acceleration)
+    def _install(self, model, data, carrier_acceleration=None, traction=None) -> None:
+        self.coupler = LumenCoupler(model, data, self.handle, carrier_acceleration, traction)
         self._data = data
         fid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, self.fibre.name)
         self._va, self._nv = int(model.flex_vertadr[fid]), int(model.flex_vertnum[fid])
@@ -135,9 +137,11 @@ def base_length_for(fibre: FibreSpec, segments: int) -> float:
     return max(FIBRE_BASE_LENGTH, math.ceil(need * 200) / 200)  # in whole 5 mm
 
 
-def _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued) -> FibreSpec:
+def _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension,
+                hub_share=FibreSpec.hub_share) -> FibreSpec:
     return FibreSpec(clearance=float(clearance), friction=float(friction), n_fixations=int(fixations),
-                     dx_prox=float(dx_prox), dx_dist=float(dx_dist), offset=float(offset), glued=bool(glued))
+                     dx_prox=float(dx_prox), dx_dist=float(dx_dist), offset=float(offset), glued=bool(glued),
+                     lead_tension=float(lead_tension), hub_share=float(hub_share))
 
 
 @register
@@ -148,28 +152,29 @@ class FibreStatic(_FibreMixin, Setup):
     ----------
     shape : str
     fixture : {"connect", "tube"}
-    clearance, friction, fixations, dx_prox, dx_dist, offset, glued
-        The :class:`models.fibre.FibreSpec` (m, –, count, m, m, m, bool).
+    clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension
+        The :class:`models.fibre.FibreSpec` (m, –, count, m, m, m, bool, N).
     segments : int
     settle_time : float
         s.
     seed : int
-        Seed of the tip-contact distortion.
+        Seed of the fibre's start within its clearance and of the tip-contact distortion.
     """
 
     name = "fibre-static"
 
     def __init__(self, shape: str = "helix", fixture: str = "connect", clearance: float = 0.0,
                  friction: float = 0.2, fixations: int = 2, dx_prox: float = 0.015, dx_dist: float = 0.002,
-                 offset: float = 0.0, glued: bool = False, segments: int = 100, settle_time: float = 10.0,
-                 seed: int = 0):
+                 offset: float = 0.0, glued: bool = False, lead_tension: float = FibreSpec.lead_tension,
+                 segments: int = 100, settle_time: float = 10.0, seed: int = 0):
         if fixture not in ("connect", "tube"):
             raise ValueError(f"sim://{self.name}: fixture must be connect or tube, got {fixture!r}")
         self.curve = shapes.get(shape)
         self.fixture_kind = fixture
-        self.fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued)
+        self.fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension)
         self.spec = CatheterSpec(n_segments=int(segments), base_length=base_length_for(self.fibre, int(segments)))
         self.settle_time = float(settle_time)
+        self.seed = int(seed)
         self._rng = np.random.default_rng(seed)
         self.fixture = None
 
@@ -225,8 +230,9 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
     def __init__(self, cycles: int = 3, protrusion: float = 0.05, withdraw: float = 0.06, speed: float = 0.05,
                  dwell: float = 0.5, clearance: float = 0.0, friction: float = 0.2, fixations: int = 2,
                  dx_prox: float = 0.015, dx_dist: float = 0.002, offset: float = 0.0, glued: bool = False,
+                 lead_tension: float = FibreSpec.lead_tension, hub_share: float = FibreSpec.hub_share,
                  sheath_friction: float = 0.2, segments: int = 100, settle_time: float = 10.0, seed: int = 0):
-        fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued)
+        fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension, hub_share)
         base = base_length_for(fibre, int(segments))
         extra = base - CatheterSpec().base_length
         super().__init__(cycles=cycles, protrusion=protrusion - extra, withdraw=withdraw, speed=speed, dwell=dwell,
@@ -234,6 +240,7 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
         self.spec = dataclasses.replace(self.spec, base_length=base)
         self.protrusion = float(protrusion)
         self.fibre = fibre
+        self.seed = int(seed)
         self._rng = np.random.default_rng(seed)
 
     def extend_scene(self, scene, rod) -> None:
@@ -251,7 +258,12 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
         def carrier(data):  # the hub slides along its own z axis (the sheath's guide)
             return data.qacc[dof] * data.xmat[hub].reshape(3, 3)[:, 2]
 
-        self._install(model, data, carrier)
+        act, f = self._act[0], self.fibre
+
+        def traction(data):  # the lead's pull, less the hub's push's share (pushing in slackens the lead)
+            return f.lead_tension - f.hub_share * data.actuator_force[act]
+
+        self._install(model, data, carrier, traction)
         return model, data
 
     def prepare(self, model, data, progress=None):
