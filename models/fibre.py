@@ -27,7 +27,7 @@ Model (the choices and the measurements behind them are in docs/integration.md):
 * **The tip** ends ``tail`` beyond the last grating, ``dx_dist`` short of the lumen's end; at or beyond the end
   a stiff axial spring pushes it back, and :meth:`LumenCoupler.tip_contact` reports the contact.
 * **Quasi-static scaling**: like the catheter, the fibre carries a simulated mass far above its real one
-  (its real ≈ 60 µg/m would need microsecond steps); its weight is cancelled (``gravcomp``) because the real
+  (its real ≈ 60 µg/m would need microsecond steps); its weight is cancelled (by an applied force) because the real
   weight is negligible against its stiffness. It hangs from the catheter's parent body (the world or the
   sheath's hub), so the hub carries it rigidly; a small viscous drag against the lumen settles it.
 """
@@ -352,7 +352,11 @@ class LumenCoupler:
         j0 = model.body_jntadr[bodies]
         self._dof = model.jnt_dofadr[j0[:, None] + np.arange(3)]  # (nf, 3)
         self._axes = model.jnt_axis[j0[:, None] + np.arange(3)]  # (nf, 3 joints, 3) in the parent frame
-        model.body_gravcomp[bodies] = 1.0
+        # The fibre's weight is cancelled by an applied force: body_gravcomp written after compiling does nothing
+        # (MuJoCo counts gravity-compensated bodies when it compiles), and the flexcomp's vertex bodies take no
+        # gravcomp attribute. Uncancelled, the 100× simulated weight (1 mN per vertex) compressed a fibre standing
+        # on its glue by 0.07 N and buckled it into a helix against the wall (curvature 3–4 1/m, 0.1 mm clearance).
+        self._weight = spec.vertex_mass * model.opt.gravity.copy()
         self.glued_edges = h.glued_edges  #: fibre edges whose roll the glue holds
         self._glue_eq = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, f"{spec.name}_glue_{k}")
                                   for k in np.flatnonzero(h.glued)], dtype=int)
@@ -429,7 +433,7 @@ class LumenCoupler:
         if self._prev_t is None or tnow > self._prev_t:
             self._prev_t, self._prev_L = tnow, p
         v_l = self._v_l if self._v_l is not None else np.zeros_like(p)
-        force = -spec.drag * (v_f - v_l)  # numerical drag against the lumen: settles the free fibre
+        force = -spec.drag * (v_f - v_l) - self._weight  # drag against the lumen: settles the free fibre
         if self.carrier_acceleration is not None:
             # d'Alembert: a fibre hung from the world is carried along with the hub's acceleration
             force += spec.vertex_mass * self.carrier_acceleration(data)

@@ -69,12 +69,13 @@ class _FibreMixin:
     actuated = True  # the coupler acts before every step
     _rng: np.random.Generator
     contact_frames = 0
+    random_start = True  #: start the fibre at a seeded place within its clearance (False: on the lumen's axis)
     settled = True  #: False when a fibre without fixation was still sliding at the end of settling
 
     def _add_fibre(self, scene: Scene, rod, world_pose=None) -> None:
         self.handle = add_fibre(scene, rod, self.fibre, world_pose)
         # the seed places the fibre within its clearance (a threaded fibre lies anywhere in its lumen)
-        rng = np.random.default_rng([self.seed, 1])
+        rng = np.random.default_rng([self.seed, 1]) if self.random_start else None
         scene.on_build(lambda m, d: place_fibre(m, d, self.handle, rng))
 
     def _install(self, model, data, carrier_acceleration=None, traction=None) -> None:
