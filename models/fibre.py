@@ -22,13 +22,18 @@ Model (the choices and the measurements behind them are in docs/integration.md):
 * **Fixations** (``n_fixations`` glue spots of ``glue_length`` at the fibre's base, the most distal one
   ``dx_prox`` before the first grating, ``fixation_spacing`` apart): MuJoCo connect constraints tie each fibre
   vertex of a spot to its point on the lumen (the anchor on the catheter's side is moved with d1 every step
-  when the lumen is off-axis), and a torsional spring holds the fibre's roll to the catheter's there.
-  ``glued`` glues the whole fibre (the welded reference).
+  when the lumen is off-axis), and MuJoCo joint equalities tie the twist hinge of each glued fibre edge to the
+  catheter edge's beside it: the glue holds the roll, implicitly. ``glued`` glues the whole fibre (the welded
+  reference).
+* **Traction at the base**: the fibre's proximal lead pulls with ``lead_tension`` (plus, in a sheath, a share
+  ``hub_share`` of the hub's axial force), reacted by the glue on one side of the fibre, so a couple
+  T · ``glue_eccentricity`` enters the fibre where it leaves the most distal glue spot; the lumen's wall and
+  the fibre's stiffness decide how far it reaches (ramped in over :data:`TRACTION_RAMP`).
 * **The tip** ends ``tail`` beyond the last grating, ``dx_dist`` short of the lumen's end; at or beyond the end
   a stiff axial spring pushes it back, and :meth:`LumenCoupler.tip_contact` reports the contact.
 * **Quasi-static scaling**: like the catheter, the fibre carries a simulated mass far above its real one
-  (its real ≈ 60 µg/m would need microsecond steps); its weight is cancelled (by an applied force) because the real
-  weight is negligible against its stiffness. It hangs from the catheter's parent body (the world or the
+  (its real ≈ 60 µg/m would need microsecond steps); its weight is cancelled (by an applied force) because the
+  real weight is negligible against its stiffness. It hangs from the catheter's parent body (the world or the
   sheath's hub), so the hub carries it rigidly; a small viscous drag against the lumen settles it.
 """
 
@@ -492,9 +497,8 @@ class LumenCoupler:
         g = self._cframes[min(self.handle.first + k, self._cframes.shape[0] - 1), :, 0]
         n = g - (g @ t) * t
         n /= math.sqrt(float(n @ n))
-        # ramped in over TRACTION_RAMP from the first step: applied at once, it sent a bending wave down the fibre
-        # that the lumen's friction froze into a snake from wall to wall (curvature ≈ 4 1/m along the whole
-        # fibre at 0.1 mm clearance)
+        # ramped in over TRACTION_RAMP from the first step: quasi-static loading, no impulse on the heavy
+        # (quasi-static scaled) fibre
         if self._t_first is None:
             self._t_first = float(data.time)
         ramp = min(1.0, (float(data.time) - self._t_first) / TRACTION_RAMP)

@@ -4,8 +4,8 @@
 ``sim://static``; :class:`FibreSheathCycle` drives it in and out of the pre-bent sheath like
 ``sim://sheath-cycle``. Both put a :class:`models.fibre.FibreSpec` fibre into the catheter and tell
 :class:`~sim_interrogator.sim.SimInterrogator` to read the optics from the fibre's own rod
-(:attr:`optics_rod_name`, :meth:`optics_roll`), its axial strain from the fibre's edges
-(:meth:`conditions`), and to disturb the distal grating's peaks while the tip touches the lumen's end
+(:attr:`optics_rod_name`, :meth:`optics_roll`: a constant, the glue holds the roll), its axial strain from the
+fibre's tension (:meth:`conditions`), and to disturb the distal grating's peaks while the tip touches the lumen's end
 (:meth:`disturb_peaks`). The truth stays the catheter's centreline.
 
 The catheter's base is 40 mm here (10 mm elsewhere; 45 mm when two glue spots 25 mm before the first grating
@@ -24,7 +24,7 @@ import numpy as np
 from models.catheter import CatheterSpec, Pose, Scene
 from models.fibre import FibreHandle, FibreSpec, LumenCoupler, add_fibre, place_fibre, settle_fibre
 from models.fixtures import SettleError, add_connect_fixture, add_tube_fixture
-from sim_interrogator.setups import Setup, register
+from sim_interrogator.setups import Setup, StaticShape, register
 from sim_interrogator.sheath import SheathCycle
 from twin import PeakStatus, shapes
 
@@ -91,6 +91,16 @@ class _FibreMixin:
         roll through joint equalities (:func:`models.fibre.add_fibre`), so nothing else is needed; without
         fixations nothing holds it, as in a real catheter."""
         return 0.0 if self.coupler is None else self.coupler.roll0
+
+    def curvature_error(self, s: np.ndarray) -> np.ndarray:
+        """|k_fibre − k_catheter| at fibre arc lengths ``s`` (m) now, 1/m: what the fibre's own mechanics add to the
+        curvature the welded model would read there (both in the catheter's roll convention)."""
+        c = self.coupler
+        d = c.fibre_reader.read(self._data).darboux_at(s)
+        co, si = math.cos(c.roll0), math.sin(c.roll0)
+        k1, k2 = co * d[:, 0] + si * d[:, 1], co * d[:, 1] - si * d[:, 0]
+        k_f = np.stack([k2, -k1], axis=-1)  # (k_x, k_y) = (κ2, −κ1)
+        return np.linalg.norm(k_f - c.cath_reader.read(self._data).curvature_at(s), axis=-1)
 
     def roll_loss(self) -> np.ndarray:
         """Roll of the fibre against the catheter at its glued edges now, rad (0 when the glue holds it)."""
@@ -209,9 +219,7 @@ class FibreStatic(_FibreMixin, Setup):
     def conditions(self, t, grating_s):
         return 0.0, self.fibre_axial_strain(grating_s)
 
-    def fixture_centreline(self):
-        s = np.linspace(0.0, self.curve.length, 341)
-        return self.fixture.pose.apply(self.fixture.curve.positions(s))
+    fixture_centreline = StaticShape.fixture_centreline  # the same fixture (self.curve, self.fixture)
 
     def describe(self):
         return {"setup": self.name, "shape": self.curve.name, "fixture": self.fixture_kind,

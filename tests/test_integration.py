@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("mujoco")
 
 from models.catheter import CatheterSpec, Scene
-from models.fibre import FibreSpec, add_fibre
+from models.fibre import FibreSpec, add_fibre, glued_edges
 from sim_interrogator.fibre_setups import FIBRE_BASE_LENGTH, FibreSheathCycle, FibreStatic
 from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.sim import SimInterrogator
@@ -46,6 +46,15 @@ def test_fibre_sits_on_the_catheters_grid_with_its_glue_spots_and_tip_gap():
     assert model.nflex == 2
 
 
+def test_the_glue_holds_the_roll_of_its_edges():
+    # two spots of two vertices, and one spot shorter than an edge (one vertex): its edge is the distal one
+    glued = np.array([0, 1, 1, 0, 0, 1, 1, 0, 1, 0, 0], bool)
+    assert glued_edges(glued).tolist() == [1, 5, 8]
+    assert glued_edges(np.ones(4, bool)).tolist() == [0, 1, 2]
+    assert glued_edges(np.array([0, 0, 1], bool)).tolist() == [1]  # a lone vertex at the tip: the edge before it
+    assert glued_edges(np.zeros(4, bool)).size == 0
+
+
 def test_bad_fibre_specs_are_refused():
     with pytest.raises(ValueError, match="stretch"):
         FibreSpec(glued=True, offset=2e-4)
@@ -53,6 +62,8 @@ def test_bad_fibre_specs_are_refused():
         FibreSpec(n_fixations=5)
     with pytest.raises(ValueError, match="clearance"):
         FibreSpec(clearance=-1e-4)
+    with pytest.raises(ValueError, match="lead_tension"):
+        FibreSpec(lead_tension=float("nan"))
     scene = Scene("t")
     rod = scene.add_rod(CatheterSpec())  # 10 mm base: no room for fixations 25 mm before the first grating
     with pytest.raises(ValueError, match="base_length"):
@@ -123,6 +134,45 @@ def test_fibre_with_clearance_rides_the_inner_wall_of_a_bent_lumen():
     assert np.allclose(kf, 1 / (1 / 25.0 - c), atol=0.03)
     # the shorter inner path pushes the free tip toward the lumen's end by ≈ c·∫κ ds (= 0.64 mm over 170 mm)
     assert 0.3e-3 < 0.002 - co.tip_gap() < 0.9e-3
+
+
+@pytest.mark.slow
+def test_the_leads_traction_enters_at_the_fixation_and_dies_out_along_the_lumen():
+    # A lead pulling with T through glue on one side of the fibre (lever e = its radius) puts a couple M = T·e
+    # on the fibre where it leaves the most distal glue spot. Held off the wall only by the clearance c, the
+    # fibre bends over the length a it needs to reach the wall: for a beam pinned at the glue with an end
+    # couple, tangent to the wall where it lands, M a² / (6 EI) = c, a = sqrt(6 c EI / M) = 7.7 mm at
+    # T = 0.1 N, c = 0.1 mm. Measured in the 25 1/m arc against the same fibre without traction: 1.8–3.0 1/m
+    # within 5 mm of the glue, 0.5 1/m at 15 mm, 0.008 1/m at 25 mm.
+    c, t = 1e-4, 0.1
+    s = np.arange(0.0, 0.0401, 0.0025)
+    k = {}
+    for tension in (0.0, t):
+        setup = FibreStatic("arc", clearance=c, lead_tension=tension, dx_prox=0.0)
+        setup.random_start = False
+        sim = SimInterrogator(setup, FiberModel.paper(), OpticsConfig.ideal())
+        k[tension] = _fibre_curvature(sim, setup, s)
+    spec = setup.fibre
+    m = setup.coupler.glue_moment
+    assert m == pytest.approx(t * spec.glue_eccentricity)
+    a = np.sqrt(6 * c * spec.bending_stiffness / m)
+    dk = np.linalg.norm(k[t] - k[0.0], axis=1)
+    assert dk[s <= 0.005].max() > 0.1 * m / spec.bending_stiffness  # the couple reaches the first grating
+    assert dk[s >= 3 * a].max() < 0.05  # and has died out three pinned-beam lengths on
+
+
+@pytest.mark.slow
+def test_the_grating_at_the_fixation_is_disturbed_and_one_15_mm_away_much_less():
+    from scenarios.integration import BASELINE, Params, run_point
+
+    # The fibre leaves the glue on the lumen's axis and must reach the inner wall of the bend: the first grating
+    # reads that transition at Δx_prox = 0. Without the lead's traction (whose couple, at 0.02 N, reaches
+    # farther: see the test above), measured on arc and helix, seed 0: 1.17 1/m added to its curvature at 0 mm,
+    # 0.24 1/m at 15 mm (seed 1: 1.67 and 0.68).
+    params = Params(shapes=("arc", "helix"), repeats=1, cycles=0)
+    near = run_point({**BASELINE, "label": "0", "dx_prox": 0.0, "lead_tension": 0.0}, params)
+    far = run_point({**BASELINE, "label": "15", "dx_prox": 0.015, "lead_tension": 0.0}, params)
+    assert near["grating0_dk"] > 2 * far["grating0_dk"]
 
 
 @pytest.mark.slow
