@@ -438,10 +438,12 @@ class LumenCoupler:
         if self._prev_t is None or tnow > self._prev_t:
             self._prev_t, self._prev_L = tnow, p
         v_l = self._v_l if self._v_l is not None else np.zeros_like(p)
-        force = -spec.drag * (v_f - v_l) - self._weight  # drag against the lumen: settles the free fibre
+        force = -spec.drag * (v_f - v_l)  # numerical drag against the lumen: settles the free fibre
+        # the simulated mass's weight cancelled and, for a fibre hung from the world, the hub's acceleration
+        # carried along (d'Alembert): artefacts of the quasi-static mass, added after the tension read-out
+        mass_forces = -self._weight
         if self.carrier_acceleration is not None:
-            # d'Alembert: a fibre hung from the world is carried along with the hub's acceleration
-            force += spec.vertex_mass * self.carrier_acceleration(data)
+            mass_forces = mass_forces + spec.vertex_mass * self.carrier_acceleration(data)
         r = x_f - p
         r -= np.einsum("ni,ni->n", r, t)[:, None] * t
         d = np.linalg.norm(r, axis=1)
@@ -468,6 +470,7 @@ class LumenCoupler:
         # the fibre's axial force: tension at each edge = the wall's and end's axial push on everything distal
         along = np.einsum("ni,ni->n", force, t)
         self.tension = np.cumsum(along[::-1])[::-1][1:]
+        force += mass_forces
         if self._couple_k is not None:
             self._glue_couple(data, x_f, force)
         data.qfrc_applied[self._dof] = np.einsum("ni,nji->nj", force, axes_w)
