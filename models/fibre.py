@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from models import _lumen_kernels
 from models.catheter import CatheterSpec, Pose, RodHandle, Scene, _fmt, set_rod_positions
 from models.rod_state import RodReader
 
@@ -377,8 +378,10 @@ class LumenCoupler:
         self.sigma = handle.s.copy()  # lumen coordinate (catheter arc length) of each fibre vertex, m
         self._free = ~h.glued
         self._prev_t: float | None = None
-        self._prev_L: np.ndarray | None = None
-        self._v_l: np.ndarray | None = None
+        self._prev_p = np.zeros((nf, 3))  # lumen points at the fibre's vertices, previous step
+        self._p = np.zeros((nf, 3))
+        self._v_lumen = np.zeros((nf, 3))
+        self._force = np.zeros((nf, 3))
         self.roll0 = 0.0
         self._roll_ready = False
         self.tip_force = 0.0  # N, axial push of the lumen's end on the tip (last step)
@@ -425,52 +428,24 @@ class LumenCoupler:
         rp = data.xmat[self._parent].reshape(3, 3)
         axes_w = self._axes @ rp.T  # (nf, 3, 3): joint axes in the world
         v_f = np.einsum("nj,nji->ni", data.qvel[self._dof], axes_w)
-        # lumen coordinate by projection (one step per call: the fibre slides far less than an edge per step)
-        free = self._free
-        p, t, _ = self.lumen(x_c, self.sigma)
-        a = np.einsum("ni,ni->n", x_f - p, t)
-        self.sigma[free] = np.clip(self.sigma[free] + a[free], self._cs0, self._cs0 + self._l * (x_c.shape[0] - 1))
-        p, t, _d1 = self.lumen(x_c, self.sigma)
-        # lumen velocity and acceleration by differences over steps (the catheter is a quasi-static rod)
+        # the lumen's coordinates, velocity (by differences over steps: the catheter is a quasi-static rod), wall,
+        # friction, end and the tension read-out, compiled (models/_lumen_kernels.py)
         tnow = float(data.time)
-        if self._prev_t is not None and tnow > self._prev_t:
-            self._v_l = (p - self._prev_L) / (tnow - self._prev_t)
+        dt = tnow - self._prev_t if self._prev_t is not None and tnow > self._prev_t else 0.0
+        force = self._force
+        self.tip_force = float(_lumen_kernels.lumen_forces(
+            x_c, self._cframes, self._cs0, self._l, spec.offset, x_f, v_f, self.sigma, self._free, self._prev_p, dt,
+            self._v_lumen, spec.drag, spec.clearance, spec.wall_stiffness, spec.wall_damping, spec.friction,
+            spec.slip_speed, 0.5 * spec.vertex_mass / model.opt.timestep, h.lumen_end, self._p, force,
+            self.normal, self.tension))
         if self._prev_t is None or tnow > self._prev_t:
-            self._prev_t, self._prev_L = tnow, p
-        v_l = self._v_l if self._v_l is not None else np.zeros_like(p)
-        force = -spec.drag * (v_f - v_l)  # numerical drag against the lumen: settles the free fibre
+            self._prev_t = tnow
+            np.copyto(self._prev_p, self._p)
         # the simulated mass's weight cancelled and, for a fibre hung from the world, the hub's acceleration
-        # carried along (d'Alembert): artefacts of the quasi-static mass, added after the tension read-out
-        mass_forces = -self._weight
+        # carried along (d'Alembert): artefacts of the quasi-static mass, left out of the tension read-out
+        force -= self._weight
         if self.carrier_acceleration is not None:
-            mass_forces = mass_forces + spec.vertex_mass * self.carrier_acceleration(data)
-        r = x_f - p
-        r -= np.einsum("ni,ni->n", r, t)[:, None] * t
-        d = np.linalg.norm(r, axis=1)
-        pen = d - spec.clearance
-        contact = free & (pen > 0.0)
-        n_hat = r / np.maximum(d, 1e-12)[:, None]
-        v_rel = v_f - v_l
-        v_ax = np.einsum("ni,ni->n", v_rel, t)
-        v_cross = v_rel - v_ax[:, None] * t
-        # the wall: a spring along the radius and a damper over the whole cross-section (not along the radius
-        # only: at zero clearance the radius' direction is noise and a damper along it went unstable)
-        normal = np.where(contact, spec.wall_stiffness * pen, 0.0)
-        force += -normal[:, None] * n_hat - (spec.wall_damping * contact)[:, None] * v_cross
-        # friction against sliding along the lumen, as a viscosity μN/|v| (regularised): explicit, so capped
-        # at half the stability limit m/dt
-        visc = np.minimum(spec.friction * normal / np.sqrt(v_ax**2 + spec.slip_speed**2),
-                          0.5 * spec.vertex_mass / model.opt.timestep)
-        force -= (visc * v_ax)[:, None] * t
-        self.normal = normal
-        # the lumen's end pushes the tip back
-        gap = h.lumen_end - self.sigma[-1]
-        self.tip_force = spec.wall_stiffness * max(-gap, 0.0)
-        force[-1] -= self.tip_force * t[-1]
-        # the fibre's axial force: tension at each edge = the wall's and end's axial push on everything distal
-        along = np.einsum("ni,ni->n", force, t)
-        self.tension = np.cumsum(along[::-1])[::-1][1:]
-        force += mass_forces
+            force += spec.vertex_mass * self.carrier_acceleration(data)
         if self._couple_k is not None:
             self._glue_couple(data, x_f, force)
         data.qfrc_applied[self._dof] = np.einsum("ni,nji->nj", force, axes_w)

@@ -55,6 +55,37 @@ def test_the_glue_holds_the_roll_of_its_edges():
     assert glued_edges(np.zeros(4, bool)).size == 0
 
 
+def test_lumen_kernel_on_a_straight_lumen():
+    from models._lumen_kernels import lumen_forces
+
+    # a straight catheter along z (frames = identity), a fibre 0.2 mm off the axis in a 0.1 mm clearance, its
+    # tip 0.5 mm beyond the lumen's end, sliding distally at 2 mm/s: the wall pushes back with k·(d − c), the
+    # friction is μN regularised, the end pushes with k·0.5 mm, and the tension sums their axial parts distally
+    nc, nf, l, k, c, mu, vs = 11, 5, 0.01, 600.0, 1e-4, 0.2, 1e-3
+    x_c = np.zeros((nc, 3))
+    x_c[:, 2] = l * np.arange(nc)
+    frames = np.broadcast_to(np.eye(3), (nc - 1, 3, 3)).copy()
+    sigma = l * np.arange(nf) + 0.003
+    x_f = np.zeros((nf, 3))
+    x_f[:, 0] = 2e-4
+    x_f[:, 2] = sigma
+    v_f = np.zeros((nf, 3))
+    v_f[:, 2] = 2e-3
+    free = np.ones(nf, bool)
+    free[0] = False  # glued: no wall there
+    p, force, normal, tension = np.zeros((nf, 3)), np.zeros((nf, 3)), np.zeros(nf), np.zeros(nf - 1)
+    v_l = np.zeros((nf, 3))
+    end = sigma[-1] - 5e-4
+    tip = lumen_forces(x_c, frames, 0.0, l, 0.0, x_f, v_f, sigma.copy(), free, np.zeros((nf, 3)), 0.0, v_l,
+                       0.0, c, k, 2.0, mu, vs, 1e9, end, p, force, normal, tension)
+    assert tip == pytest.approx(k * 5e-4)
+    assert np.allclose(normal, [0.0] + [k * 1e-4] * 4)
+    fric = mu * k * 1e-4 * 2e-3 / np.hypot(2e-3, vs)
+    assert np.allclose(force[1:, 0], -k * 1e-4) and np.allclose(force[1:-1, 2], -fric)
+    assert force[-1, 2] == pytest.approx(-fric - tip)
+    assert np.allclose(tension, [-4 * fric - tip, -3 * fric - tip, -2 * fric - tip, -fric - tip])
+
+
 def test_bad_fibre_specs_are_refused():
     with pytest.raises(ValueError, match="stretch"):
         FibreSpec(glued=True, offset=2e-4)
