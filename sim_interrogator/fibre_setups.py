@@ -231,7 +231,8 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
     """``sheath-cycle`` (in and out of a pre-bent sheath) with the fibre in a lumen.
 
     Parameters are those of :class:`~sim_interrogator.sheath.SheathCycle` and the fibre's (see
-    :class:`FibreStatic`).
+    :class:`FibreStatic`), plus ``hub_share``: the fraction of the hub actuator's axial force that reaches the
+    fibre's lead (:class:`models.fibre.FibreSpec`); ``sheath_friction`` is the sheath's μ.
     """
 
     name = "fibre-sheath-cycle"
