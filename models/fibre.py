@@ -22,13 +22,18 @@ Model (the choices and the measurements behind them are in docs/integration.md):
 * **Fixations** (``n_fixations`` glue spots of ``glue_length`` at the fibre's base, the most distal one
   ``dx_prox`` before the first grating, ``fixation_spacing`` apart): MuJoCo connect constraints tie each fibre
   vertex of a spot to its point on the lumen (the anchor on the catheter's side is moved with d1 every step
-  when the lumen is off-axis), and a torsional spring holds the fibre's roll to the catheter's there.
-  ``glued`` glues the whole fibre (the welded reference).
+  when the lumen is off-axis), and MuJoCo joint equalities tie the twist hinge of each glued fibre edge to the
+  catheter edge's beside it: the glue holds the roll, implicitly. ``glued`` glues the whole fibre (the welded
+  reference).
+* **Traction at the base**: the fibre's proximal lead pulls with ``lead_tension`` (plus, in a sheath, a share
+  ``hub_share`` of the hub's axial force), reacted by the glue on one side of the fibre, so a couple
+  T · ``glue_eccentricity`` enters the fibre where it leaves the most distal glue spot; the lumen's wall and
+  the fibre's stiffness decide how far it reaches (ramped in over :data:`TRACTION_RAMP`).
 * **The tip** ends ``tail`` beyond the last grating, ``dx_dist`` short of the lumen's end; at or beyond the end
   a stiff axial spring pushes it back, and :meth:`LumenCoupler.tip_contact` reports the contact.
 * **Quasi-static scaling**: like the catheter, the fibre carries a simulated mass far above its real one
-  (its real ≈ 60 µg/m would need microsecond steps); its weight is cancelled (``gravcomp``) because the real
-  weight is negligible against its stiffness. It hangs from the catheter's parent body (the world or the
+  (its real ≈ 60 µg/m would need microsecond steps); its weight is cancelled (by an applied force) because the
+  real weight is negligible against its stiffness. It hangs from the catheter's parent body (the world or the
   sheath's hub), so the hub carries it rigidly; a small viscous drag against the lumen settles it.
 """
 
@@ -42,10 +47,17 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from models import _lumen_kernels
 from models.catheter import CatheterSpec, Pose, RodHandle, Scene, _fmt, set_rod_positions
 from models.rod_state import RodReader
 
-__all__ = ["FibreHandle", "FibreSpec", "LumenCoupler", "add_fibre", "place_fibre", "settle_fibre"]
+__all__ = ["PLACEMENT_RAMP", "TRACTION_RAMP", "FibreHandle", "FibreSpec", "LumenCoupler", "add_fibre", "place_fibre",
+           "settle_fibre"]
+
+#: s, over which the lead's traction is ramped in from the first step (quasi-static loading)
+TRACTION_RAMP = 1.0
+#: m, over which a randomly placed fibre leaves the axis beyond its most distal glue spot (place_fibre)
+PLACEMENT_RAMP = 0.01
 
 
 @dataclass(frozen=True)
@@ -93,13 +105,18 @@ class FibreSpec:
         viscosity μN/|v| is applied explicitly and capped at 0.5·m/dt (2.5 N·s/m at the defaults): uncapped,
         μN/slip_speed reached 10 N·s/m at 50 mN of wall force and the fibre went unstable within a second;
         with the cap a load below μN creeps at ≤ F / 2.5 N·s/m instead of sticking.
-    roll_stiffness : float
-        Torsional spring holding the fibre's roll at each glued edge, N·m/rad. Explicit, so bounded by the
-        twist body's inertia (≈ m r²/2 = 5e-11 kg·m² at the defaults): k·dt² / I < 1 needs k < 1.2e-5;
-        2e-4 went unstable within a second.
     drag : float
         Viscous drag per vertex against the lumen's motion, N·s/m: numerical, it settles the fibre where
         nothing else holds it (0.1 mN at 1 mm/s of sliding, below the friction at a loaded contact).
+    lead_tension : float
+        Axial pull of the fibre's proximal lead (toward the connector), N, reacted by the base glue. An
+        assumption (docs/integration.md: no published value); negative is a push.
+    hub_share : float
+        Fraction of the hub's axial force that reaches the lead in the sheath setups (the shaft carries the
+        rest): pushing the hub in shortens the shaft against the lead and slackens it, pulling stretches it.
+    glue_eccentricity : float
+        Lever of the traction at the most distal glue spot, m: glue on one side of the fibre (its radius), so
+        the traction enters the fibre as a couple T·e where it leaves the glue.
     """
 
     name: str = "fibre"
@@ -120,18 +137,21 @@ class FibreSpec:
     wall_stiffness: float = 600.0
     wall_damping: float = 2.0
     slip_speed: float = 1e-3
-    roll_stiffness: float = 5e-6
     drag: float = 0.1
+    lead_tension: float = 0.02
+    hub_share: float = 0.05
+    glue_eccentricity: float = 1e-4
 
     def __post_init__(self) -> None:
         for k in ("clearance", "friction", "dx_prox", "fixation_spacing", "glue_length", "tail", "offset",
                   "bending_stiffness", "torsional_stiffness", "diameter", "vertex_mass", "wall_stiffness",
-                  "wall_damping", "slip_speed", "roll_stiffness", "drag"):
+                  "wall_damping", "slip_speed", "drag", "hub_share", "glue_eccentricity"):
             v = getattr(self, k)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"FibreSpec.{k}: expected a finite number >= 0, got {v!r}")
-        if not math.isfinite(self.dx_dist):
-            raise ValueError(f"FibreSpec.dx_dist: expected a finite number, got {self.dx_dist!r}")
+        for k in ("dx_dist", "lead_tension"):
+            if not (isinstance(getattr(self, k), int | float) and math.isfinite(getattr(self, k))):
+                raise ValueError(f"FibreSpec.{k}: expected a finite number, got {getattr(self, k)!r}")
         if self.n_fixations not in (0, 1, 2, 3):
             raise ValueError(f"FibreSpec.n_fixations: expected 0–3, got {self.n_fixations!r}")
         if self.glued and self.offset:
@@ -154,7 +174,7 @@ class FibreSpec:
     def describe(self) -> dict:
         return {"clearance_m": self.clearance, "friction": self.friction, "n_fixations": self.n_fixations,
                 "dx_prox_m": self.dx_prox, "dx_dist_m": self.dx_dist, "offset_m": self.offset,
-                "glued": self.glued}
+                "glued": self.glued, "lead_tension_n": self.lead_tension, "hub_share": self.hub_share}
 
 
 @dataclass(frozen=True)
@@ -173,6 +193,8 @@ class FibreHandle:
         Vertices held by glue.
     lumen_end : float
         Catheter arc length of the lumen's end, m.
+    glued_edges : ndarray of int
+        Fibre edges whose roll the glue holds (a joint equality with the catheter edge beside each).
     """
 
     spec: FibreSpec
@@ -181,6 +203,7 @@ class FibreHandle:
     first: int
     glued: np.ndarray
     lumen_end: float
+    glued_edges: np.ndarray
 
 
 def add_fibre(scene: Scene, rod: RodHandle, spec: FibreSpec | None = None, world_pose: Pose | None = None
@@ -243,19 +266,58 @@ def add_fibre(scene: Scene, rod: RodHandle, spec: FibreSpec | None = None, world
         # the catheter's side is the lumen offset, rewritten by the coupler when the lumen is off-axis.
         scene.add_equality("connect", name=f"{spec.name}_glue_{k}", body1=f"{spec.name}_{k}",
                            body2=f"{cath.name}_{first + k}", anchor="0 0 0", solref=solref, solimp=_fmt(cath.solimp))
+    edges = glued_edges(glued)
+    for e in edges:
+        # The glue holds the roll: the fibre edge's twist angle equals that of the catheter edge beside it. Both
+        # angles turn the edges' reference directors, which MuJoCo transports in time along the same tangents
+        # (the glue keeps them parallel), so their difference stays what it was at the first step: a constant
+        # roll, which the coupler measures once (LumenCoupler.roll0). An implicit constraint: explicit roll
+        # springs on the twist bodies' tiny inertia could not hold it (docs/integration.md).
+        scene.add_equality("joint", name=f"{spec.name}_glue_roll_{e}", joint1=_twist_joint(spec.name, e, n),
+                           joint2=_twist_joint(cath.name, first + e, cath.n_segments), polycoef="0 1 0 0 0",
+                           solref=solref, solimp=_fmt(cath.solimp))
     scene.add_numeric(f"{spec.name}_s0", s[0])
     scene.add_numeric(f"{spec.name}_sensed_length", cath.sensed_length)
     scene.add_numeric(f"{spec.name}_vertex_damping", cath.dof_damping)
-    return FibreHandle(spec, cath, s, first, glued, float(lumen_end))
+    return FibreHandle(spec, cath, s, first, glued, float(lumen_end), edges)
 
 
-def place_fibre(model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle) -> None:
+def _twist_joint(rod: str, edge: int, n_edges: int) -> str:
+    """MuJoCo's name of the twist hinge of ``edge`` of a rod with ``n_edges`` edges (flexcomp dim=1)."""
+    return f"{rod}_twist" if edge == n_edges - 1 else f"{rod}_twist_{edge}"
+
+
+def glued_edges(glued: np.ndarray) -> np.ndarray:
+    """Fibre edges whose roll the glue holds: those with both vertices glued or, for a glue spot shorter than an
+    edge (one vertex), the edge distal of it (proximal at the fibre's tip)."""
+    both = glued[:-1] & glued[1:]
+    lone = np.flatnonzero(glued & ~np.r_[False, both] & ~np.r_[both, False])
+    out = set(np.flatnonzero(both).tolist())
+    out.update(int(min(k, glued.size - 2)) for k in lone)
+    return np.array(sorted(out), dtype=np.int64)
+
+
+def place_fibre(model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle,
+                rng: np.random.Generator | None = None) -> None:
     """Put the fibre on the lumen's axis of the catheter as it is now, at rest and untwisted (calls
-    ``mj_forward``). Run it after the catheter has been placed (e.g. as a later :meth:`Scene.on_build` hook)."""
+    ``mj_forward``). Run it after the catheter has been placed (e.g. as a later :meth:`Scene.on_build` hook).
+
+    With ``rng`` and a clearance, the fibre beyond its most distal glue spot starts off the axis instead, as a
+    threaded fibre lies anywhere in its lumen: by a random fraction of the clearance toward a random direction
+    of the cross-section, reached smoothly over :data:`PLACEMENT_RAMP` from the glue (the whole fibre without
+    fixations)."""
     state = RodReader(model, handle.catheter.name).read(data)
     pts = state.positions_at(handle.s)
+    frames = state.frames_at(handle.s)
     if handle.spec.offset:
-        pts = pts + handle.spec.offset * state.frames_at(handle.s)[:, :, 0]
+        pts = pts + handle.spec.offset * frames[:, :, 0]
+    if rng is not None and handle.spec.clearance > 0:
+        r = handle.spec.clearance * rng.uniform()
+        psi = rng.uniform(0.0, 2 * math.pi)
+        glued = np.flatnonzero(handle.glued)
+        s0 = handle.s[glued.max()] if glued.size else -np.inf
+        w = np.clip((handle.s - s0) / PLACEMENT_RAMP, 0.0, 1.0)
+        pts = pts + (r * w)[:, None] * (math.cos(psi) * frames[:, :, 0] + math.sin(psi) * frames[:, :, 1])
     set_rod_positions(model, data, pts, handle.spec.name)
 
 
@@ -271,9 +333,11 @@ class LumenCoupler:
     """
 
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle,
-                 carrier_acceleration: Callable[[mujoco.MjData], np.ndarray] | None = None) -> None:
+                 carrier_acceleration: Callable[[mujoco.MjData], np.ndarray] | None = None,
+                 traction: Callable[[mujoco.MjData], float] | None = None) -> None:
         self.handle = h = handle
         self.carrier_acceleration = carrier_acceleration
+        self.traction = traction or (lambda data: handle.spec.lead_tension)
         self.spec = spec = handle.spec
         cath = handle.catheter
         self.cath_reader = RodReader(model, cath.name)
@@ -294,25 +358,30 @@ class LumenCoupler:
         j0 = model.body_jntadr[bodies]
         self._dof = model.jnt_dofadr[j0[:, None] + np.arange(3)]  # (nf, 3)
         self._axes = model.jnt_axis[j0[:, None] + np.arange(3)]  # (nf, 3 joints, 3) in the parent frame
-        model.body_gravcomp[bodies] = 1.0
-        names = [f"{spec.name}_twist_{e}" for e in range(nf - 2)] + [f"{spec.name}_twist"]
-        tw = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names])
-        edge_glued = h.glued[:-1] & h.glued[1:]
-        if spec.n_fixations and not edge_glued.any():
-            edge_glued[np.flatnonzero(h.glued)[0] - (1 if np.flatnonzero(h.glued)[0] == nf - 1 else 0)] = True
-        self.glued_edges = np.flatnonzero(edge_glued)  #: fibre edges whose roll the glue holds
-        self._roll_edges = np.flatnonzero(edge_glued & (tw >= 0))
-        self._roll_dof = model.jnt_dofadr[tw[self._roll_edges]] if self._roll_edges.size else np.zeros(0, int)
+        # The fibre's weight is cancelled by an applied force: body_gravcomp written after compiling does nothing
+        # (MuJoCo counts gravity-compensated bodies when it compiles), and the flexcomp's vertex bodies take no
+        # gravcomp attribute. Uncancelled, the 100× simulated weight (1 mN per vertex) compressed a fibre standing
+        # on its glue by 0.07 N and buckled it into a helix against the wall (curvature 3–4 1/m, 0.1 mm clearance).
+        self._weight = spec.vertex_mass * model.opt.gravity.copy()
+        self.glued_edges = h.glued_edges  #: fibre edges whose roll the glue holds
         self._glue_eq = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, f"{spec.name}_glue_{k}")
                                   for k in np.flatnonzero(h.glued)], dtype=int)
         self._glue_idx = np.flatnonzero(h.glued)
+        # the traction's couple acts on the first free edge beyond the most distal glued vertex (none when the
+        # whole fibre is glued or nothing is)
+        k = int(self._glue_idx.max()) if self._glue_idx.size else nf - 1
+        self._couple_k = k if k < nf - 1 else None
+        self._t_first: float | None = None
+        self.glue_moment = 0.0  # N·m, the couple T·e entering the fibre at the most distal glue spot (last step)
         cs = cath.vertex_s
         self._cs0, self._l = float(cs[0]), cath.segment_length
         self.sigma = handle.s.copy()  # lumen coordinate (catheter arc length) of each fibre vertex, m
         self._free = ~h.glued
         self._prev_t: float | None = None
-        self._prev_L: np.ndarray | None = None
-        self._v_l: np.ndarray | None = None
+        self._prev_p = np.zeros((nf, 3))  # lumen points at the fibre's vertices, previous step
+        self._p = np.zeros((nf, 3))
+        self._v_lumen = np.zeros((nf, 3))
+        self._force = np.zeros((nf, 3))
         self.roll0 = 0.0
         self._roll_ready = False
         self.tip_force = 0.0  # N, axial push of the lumen's end on the tip (last step)
@@ -359,51 +428,28 @@ class LumenCoupler:
         rp = data.xmat[self._parent].reshape(3, 3)
         axes_w = self._axes @ rp.T  # (nf, 3, 3): joint axes in the world
         v_f = np.einsum("nj,nji->ni", data.qvel[self._dof], axes_w)
-        # lumen coordinate by projection (one step per call: the fibre slides far less than an edge per step)
-        free = self._free
-        p, t, _ = self.lumen(x_c, self.sigma)
-        a = np.einsum("ni,ni->n", x_f - p, t)
-        self.sigma[free] = np.clip(self.sigma[free] + a[free], self._cs0, self._cs0 + self._l * (x_c.shape[0] - 1))
-        p, t, _d1 = self.lumen(x_c, self.sigma)
-        # lumen velocity and acceleration by differences over steps (the catheter is a quasi-static rod)
+        # the lumen's coordinates, velocity (by differences over steps: the catheter is a quasi-static rod), wall,
+        # friction, end and the tension read-out, compiled (models/_lumen_kernels.py)
         tnow = float(data.time)
-        if self._prev_t is not None and tnow > self._prev_t:
-            self._v_l = (p - self._prev_L) / (tnow - self._prev_t)
+        dt = tnow - self._prev_t if self._prev_t is not None and tnow > self._prev_t else 0.0
+        force = self._force
+        self.tip_force = float(_lumen_kernels.lumen_forces(
+            x_c, self._cframes, self._cs0, self._l, spec.offset, x_f, v_f, self.sigma, self._free, self._prev_p, dt,
+            self._v_lumen, spec.drag, spec.clearance, spec.wall_stiffness, spec.wall_damping, spec.friction,
+            spec.slip_speed, 0.5 * spec.vertex_mass / model.opt.timestep, h.lumen_end, self._p, force,
+            self.normal, self.tension))
         if self._prev_t is None or tnow > self._prev_t:
-            self._prev_t, self._prev_L = tnow, p
-        v_l = self._v_l if self._v_l is not None else np.zeros_like(p)
-        force = -spec.drag * (v_f - v_l)  # numerical drag against the lumen: settles the free fibre
+            self._prev_t = tnow
+            np.copyto(self._prev_p, self._p)
+        # the simulated mass's weight cancelled and, for a fibre hung from the world, the hub's acceleration
+        # carried along (d'Alembert): artefacts of the quasi-static mass, left out of the tension read-out
+        force -= self._weight
         if self.carrier_acceleration is not None:
-            # d'Alembert: a fibre hung from the world is carried along with the hub's acceleration
             force += spec.vertex_mass * self.carrier_acceleration(data)
-        r = x_f - p
-        r -= np.einsum("ni,ni->n", r, t)[:, None] * t
-        d = np.linalg.norm(r, axis=1)
-        pen = d - spec.clearance
-        contact = free & (pen > 0.0)
-        n_hat = r / np.maximum(d, 1e-12)[:, None]
-        v_rel = v_f - v_l
-        v_ax = np.einsum("ni,ni->n", v_rel, t)
-        v_cross = v_rel - v_ax[:, None] * t
-        # the wall: a spring along the radius and a damper over the whole cross-section (not along the radius
-        # only: at zero clearance the radius' direction is noise and a damper along it went unstable)
-        normal = np.where(contact, spec.wall_stiffness * pen, 0.0)
-        force += -normal[:, None] * n_hat - (spec.wall_damping * contact)[:, None] * v_cross
-        # friction against sliding along the lumen, as a viscosity μN/|v| (regularised): explicit, so capped
-        # at half the stability limit m/dt
-        visc = np.minimum(spec.friction * normal / np.sqrt(v_ax**2 + spec.slip_speed**2),
-                          0.5 * spec.vertex_mass / model.opt.timestep)
-        force -= (visc * v_ax)[:, None] * t
-        self.normal = normal
-        # the lumen's end pushes the tip back
-        gap = h.lumen_end - self.sigma[-1]
-        self.tip_force = spec.wall_stiffness * max(-gap, 0.0)
-        force[-1] -= self.tip_force * t[-1]
-        # the fibre's axial force: tension at each edge = the wall's and end's axial push on everything distal
-        along = np.einsum("ni,ni->n", force, t)
-        self.tension = np.cumsum(along[::-1])[::-1][1:]
+        if self._couple_k is not None:
+            self._glue_couple(data, x_f, force)
         data.qfrc_applied[self._dof] = np.einsum("ni,nji->nj", force, axes_w)
-        # glue: the connect anchors follow the lumen's offset; the roll springs hold the fibre's roll
+        # glue: the connect anchors follow the lumen's offset (the roll is held by joint equalities)
         if self._glue_eq.size and spec.offset:
             model.eq_data[self._glue_eq, 3:6] = (spec.offset * self._cframes[np.minimum(
                 h.first + self._glue_idx, self._cframes.shape[0] - 1), :, 0]) @ data.xmat[
@@ -412,10 +458,32 @@ class LumenCoupler:
         if not self._roll_ready and (data.plastic[pa + 3] or data.plastic[pa + 4] or data.plastic[pa + 5]):
             self.calibrate_roll(data)  # MuJoCo has chosen the fibre's reference directors (after the first step)
             self._roll_ready = True
-        if self._roll_dof.size and self._roll_ready:
-            self.fibre_reader.compute(data, self._fframes, self._fdarb)
-            phi = self.roll_error(self._fframes, self._roll_edges)
-            data.qfrc_applied[self._roll_dof] = -spec.roll_stiffness * phi
+
+    def _glue_couple(self, data: mujoco.MjData, x_f: np.ndarray, force: np.ndarray) -> None:
+        """The lead's traction T through the eccentric glue: a couple T·e on the fibre's first free edge, as a
+        force pair ±T·e/l across it (added to ``force``).
+
+        The glue sits on the catheter's d1 side of the fibre (an assumption: which side only turns the
+        disturbance's direction). The glue pulls that side of the fibre's surface distally (T > 0) while the lead
+        pulls the axis proximally, so the couple is e·T (d1 × t) = −e·T d2: it tilts the free edge toward −d1.
+        The fibre's rotation at the glue's exit is held by its own bending across the last glued vertex; beyond,
+        the lumen's wall and the fibre's stiffness decide how fast the moment dies out."""
+        k = self._couple_k
+        edge = x_f[k + 1] - x_f[k]
+        le = math.sqrt(float(edge @ edge))
+        t = edge / le
+        g = self._cframes[min(self.handle.first + k, self._cframes.shape[0] - 1), :, 0]
+        n = g - (g @ t) * t
+        n /= math.sqrt(float(n @ n))
+        # ramped in over TRACTION_RAMP from the first step: quasi-static loading, no impulse on the heavy
+        # (quasi-static scaled) fibre
+        if self._t_first is None:
+            self._t_first = float(data.time)
+        ramp = min(1.0, (float(data.time) - self._t_first) / TRACTION_RAMP)
+        self.glue_moment = ramp * float(self.traction(data)) * self.spec.glue_eccentricity
+        f = (self.glue_moment / le) * n
+        force[k] += f
+        force[k + 1] -= f
 
     # -- observables --
     def slide(self) -> np.ndarray:
@@ -431,9 +499,11 @@ class LumenCoupler:
 
 
 def settle_fibre(model: mujoco.MjModel, data: mujoco.MjData, step: Callable[[], None], *, tol: float = 1e-6,
-                 window: float = 0.05, max_time: float = 10.0, label: str = "fibre") -> float:
+                 window: float = 0.05, max_time: float = 10.0, min_time: float = TRACTION_RAMP,
+                 label: str = "fibre") -> float:
     """Step (``step()`` applies the coupler and steps once) until no flex vertex moves more than ``tol`` (m) over
-    ``window`` (s); the settling time (s). Raises ``SettleError`` after ``max_time`` or on instability.
+    ``window`` (s), and at least ``min_time`` (s: the lead's traction is ramped in over it); the settling time
+    (s). Raises ``SettleError`` after ``max_time`` or on instability.
 
     :func:`models.fixtures.settle` steps MuJoCo in blocks; the fibre needs its coupler before every step."""
     from models.fixtures.settle import UNSTABLE_WARNINGS, SettleError
@@ -448,7 +518,7 @@ def settle_fibre(model: mujoco.MjModel, data: mujoco.MjData, step: Callable[[], 
         moved = np.linalg.norm(data.flexvert_xpos - start, axis=1)
         if not np.all(np.isfinite(moved)) or [data.warning[w].number for w in UNSTABLE_WARNINGS] != warned:
             raise SettleError(f"{label}: the simulation became unstable while settling the fibre")
-        if moved.max() < tol:
+        if moved.max() < tol and data.time - t0 >= min_time:
             return float(data.time - t0)
         if data.time - t0 > max_time:
             raise SettleError(f"{label}: not settled after {max_time:g} s simulated: a vertex still moved "

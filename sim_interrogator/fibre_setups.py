@@ -4,8 +4,8 @@
 ``sim://static``; :class:`FibreSheathCycle` drives it in and out of the pre-bent sheath like
 ``sim://sheath-cycle``. Both put a :class:`models.fibre.FibreSpec` fibre into the catheter and tell
 :class:`~sim_interrogator.sim.SimInterrogator` to read the optics from the fibre's own rod
-(:attr:`optics_rod_name`, :meth:`optics_roll`), its axial strain from the fibre's edges
-(:meth:`conditions`), and to disturb the distal grating's peaks while the tip touches the lumen's end
+(:attr:`optics_rod_name`, :meth:`optics_roll`: a constant, the glue holds the roll), its axial strain from the
+fibre's tension (:meth:`conditions`), and to disturb the distal grating's peaks while the tip touches the lumen's end
 (:meth:`disturb_peaks`). The truth stays the catheter's centreline.
 
 The catheter's base is 40 mm here (10 mm elsewhere; 45 mm when two glue spots 25 mm before the first grating
@@ -24,7 +24,7 @@ import numpy as np
 from models.catheter import CatheterSpec, Pose, Scene
 from models.fibre import FibreHandle, FibreSpec, LumenCoupler, add_fibre, place_fibre, settle_fibre
 from models.fixtures import SettleError, add_connect_fixture, add_tube_fixture
-from sim_interrogator.setups import Setup, register
+from sim_interrogator.setups import Setup, StaticShape, register
 from sim_interrogator.sheath import SheathCycle
 from twin import PeakStatus, shapes
 
@@ -69,45 +69,45 @@ class _FibreMixin:
     actuated = True  # the coupler acts before every step
     _rng: np.random.Generator
     contact_frames = 0
+    random_start = True  #: start the fibre at a seeded place within its clearance (False: on the lumen's axis)
     settled = True  #: False when a fibre without fixation was still sliding at the end of settling
 
     def _add_fibre(self, scene: Scene, rod, world_pose=None) -> None:
         self.handle = add_fibre(scene, rod, self.fibre, world_pose)
-        scene.on_build(lambda m, d: place_fibre(m, d, self.handle))
+        # the seed places the fibre within its clearance (a threaded fibre lies anywhere in its lumen)
+        rng = np.random.default_rng([self.seed, 1]) if self.random_start else None
+        scene.on_build(lambda m, d: place_fibre(m, d, self.handle, rng))
 
-    #: m, the gratings' arc lengths (the paper's fibre), where a glued fibre's roll is pinned
-    fibre_grating_s = 0.01 * np.arange(18)
-
-    def _install(self, model, data, carrier_acceleration=None) -> None:
-        self.coupler = LumenCoupler(model, data, self.handle, carrier_acceleration)
+    def _install(self, model, data, carrier_acceleration=None, traction=None) -> None:
+        self.coupler = LumenCoupler(model, data, self.handle, carrier_acceleration, traction)
         self._data = data
         fid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, self.fibre.name)
         self._va, self._nv = int(model.flex_vertadr[fid]), int(model.flex_vertnum[fid])
         self._l0 = np.diff(self.handle.s)
 
-    def optics_roll(self, grating_s: np.ndarray | None = None) -> float | np.ndarray:
-        """The roll from the fibre's material frame to the one it reads in, rad: MuJoCo's director turned to
-        the catheter's convention, and the fibre's whole-body roll pinned at its glue.
+    def optics_roll(self) -> float:
+        """The constant roll from MuJoCo's director of the fibre to the catheter's convention, rad (measured once
+        after the first step: MuJoCo picks each rod's first reference director by itself). The glue holds the
+        roll through joint equalities (:func:`models.fibre.add_fibre`), so nothing else is needed; without
+        fixations nothing holds it, as in a real catheter."""
+        return 0.0 if self.coupler is None else self.coupler.roll0
 
-        A glue spot holds the fibre's roll to the catheter's rigidly; the model's roll springs cannot (they are
-        explicit and the twist bodies' inertia tiny: in the sheath the roll drifted by 3–4°). So the fibre is
-        read in its own frame turned by the roll it has lost at the most distal glue spot — its own twist
-        beyond the glue is kept — and a glued fibre at each grating by the loss there. Without fixations
-        nothing holds the roll: the constant convention only."""
+    def curvature_error(self, s: np.ndarray) -> np.ndarray:
+        """|k_fibre − k_catheter| at fibre arc lengths ``s`` (m) now, 1/m: what the fibre's own mechanics add to the
+        curvature the welded model would read there (both in the catheter's roll convention)."""
         c = self.coupler
-        if c is None:
-            return 0.0
-        edges = c.glued_edges
-        if edges.size == 0:
-            return c.roll0
+        d = c.fibre_reader.read(self._data).darboux_at(s)
+        co, si = math.cos(c.roll0), math.sin(c.roll0)
+        k1, k2 = co * d[:, 0] + si * d[:, 1], co * d[:, 1] - si * d[:, 0]
+        k_f = np.stack([k2, -k1], axis=-1)  # (k_x, k_y) = (κ2, −κ1)
+        return np.linalg.norm(k_f - c.cath_reader.read(self._data).curvature_at(s), axis=-1)
+
+    def roll_loss(self) -> np.ndarray:
+        """Roll of the fibre against the catheter at its glued edges now, rad (0 when the glue holds it)."""
+        c = self.coupler
         c.fibre_reader.compute(self._data, c._fframes, c._fdarb)
         c.cath_reader.compute(self._data, c._cframes, c._cdarb)
-        phi = c.roll_error(c._fframes, edges)
-        if self.fibre.glued:
-            g = self.fibre_grating_s if grating_s is None else grating_s
-            mid = 0.5 * (self.handle.s[edges] + self.handle.s[edges + 1])
-            return c.roll0 - np.interp(g, mid, np.unwrap(phi))
-        return c.roll0 - float(phi[np.argmax(edges)])
+        return c.roll_error(c._fframes, c.glued_edges)
 
     def fibre_axial_strain(self, grating_s: np.ndarray) -> np.ndarray:
         """The fibre's axial strain at the gratings: its tension from friction and the lumen's end over EA.
@@ -148,9 +148,11 @@ def base_length_for(fibre: FibreSpec, segments: int) -> float:
     return max(FIBRE_BASE_LENGTH, math.ceil(need * 200) / 200)  # in whole 5 mm
 
 
-def _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued) -> FibreSpec:
+def _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension,
+                hub_share=FibreSpec.hub_share) -> FibreSpec:
     return FibreSpec(clearance=float(clearance), friction=float(friction), n_fixations=int(fixations),
-                     dx_prox=float(dx_prox), dx_dist=float(dx_dist), offset=float(offset), glued=bool(glued))
+                     dx_prox=float(dx_prox), dx_dist=float(dx_dist), offset=float(offset), glued=bool(glued),
+                     lead_tension=float(lead_tension), hub_share=float(hub_share))
 
 
 @register
@@ -161,28 +163,29 @@ class FibreStatic(_FibreMixin, Setup):
     ----------
     shape : str
     fixture : {"connect", "tube"}
-    clearance, friction, fixations, dx_prox, dx_dist, offset, glued
-        The :class:`models.fibre.FibreSpec` (m, –, count, m, m, m, bool).
+    clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension
+        The :class:`models.fibre.FibreSpec` (m, –, count, m, m, m, bool, N).
     segments : int
     settle_time : float
         s.
     seed : int
-        Seed of the tip-contact distortion.
+        Seed of the fibre's start within its clearance and of the tip-contact distortion.
     """
 
     name = "fibre-static"
 
     def __init__(self, shape: str = "helix", fixture: str = "connect", clearance: float = 0.0,
                  friction: float = 0.2, fixations: int = 2, dx_prox: float = 0.015, dx_dist: float = 0.002,
-                 offset: float = 0.0, glued: bool = False, segments: int = 100, settle_time: float = 10.0,
-                 seed: int = 0):
+                 offset: float = 0.0, glued: bool = False, lead_tension: float = FibreSpec.lead_tension,
+                 segments: int = 100, settle_time: float = 10.0, seed: int = 0):
         if fixture not in ("connect", "tube"):
             raise ValueError(f"sim://{self.name}: fixture must be connect or tube, got {fixture!r}")
         self.curve = shapes.get(shape)
         self.fixture_kind = fixture
-        self.fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued)
+        self.fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension)
         self.spec = CatheterSpec(n_segments=int(segments), base_length=base_length_for(self.fibre, int(segments)))
         self.settle_time = float(settle_time)
+        self.seed = int(seed)
         self._rng = np.random.default_rng(seed)
         self.fixture = None
 
@@ -216,9 +219,7 @@ class FibreStatic(_FibreMixin, Setup):
     def conditions(self, t, grating_s):
         return 0.0, self.fibre_axial_strain(grating_s)
 
-    def fixture_centreline(self):
-        s = np.linspace(0.0, self.curve.length, 341)
-        return self.fixture.pose.apply(self.fixture.curve.positions(s))
+    fixture_centreline = StaticShape.fixture_centreline  # the same fixture (self.curve, self.fixture)
 
     def describe(self):
         return {"setup": self.name, "shape": self.curve.name, "fixture": self.fixture_kind,
@@ -230,7 +231,8 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
     """``sheath-cycle`` (in and out of a pre-bent sheath) with the fibre in a lumen.
 
     Parameters are those of :class:`~sim_interrogator.sheath.SheathCycle` and the fibre's (see
-    :class:`FibreStatic`).
+    :class:`FibreStatic`), plus ``hub_share``: the fraction of the hub actuator's axial force that reaches the
+    fibre's lead (:class:`models.fibre.FibreSpec`); ``sheath_friction`` is the sheath's μ.
     """
 
     name = "fibre-sheath-cycle"
@@ -238,8 +240,9 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
     def __init__(self, cycles: int = 3, protrusion: float = 0.05, withdraw: float = 0.06, speed: float = 0.05,
                  dwell: float = 0.5, clearance: float = 0.0, friction: float = 0.2, fixations: int = 2,
                  dx_prox: float = 0.015, dx_dist: float = 0.002, offset: float = 0.0, glued: bool = False,
+                 lead_tension: float = FibreSpec.lead_tension, hub_share: float = FibreSpec.hub_share,
                  sheath_friction: float = 0.2, segments: int = 100, settle_time: float = 10.0, seed: int = 0):
-        fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued)
+        fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension, hub_share)
         base = base_length_for(fibre, int(segments))
         extra = base - CatheterSpec().base_length
         super().__init__(cycles=cycles, protrusion=protrusion - extra, withdraw=withdraw, speed=speed, dwell=dwell,
@@ -247,6 +250,7 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
         self.spec = dataclasses.replace(self.spec, base_length=base)
         self.protrusion = float(protrusion)
         self.fibre = fibre
+        self.seed = int(seed)
         self._rng = np.random.default_rng(seed)
 
     def extend_scene(self, scene, rod) -> None:
@@ -264,7 +268,12 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
         def carrier(data):  # the hub slides along its own z axis (the sheath's guide)
             return data.qacc[dof] * data.xmat[hub].reshape(3, 3)[:, 2]
 
-        self._install(model, data, carrier)
+        act, f = self._act[0], self.fibre
+
+        def traction(data):  # the lead's pull, less the hub's push's share (pushing in slackens the lead)
+            return f.lead_tension - f.hub_share * data.actuator_force[act]
+
+        self._install(model, data, carrier, traction)
         return model, data
 
     def prepare(self, model, data, progress=None):

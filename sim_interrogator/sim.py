@@ -133,7 +133,7 @@ class SimInterrogator(Source):
         delta_t, axial = self.setup.conditions(t, self.fiber.grating_s)
         d = self._grating_average @ self._darboux_buf  # (κ1, κ2, τ) averaged over each grating
         if self._optics_roll is not None:
-            r = self._optics_roll()  # rad, one angle or one per grating
+            r = self._optics_roll()  # rad
             c, s = np.cos(r), np.sin(r)
             k1, k2 = d[:, 0].copy(), d[:, 1].copy()
             d[:, 0], d[:, 1] = c * k1 + s * k2, c * k2 - s * k1  # (κ1, κ2) in the frame rolled by r about d3

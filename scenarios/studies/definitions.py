@@ -86,12 +86,13 @@ def integration_task(p: dict) -> dict:
     params = Params(shapes=tuple(p.get("shapes", Params.shapes)), cycles=int(p.get("cycles", Params.cycles)),
                     repeats=int(p.get("repeats", Params.repeats)), seed=int(p.get("seed", 0)))
     point = {k: p[k] for k in ("label", "clearance", "friction", "fixations", "dx_prox", "dx_dist", "offset",
-                               "glued")}
+                               "glued")} | {"lead_tension": float(p.get("lead_tension", 0.0))}
     return run_point(point, params)
 
 
 #: design points whose question is repeatability (the light study runs sheath cycles only for these)
-REPEATABILITY_POINTS = ("clearance 0.1 mm", "0 fixation(s)", "1 fixation(s)", "clearance 0.1 mm, lining μ 0.05")
+REPEATABILITY_POINTS = ("glued", "clearance 0.1 mm", "0 fixation(s)", "1 fixation(s)",
+                        "clearance 0.1 mm, lining μ 0.05", "dx_prox 0 mm", "dx_prox 5 mm", "dx_prox 25 mm")
 
 
 def integration_study(seeds: int = 1, quick: bool = False, light: bool = False) -> Study:
@@ -116,7 +117,8 @@ def integration_study(seeds: int = 1, quick: bool = False, light: bool = False) 
         tasks += [{**pt, **extra, **cyc, "seed": s} for s in range(seeds)]
     tasks = tuple(tasks)
     return Study("integration", "scenarios.studies.definitions:integration_task", tasks,
-                 group_by=("label",), metrics=("max_error_mm", "mean_error_mm", "repeat_std_mm", "repeat_max_mm"),
+                 group_by=("label",), metrics=("max_error_mm", "mean_error_mm", "static_tip_error_mm", "repeat_std_mm",
+                                             "repeat_max_mm", "true_repeat_std_mm", "cycle_tip_error_max_mm"),
                  description="The fibre-integration guidelines (docs/integration.md): one factor at a time about the "
                              "baseline, static shapes and sheath cycles per design point.")
 
