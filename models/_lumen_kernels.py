@@ -2,7 +2,7 @@
 
 The arithmetic is the one :meth:`LumenCoupler.apply` documents (wall spring and cross-section damper beyond the
 clearance, regularised Coulomb friction along the lumen, the lumen's end on the tip, the tension read-out), in
-one pass over the fibre's vertices without numpy temporaries.
+one pass over the fibre's vertices, with four small work arrays per call instead of numpy temporaries per operation.
 """
 
 from __future__ import annotations
@@ -60,9 +60,9 @@ def lumen_forces(x_c, frames, cs0, l, offset, x_f, v_f, sigma, free, prev_p, dt,
             for i in range(3):
                 v_l[n, i] = (p[n, i] - prev_p[n, i]) / dt
     along = np.empty(nf)
+    vr = np.empty(3)
+    r = np.empty(3)
     for n in range(nf):
-        vr = np.empty(3)
-        r = np.empty(3)
         rt = 0.0
         v_ax = 0.0
         for i in range(3):

@@ -113,7 +113,8 @@ def design_points(kind: str = "guidelines") -> list[dict]:
 
 def _fibre_kw(point: dict) -> dict:
     return {k: point[k] for k in ("clearance", "friction", "dx_prox", "dx_dist", "offset", "glued")} | {
-        "fixations": int(point["fixations"]), "lead_tension": float(point.get("lead_tension", 0.0))}
+        "fixations": int(point["fixations"]),
+        "lead_tension": float(point.get("lead_tension", BASELINE["lead_tension"]))}
 
 
 def static_part(point: dict, params: Params, fiber: FiberModel) -> dict:
@@ -184,7 +185,7 @@ def run_point(point: dict, params: Params | None = None) -> dict:
     row = {"label": point.get("label", ""), "clearance_mm": point["clearance"] * 1e3, "friction": point["friction"],
            "fixations": int(point["fixations"]), "dx_prox_mm": point["dx_prox"] * 1e3,
            "dx_dist_mm": point["dx_dist"] * 1e3, "offset_mm": point["offset"] * 1e3, "glued": bool(point["glued"]),
-           "lead_tension_n": float(point.get("lead_tension", 0.0)), "seed": params.seed}
+           "lead_tension_n": float(point.get("lead_tension", BASELINE["lead_tension"])), "seed": params.seed}
     if params.shapes:
         s = static_part(point, params, fiber)
         row |= {"max_error_mm": s["max_error"] * 1e3, "mean_error_mm": s["mean_error"] * 1e3,

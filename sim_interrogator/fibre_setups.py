@@ -92,15 +92,20 @@ class _FibreMixin:
         fixations nothing holds it, as in a real catheter."""
         return 0.0 if self.coupler is None else self.coupler.roll0
 
-    def curvature_error(self, s: np.ndarray) -> np.ndarray:
-        """|k_fibre − k_catheter| at fibre arc lengths ``s`` (m) now, 1/m: what the fibre's own mechanics add to the
-        curvature the welded model would read there (both in the catheter's roll convention)."""
+    def fibre_curvature(self, s: np.ndarray) -> np.ndarray:
+        """The fibre's own curvature (k_x, k_y) at fibre arc lengths ``s`` (m) now, in the catheter's roll
+        convention, 1/m, shape (len(s), 2)."""
         c = self.coupler
         d = c.fibre_reader.read(self._data).darboux_at(s)
         co, si = math.cos(c.roll0), math.sin(c.roll0)
         k1, k2 = co * d[:, 0] + si * d[:, 1], co * d[:, 1] - si * d[:, 0]
-        k_f = np.stack([k2, -k1], axis=-1)  # (k_x, k_y) = (κ2, −κ1)
-        return np.linalg.norm(k_f - c.cath_reader.read(self._data).curvature_at(s), axis=-1)
+        return np.stack([k2, -k1], axis=-1)  # (k_x, k_y) = (κ2, −κ1)
+
+    def curvature_error(self, s: np.ndarray) -> np.ndarray:
+        """|k_fibre − k_catheter| at fibre arc lengths ``s`` (m) now, 1/m: what the fibre's own mechanics add to the
+        curvature the welded model would read there (both in the catheter's roll convention)."""
+        k_c = self.coupler.cath_reader.read(self._data).curvature_at(s)
+        return np.linalg.norm(self.fibre_curvature(s) - k_c, axis=-1)
 
     def roll_loss(self) -> np.ndarray:
         """Roll of the fibre against the catheter at its glued edges now, rad (0 when the glue holds it)."""

@@ -21,15 +21,6 @@ from sim_interrogator.sim import SimInterrogator
 from twin import FiberModel
 
 
-def _fibre_curvature(sim, setup, s):
-    """The fibre's curvature (k_x, k_y) at ``s`` in the catheter's roll convention, 1/m."""
-    d = sim.optics_reader.read(sim.data).darboux_at(s)
-    r = setup.optics_roll()
-    c, si = np.cos(r), np.sin(r)
-    k1, k2 = c * d[:, 0] + si * d[:, 1], c * d[:, 1] - si * d[:, 0]
-    return np.stack([k2, -k1], axis=-1)
-
-
 # ------------------------------------------------------------------------------------------------------ fast
 def test_fibre_sits_on_the_catheters_grid_with_its_glue_spots_and_tip_gap():
     spec = CatheterSpec(base_length=FIBRE_BASE_LENGTH)
@@ -108,7 +99,7 @@ def test_glued_fibre_without_clearance_reads_what_the_welded_model_reads():
     sim = SimInterrogator(setup, FiberModel.paper(), OpticsConfig.ideal())
     g = sim.fiber.grating_s
     k_cath = sim.reader.read(sim.data).curvature_at(g)  # what the welded model's optics read
-    k_fib = _fibre_curvature(sim, setup, g)
+    k_fib = setup.fibre_curvature(g)
     # measured 0.019 1/m (helix, |k| = 40 1/m): the glue's connect constraints leave sub-micrometre play
     assert np.abs(k_fib - k_cath).max() < 0.05
     optics = Optics(sim.fiber, OpticsConfig.ideal())
@@ -131,7 +122,7 @@ def test_glue_holds_the_fibres_roll_in_the_moving_sheath():
         sim.read()
         roll = max(roll, float(np.abs(setup.roll_loss()).max()))
         k_cath = sim.reader.read(sim.data).curvature_at(g[:-1])
-        dk = max(dk, float(np.abs(_fibre_curvature(sim, setup, g[:-1]) - k_cath).max()))
+        dk = max(dk, float(np.abs(setup.fibre_curvature(g[:-1]) - k_cath).max()))
     assert roll < np.radians(0.05)
     # measured 0.034 1/m (|k| ≈ 29 1/m in the bend); the static helix's tolerance. Not the last grating: the
     # fibre's rod ends 3 mm beyond it, so its curvature there is clipped to the last interior vertex (4.5 mm
@@ -165,7 +156,7 @@ def test_fibre_with_clearance_rides_the_outer_wall_of_a_bent_lumen():
     assert np.all(outer[mid] > c - 5e-6) and np.all(outer[mid] < c + 5e-6)
     # with the outer wall's curvature 1/(R + c) = 24.907 1/m (measured 24.912–24.915), not the axis' 25
     s_mid = np.linspace(0.04, 0.11, 8)
-    kf = np.linalg.norm(_fibre_curvature(sim, setup, s_mid), axis=1)
+    kf = np.linalg.norm(setup.fibre_curvature(s_mid), axis=1)
     assert np.allclose(kf, 1 / (1 / 25.0 + c), atol=0.03)
     # the longer outer path pulls the free tip back from the lumen's end by ≈ c·∫κ ds (≤ 0.64 mm over 170 mm;
     # measured 0.48 mm: the glue's transition and the free tail take the shorter line)
@@ -186,8 +177,8 @@ def test_the_leads_traction_enters_at_the_fixation_and_dies_out_along_the_lumen(
     for tension in (0.0, t):
         setup = FibreStatic("arc", clearance=c, lead_tension=tension, dx_prox=0.0)
         setup.random_start = False
-        sim = SimInterrogator(setup, FiberModel.paper(), OpticsConfig.ideal())
-        k[tension] = _fibre_curvature(sim, setup, s)
+        SimInterrogator(setup, FiberModel.paper(), OpticsConfig.ideal())  # builds and settles the setup
+        k[tension] = setup.fibre_curvature(s)
     spec = setup.fibre
     m = setup.coupler.glue_moment
     assert m == pytest.approx(t * spec.glue_eccentricity)

@@ -81,12 +81,12 @@ def sensor_design_study(seeds: int = 3, quick: bool = False) -> Study:
 # ------------------------------------------------------------------------------------------------ integration
 def integration_task(p: dict) -> dict:
     """One design point of :mod:`scenarios.integration` (``p``: its point plus ``seed``, ``shapes``, ``cycles``)."""
-    from scenarios.integration import Params, run_point
+    from scenarios.integration import BASELINE, Params, run_point
 
     params = Params(shapes=tuple(p.get("shapes", Params.shapes)), cycles=int(p.get("cycles", Params.cycles)),
                     repeats=int(p.get("repeats", Params.repeats)), seed=int(p.get("seed", 0)))
     point = {k: p[k] for k in ("label", "clearance", "friction", "fixations", "dx_prox", "dx_dist", "offset",
-                               "glued")} | {"lead_tension": float(p.get("lead_tension", 0.0))}
+                               "glued")} | {"lead_tension": float(p.get("lead_tension", BASELINE["lead_tension"]))}
     return run_point(point, params)
 
 

@@ -67,6 +67,7 @@ import datetime as _dt
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -578,13 +579,17 @@ class _Group:
         return Frame._trusted(self.wavelengths[i0:i1], self.timestamp[i0:i1], self.sequence[i0:i1],
                               self.powers[i0:i1], self.status[i0:i1])
 
+    @cached_property
+    def _channels(self) -> tuple[np.ndarray, np.ndarray]:
+        """Channel numbers and grating counts, shared by the group's records (built once, not per record)."""
+        return np.array(self.lay.key[0], dtype=np.int64), np.array(self.lay.key[1], dtype=np.int64)
+
     def record(self, i: int) -> Record:
         lay = self.lay
         v = self.vendor(i)
         d0, d1, t0, t1 = self.dt_bounds[i].tolist()
         eng = self.engineering[i] if self.engineering is not None else np.zeros(0)
-        return Record(self.frame(i, v), np.array(lay.key[0], dtype=np.int64), np.array(lay.key[1], dtype=np.int64),
-                      self.status4[i], v, eng, self.data[d0:d1].decode("latin-1"),
+        return Record(self.frame(i, v), *self._channels, self.status4[i], v, eng, self.data[d0:d1].decode("latin-1"),
                       self.data[t0:t1].decode("latin-1"), lay.extra, lay.key)
 
 

@@ -480,15 +480,6 @@ def match_layout(K: np.ndarray, V: np.ndarray, ints: np.ndarray, fixed: np.ndarr
     return _match_layout(K, V, ints, fixed, fixed_val, numbers, labels, label_hash)
 
 
-def text_hash(text: bytes) -> float:
-    """The hash :func:`scan` gives a TEXT token of these bytes (for comparing labels in batch)."""
-    arr = np.frombuffer(bytes(text) + b"\n", np.uint8)
-    _, kind, value, *_ = scan(arr, np.zeros(1, np.int64), np.array([len(arr)], np.int64))
-    if kind[0] != TEXT:
-        raise ValueError(f"{text!r} is not a text token")
-    return float(value[0])
-
-
 @njit(cache=True)
 def _format_fixed(values, decimals, out):
     scale = 10.0**decimals

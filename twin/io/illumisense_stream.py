@@ -233,7 +233,7 @@ class StreamDecoder:
         return out
 
     def feed_batch(self, data: bytes) -> list[Frame]:
-        """Like :meth:`feed`, with the frames of consecutive records of one layout as ONE batch Frame.
+        """Like :meth:`feed`, with the frames of consecutive records of one decoded group as one batch Frame.
 
         The batch-first path of the live loop: no Python object is built per record. Records with sensor
         blocks (:attr:`Frame.vendor` is one frame only) and records released by the layout consensus come as
@@ -242,34 +242,20 @@ class StreamDecoder:
         Returns
         -------
         list of Frame
-            Single frames and 1-D batches, in record order; ``sum(len(f) if f.batch_shape else 1 ...)`` frames
+            Single frames and 1-D batches (one per run of consecutive records of one decoded group), in record
+            order; ``sum(len(f) if f.batch_shape else 1 ...)`` frames
             in all, the same (values, sequence numbers, timestamps) as :meth:`feed` would return.
         """
         out: list[Frame] = []
-        run: list[Frame] = []  # consecutive batches of one shape, concatenated into one
-
-        def close_run():
-            if len(run) > 1:
-                out.append(Frame._trusted(*(np.concatenate([getattr(f, k) for f in run]) for k in
-                                            ("wavelengths", "timestamp", "sequence", "powers", "status"))))
-            else:
-                out.extend(run)
-            run.clear()
-
         for item in self._feed(data):
             if isinstance(item, Record):
-                close_run()
                 out.append(item.frame)
                 continue
             grp, i0, i1 = item
             if grp.sensors:
-                close_run()
                 out += [grp.frame(i) for i in range(i0, i1)]
-                continue
-            if run and run[0].wavelengths.shape[1:] != grp.wavelengths.shape[1:]:
-                close_run()
-            run.append(grp.batch(i0, i1))
-        close_run()
+            else:  # views of the group's arrays; the live loop joins consecutive batches once (join_batches)
+                out.append(grp.batch(i0, i1))
         return out
 
     def _feed(self, data: bytes) -> list:
@@ -329,9 +315,7 @@ class StreamDecoder:
             self.records += self.sequence.count_many(seq).size
 
     def _count(self, out: list[Record]) -> list[Record]:
-        if out:
-            self.sequence.count_many([r.frame.sequence for r in out])
-            self.records += len(out)
+        self._count_seq([r.frame.sequence for r in out])
         return out
 
     def _frame(self) -> list[tuple[int, int]]:

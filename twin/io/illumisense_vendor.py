@@ -231,19 +231,20 @@ class VendorDistance:
         self._max.append(np.atleast_1d(e.max))
         self._mean.append(np.atleast_1d(e.mean))
 
-    def add_chunk(self, vendor, start: int, shapes: Shape, select: np.ndarray) -> None:
-        """Compare frames ``start:start + len(shapes)`` of a recording whose vendor shapes are ``vendor``
-        (:class:`VendorArrays` of the compared sensor, rows from 0; or None: nothing to do); ``select`` (bool
-        per frame) picks the frames to compare."""
+    def add_chunk(self, vendor, shapes: Shape, select: np.ndarray) -> None:
+        """Compare a chunk of a recording's frames with their vendor shapes ``vendor`` (:class:`VendorArrays`
+        of the compared sensor, the chunk's rows; or None: nothing to do); ``select`` (bool per frame) picks
+        the frames to compare."""
         if vendor is None:
             return
         m = len(shapes)
-        sel = np.flatnonzero(select & vendor.present[start : start + m])
+        sel = np.flatnonzero(select & vendor.present[:m])
         if sel.size:
-            self.add(shapes.positions[sel], shapes.s, vendor.positions[start + sel], vendor.s)
+            self.add(shapes.positions[sel], shapes.s, vendor.positions[sel], vendor.s)
 
-    def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status) -> None:
-        if shapes is None or not frames:
+    def __call__(self, frames: Sequence[Frame] | Frame, shapes: Shape | None, status) -> None:
+        # a batch Frame (the batch decoder's output) never carries sensor blocks: nothing to walk
+        if shapes is None or isinstance(frames, Frame) or not frames:
             return
         now = time.monotonic()
         if self.rate is not None and now - self._last < 1.0 / self.rate:

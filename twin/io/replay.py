@@ -190,7 +190,7 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
             n_valid = np.count_nonzero(shapes.valid, axis=-1)
             compare = (np.arange(start, start + m) % stride == 0) & (n_valid == g)
             if reader.has_vendor:
-                vendor.add_chunk(reader.vendor(start, start + m)[0], 0, shapes, compare)
+                vendor.add_chunk(reader.vendor(start, start + m)[0], shapes, compare)
             if reader.has_truth and truth_note is None:
                 truth = reader.truth(start, start + m, fields=("positions",))
                 sel = np.flatnonzero(compare[: len(truth)] & truth.all_present)
