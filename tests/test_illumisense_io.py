@@ -18,17 +18,18 @@ import sys
 import time
 
 import numpy as np
-from io_helpers import ScriptedServer, wait_until
+from io_helpers import ScriptedServer, singles, wait_until
 
 from sim_interrogator.servers import IllumisenseServer
 from twin import Reconstructor
 from twin.io import illumisense
 from twin.io.illumisense.driver import IllumisenseSource
-from twin.io.illumisense.vendor import VENDOR_FROM_BASE, VendorDistance
+from twin.io.illumisense.vendor import VENDOR_FROM_BASE
 from twin.io.record import open_recording
 from twin.io.source import open_source
-from twin.io.synthetic import SyntheticSource, multicore_fiber
 from twin.live import LiveLoop
+from twin.reference_errors import VendorDistance
+from twin.synthetic import SyntheticSource, multicore_fiber
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1"}
@@ -38,7 +39,7 @@ def read_n(src, n: int, timeout: float = 30.0) -> list:
     out = []
     deadline = time.monotonic() + timeout
     while len(out) < n and time.monotonic() < deadline:
-        out += src.read_many(n - len(out), 0.2)
+        out += singles(src.read_batch(n - len(out), 0.2))
     return out
 
 
@@ -129,7 +130,7 @@ def test_live_loop_reports_the_distance_to_the_vendor_shape():
     fiber = multicore_fiber(7, 18)
     with IllumisenseServer(SyntheticSource(rate=500, fiber=fiber, noise=0.002, seed=1), port=0) as server:
         src = open_source(f"illumisense://127.0.0.1:{server.address[1]}", fiber=fiber)
-        vendor = VendorDistance(rate=50.0)
+        vendor = VendorDistance()
         summary = LiveLoop(src, Reconstructor(fiber), [vendor]).run(max_frames=300, duration=20,
                                                                     handle_signals=False)
     assert summary.status.frames >= 300

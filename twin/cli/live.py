@@ -5,11 +5,12 @@
               [--igtl [HOST:]PORT [--igtl-rate HZ]]
 
 Prints a status line about once a second (state, frame rate, lost samples, framing errors, reconnects,
-partial/unusable frames, tip position in mm; on stderr with ``--json``) and a summary at the end; ``--json``
-prints the summary as one JSON object on stdout. Ctrl-C ends the run cleanly: the recording is flushed and
-marked complete, and the summary is printed. Exit status 0, or 1 when a sink failed (e.g. the recording could
-not be written) or the source failed for good (a damaged recording: ``replay://FILE?salvage=1`` replays the
-frames before the damage instead).
+partial/unusable frames, tip position in mm, and the latest error against the truth or the interrogator's own
+shape when the frames carry one; on stderr with ``--json``) and a summary at the end (with the errors over every
+complete frame: docs/figures.md); ``--json`` prints the summary as one JSON object on stdout. Ctrl-C ends the
+run cleanly: the recording is flushed and marked complete, and the summary is printed. Exit status 0, or 1 when
+a sink failed (e.g. the recording could not be written) or the source failed for good (a damaged recording:
+``replay://FILE?salvage=1`` replays the frames before the damage instead).
 
 ``--viewer`` shows the shapes live in a browser (meshcat, :mod:`twin.viewer`; the URL to open is printed on
 stderr): the latest shape at most ``--viewer-rate`` times a second (30), the truth beside it when the source
@@ -29,6 +30,7 @@ one a recording carries, else none.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -38,6 +40,7 @@ from twin.fiber import FiberModel
 from twin.io.source import open_source, parse_url
 from twin.live import LiveLoop, LiveSummary, PrinterSink
 from twin.reconstruct import Reconstructor
+from twin.reference_errors import TruthError, VendorDistance
 
 __all__ = ["add_arguments", "run"]
 
@@ -108,8 +111,11 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
         calibration = Calibration.load(args.calibration) if args.calibration else getattr(first, "calibration", None)
         rec = Reconstructor(fiber, calibration, method=args.method)
+        # the references the frames may carry: the simulator's truth, the interrogator's own shape
+        truth, vendor = TruthError(), VendorDistance()
         if not args.quiet:
-            sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate))
+            sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate,
+                                     extras=(truth.status_text, vendor.status_text)))
         recorder = None
         if args.record:
             from twin.io.record import Recorder
@@ -117,10 +123,7 @@ def run(args: argparse.Namespace) -> int:
             recorder = Recorder(args.record, fiber=fiber, calibration=calibration, source_url=args.url,
                                 rate=first.rate)
             sinks.append(recorder)
-        from twin.io.illumisense.vendor import VendorDistance
-
-        vendor = VendorDistance()  # ILLumiSense sends its own shape: compare ours with it (a few frames/s)
-        sinks.append(vendor)
+        sinks += [truth, vendor]
         if args.viewer:
             from twin.viewer import Viewer, ViewerConfig, ViewerSink
 
@@ -145,6 +148,11 @@ def run(args: argparse.Namespace) -> int:
     loop = LiveLoop(factory, rec, sinks, stale_after=args.stale)
     summary = loop.run(duration=args.duration, max_frames=args.frames)
     out = summary.as_dict()
+    errors = truth.result()
+    if errors is not None:
+        out["truth"] = dataclasses.asdict(errors)
+    elif truth.note is not None:
+        out["truth_note"] = truth.note
     out.update(vendor.as_dict())
     if recorder is not None:
         out["record_file"] = str(args.record)
@@ -173,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
 def format_summary(summary: LiveSummary, out: dict) -> str:
     s = summary.status
     lines = [
-        f"twin live: {summary.duration:.1f} s, {s.frames} frames ({summary.frames_per_s:.1f} Hz), "
+        f"twin live: {summary.duration:.1f} s, {s.frames} frames (arrived at {summary.frames_per_s:.1f} frames/s), "
         f"ended: {summary.reason}",
         f"  lost samples {s.lost_samples} in {s.sequence_gaps} gaps, sequence resets {s.sequence_resets}, "
         f"framing errors {s.framing_errors}, disconnects {s.disconnects}, reconnects {s.reconnects}, "
@@ -187,9 +195,14 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
     ]
     if s.tip is not None:
         lines.append("  last tip (" + ", ".join(f"{1e3 * x:.2f}" for x in s.tip) + ") mm")
+    if "truth" in out:
+        t = out["truth"]
+        lines.append(f"  vs truth ({t['frames_compared']} frames, {t['register']}): distance to the true curve mean "
+                     f"{t['mean_error_mm']:.3f} mm, max {t['max_error_mm']:.3f} mm; tip to the true tip mean "
+                     f"{t['tip_error_mm_mean']:.3f} mm, max {t['tip_error_mm_max']:.3f} mm")
     if "vendor_distance_max_mm" in out:
-        lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): max "
-                     f"{out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
+        lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): distance "
+                     f"max {out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
     if "record_file" in out:
         lines.append(f"  recorded {out['recorded_frames']} frames to {out['record_file']}"
                      + (f"; {out['recorded_vendor_dropped']} sensor blocks not stored (a layout other than the "
