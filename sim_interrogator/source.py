@@ -13,11 +13,10 @@ import importlib.util
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import SETUPS, parse_params
 from sim_interrogator.sim import SimInterrogator
+from twin.io.options import Option, parse_options
 from twin.io.source import parse_url
 
 __all__ = ["open_sim"]
-
-_SOURCE_KEYS = {"rate", "realtime", "optics", "noise_pm", "seed", "truth"}
 
 #: Modules that register more setups (imported on first use; absent ones are skipped).
 SETUP_MODULES = ("sim_interrogator.sheath", "sim_interrogator.tendon", "sim_interrogator.thermal")
@@ -29,6 +28,17 @@ def _load_setups() -> None:
             importlib.import_module(name)
 
 
+#: the interrogator's options of ``sim://`` (:mod:`twin.io.options`); every other key is the setup's
+SIM_OPTIONS = {
+    "rate": Option("float", default=100.0, low=0.0, low_open=True, high=10_000.0),
+    "realtime": Option("bool", default=False),
+    "optics": Option("str", default="realistic", choices=("realistic", "ideal")),
+    "noise_pm": Option("float", low=0.0),
+    "seed": Option("int", low=0),
+    "truth": Option("bool", default=True),
+}
+
+
 def open_sim(url: str, **options) -> SimInterrogator:
     """Build the setup named in ``url`` and return its SimInterrogator (``options`` override the query)."""
     _load_setups()
@@ -38,22 +48,13 @@ def open_sim(url: str, **options) -> SimInterrogator:
     name = name.strip("/")
     if name not in SETUPS:
         raise ValueError(f"{url!r}: unknown simulated setup {name!r}; known: {', '.join(sorted(SETUPS))}")
-    source = {k: params.pop(k) for k in list(params) if k in _SOURCE_KEYS}
-    kind = source.get("optics", "realistic")
-    if kind not in ("realistic", "ideal"):
-        raise ValueError(f"{url!r}: optics must be realistic or ideal, got {kind!r}")
-    cfg = OpticsConfig() if kind == "realistic" else OpticsConfig.ideal()
-    try:
-        if "noise_pm" in source:
-            cfg = cfg.replace(noise=float(source["noise_pm"]) * 1e-3)
-        if "seed" in source:
-            cfg = cfg.replace(seed=int(source["seed"]))
-        rate = float(source.get("rate", 100.0))
-    except ValueError as exc:
-        raise ValueError(f"{url!r}: {exc}") from None
-    setup = SETUPS[name](**parse_params(SETUPS[name], params))
-    flag = {"1", "true", "yes", "on"}
-    sim = SimInterrogator(setup, fiber, optics=cfg, rate=rate, realtime=source.get("realtime", "0").lower() in flag,
-                          truth=source.get("truth", "1").lower() in flag)
+    opts = parse_options(url, params, SIM_OPTIONS, extra=True)
+    cfg = OpticsConfig() if opts["optics"] == "realistic" else OpticsConfig.ideal()
+    if "noise_pm" in opts:
+        cfg = cfg.replace(noise=opts["noise_pm"] * 1e-3)
+    if "seed" in opts:
+        cfg = cfg.replace(seed=opts["seed"])
+    setup = SETUPS[name](**parse_params(SETUPS[name], opts["_extra"]))
+    sim = SimInterrogator(setup, fiber, optics=cfg, rate=opts["rate"], realtime=opts["realtime"], truth=opts["truth"])
     sim.url = url
     return sim

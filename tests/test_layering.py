@@ -230,7 +230,7 @@ def test_every_registered_source_satisfies_the_source_protocol():
     for scheme, cls in classes.items():
         for name in members:
             assert hasattr(cls, name), f"{scheme}: {cls.__name__} has no {name}"
-        impl = getattr(cls, "read_batch")
+        impl = cls.read_batch
         assert impl is not Source.read_batch, f"{scheme}: {cls.__name__} does not implement read_batch"
         params = list(inspect.signature(impl).parameters)
         assert params[:3] == list(proto.parameters), f"{scheme}: {cls.__name__}.read_batch{inspect.signature(impl)}"
@@ -256,3 +256,15 @@ def test_sources_deliver_one_batch_form(tmp_path):
         for b in (one, more):
             assert isinstance(b, Frame) and len(b.batch_shape) == 1
         assert len(one) == 1 and 1 <= len(more) <= 30 and more.sequence[0] == one.sequence[0] + 1
+
+
+def test_every_opener_uses_the_option_parser():
+    """Options are parsed one way (twin/io/options.py): every registered opener calls parse_options."""
+    import inspect
+
+    from twin import registry
+    from twin.io.source import schemes
+
+    for scheme in schemes():
+        source = inspect.getsource(registry.load("twin.sources", scheme))
+        assert "parse_options(" in source, f"{scheme}:// parses its options its own way"

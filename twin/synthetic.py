@@ -46,6 +46,7 @@ from twin import strain
 from twin.curve import step_grid
 from twin.fiber import FiberModel
 from twin.frames import Frame, PeakStatus, Truth
+from twin.io.options import Option, parse_options
 from twin.io.source import MAX_BATCH, Source, SourceClosed, parse_url
 
 __all__ = ["SyntheticSource", "arc_truth", "multicore_fiber", "open_synthetic"]
@@ -283,17 +284,25 @@ class SyntheticSource(Source):
         return {"frames": self._index, "rate_hz": self.rate}
 
 
-def _flag(value: str, key: str) -> bool:
-    v = value.strip().lower()
-    if v in ("1", "true", "yes", "on"):
-        return True
-    if v in ("0", "false", "no", "off"):
-        return False
-    raise ValueError(f"synthetic: {key} must be 1 or 0, got {value!r}")
-
-
-_FLOATS = ("rate", "kappa", "kappa_amp", "period", "phi", "spin", "noise", "quantise", "drop", "duration")
-_INTS = ("cores", "gratings", "seed", "frames")
+#: the options of ``synthetic://`` (module docstring; :mod:`twin.io.options`)
+SYNTHETIC_OPTIONS = {
+    "rate": Option("float", low=0.0, low_open=True, high=1e6),
+    "pace": Option("str", choices=("realtime", "max")),
+    "cores": Option("int", low=3, high=7),
+    "gratings": Option("int", low=3, high=10_000),
+    "kappa": Option("float"),
+    "kappa_amp": Option("float"),
+    "period": Option("float", low=0.0, low_open=True),
+    "phi": Option("float"),
+    "spin": Option("float"),
+    "noise": Option("float", low=0.0),
+    "quantise": Option("float", low=0.0),
+    "drop": Option("float", low=0.0, high=0.999999),
+    "seed": Option("int", low=0),
+    "frames": Option("int", low=1),
+    "duration": Option("float", low=0.0, low_open=True),
+    "truth": Option("bool"),
+}
 
 
 def open_synthetic(url: str, **options) -> SyntheticSource:
@@ -304,23 +313,8 @@ def open_synthetic(url: str, **options) -> SyntheticSource:
     _, rest, query = parse_url(url)
     if rest.strip("/"):
         raise ValueError(f"{url!r}: synthetic URLs take only options: synthetic://?rate=1000&cores=7")
-    kw: dict = {}
-    known = {*_FLOATS, *_INTS, "pace", "truth"}
-    for key, value in query.items():
-        if key not in known:
-            raise ValueError(f"{url!r}: unknown option {key!r}; known: {', '.join(sorted(known))}")
-        try:
-            if key in _FLOATS:
-                kw[key] = float(value)
-            elif key in _INTS:
-                kw[key] = int(value)
-            elif key == "pace":
-                if value not in ("realtime", "max"):
-                    raise ValueError
-                kw["pace"] = value == "realtime"
-            else:
-                kw[key] = _flag(value, key)
-        except ValueError:
-            raise ValueError(f"{url!r}: option {key}={value!r} is not valid") from None
+    kw = parse_options(url, query, SYNTHETIC_OPTIONS)
+    if "pace" in kw:
+        kw["pace"] = kw["pace"] == "realtime"
     kw.update(options)
     return SyntheticSource(url=url, **kw)

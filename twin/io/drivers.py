@@ -25,16 +25,17 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from twin.frames import Frame, PeakStatus
 from twin.io.errors import FramingError
+from twin.io.options import Option
 from twin.io.source import MAX_BATCH, Source, SourceClosed
 from twin.io.transport import Backoff, ConnectionLost
 
-__all__ = ["COMMON_OPTIONS", "MISSING", "Driver", "flag", "int_list", "split_common", "url_options"]
+__all__ = ["COMMON_OPTIONS", "MISSING", "Driver", "split_common"]
 
 MISSING = np.uint8(PeakStatus.MISSING)
 
@@ -221,33 +222,14 @@ class Driver(Source):
 # -------------------------------------------------------------------------------------------- URL options
 
 
-def url_options(url: str, query: dict[str, str], parsers: dict[str, Callable[[str], object]]) -> dict:
-    unknown = sorted(set(query) - set(parsers))
-    if unknown:
-        raise ValueError(f"{url!r}: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(parsers))}")
-    out = {}
-    for key, value in query.items():
-        try:
-            out[key] = parsers[key](value)
-        except ValueError:
-            raise ValueError(f"{url!r}: option {key}={value!r} is not valid") from None
-    return out
-
-
-def flag(v: str) -> bool:
-    if v.lower() in ("1", "true", "yes", "on"):
-        return True
-    if v.lower() in ("0", "false", "no", "off"):
-        return False
-    raise ValueError(v)
-
-
-def int_list(v: str) -> list[int]:
-    return [int(x) for x in v.split(",") if x.strip()]
-
-
-COMMON_OPTIONS = {"wait": flag, "retry_for": float, "connect_timeout": float}
+#: the options every driver takes (:mod:`twin.io.options`); drivers add their own
+COMMON_OPTIONS = {
+    "wait": Option("bool"),
+    "retry_for": Option("float", low=0.0),
+    "connect_timeout": Option("float", low=0.0, low_open=True, high=3600.0),
+}
 
 
 def split_common(opts: dict) -> dict:
+    """Take the keywords of :class:`Driver` (``wait``, ``retry_for``) out of parsed options."""
     return {k: opts.pop(k) for k in ("wait", "retry_for") if k in opts}

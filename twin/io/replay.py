@@ -13,6 +13,7 @@ import numpy as np
 
 from twin.frames import Frame
 from twin.io.errors import RecordingDamaged
+from twin.io.options import Option, parse_options
 from twin.io.record import open_recording
 from twin.io.source import MAX_BATCH, Source, SourceClosed, parse_url
 
@@ -160,33 +161,29 @@ class ReplaySource(Source):
         return {"url": self.url, **self.info}
 
 
+#: the options of ``replay://`` (:mod:`twin.io.options`)
+REPLAY_OPTIONS = {
+    "speed": Option("float", default=1.0, low=0.0, low_open=True, words={"recorded": 1.0, "max": None}),
+    "follow": Option("bool"),
+    "salvage": Option("bool"),
+    "channels": Option("str", choices=("cores", "single")),
+    "cores": Option("int", low=1, high=64),
+}
+
+
 def open_replay(url: str, **options) -> ReplaySource:
-    """Open ``replay://FILE?speed=recorded|max|FACTOR&follow=0|1&salvage=0|1``.
+    """Open ``replay://FILE?speed=recorded|max|FACTOR&follow=0|1&salvage=0|1&channels=cores|single&cores=N``.
 
     ``FILE`` is a path (``replay:///abs/path.h5`` or ``replay://relative.h5``). Default speed: as recorded.
     """
     _, rest, query = parse_url(url)
     if not rest:
         raise ValueError(f"{url!r}: expected replay://FILE")
-    known = {"speed", "follow", "cores", "channels", "salvage"}
-    unknown = sorted(set(query) - known)
-    if unknown:
-        raise ValueError(f"{url!r}: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
-    sp = query.get("speed", "recorded")
-    if sp == "recorded":
-        speed: float | None = 1.0
-    elif sp == "max":
-        speed = None
-    else:
-        try:
-            speed = float(sp)
-        except ValueError:
-            raise ValueError(f"{url!r}: speed must be 'recorded', 'max' or a factor, got {sp!r}") from None
-    yes = ("1", "true", "yes")
-    kw: dict = {"speed": speed, "follow": query.get("follow", "0") in yes, "salvage": query.get("salvage", "0") in yes}
-    if query.get("channels") == "single":
-        kw["channels_as"] = "single"
-        kw["n_cores"] = int(query.get("cores", "0") or 0) or None
+    kw = parse_options(url, query, REPLAY_OPTIONS)  # speed: 1.0 when absent, None for "max"
+    channels = kw.pop("channels", "cores")
+    n_cores = kw.pop("cores", None)
+    if channels == "single":
+        kw["channels_as"], kw["n_cores"] = "single", n_cores
     options.pop("fiber", None)  # a recording knows its fibre; the live loop takes --fiber separately
     kw.update(options)
     return ReplaySource(rest, url=url, **kw)
