@@ -39,6 +39,9 @@ from twin.io.source import open_source, parse_url
 from twin.live import LiveLoop, LiveSummary, PrinterSink
 from twin.reconstruct import Reconstructor
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"
+
 __all__ = ["add_arguments", "run"]
 
 #: schemes whose opener takes the fibre model (to program peak windows, map peaks to gratings, …)
