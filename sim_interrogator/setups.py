@@ -2,8 +2,9 @@
 
 A :class:`Setup` is what :class:`~sim_interrogator.sim.SimInterrogator` runs: it builds the scene, brings it
 to its starting state, and is asked to act on the model as simulated time passes (move a hub, change
-constraint targets, apply tendon forces, change the temperature). Setups are registered by name in
-:data:`SETUPS`, which is what ``sim://NAME?key=value…`` opens. The experiments in ``scenarios/`` run setups and
+constraint targets, apply tendon forces, change the temperature). Setups are registered by name as entry points
+of the ``twin.sim_setups`` group in pyproject.toml (:mod:`twin.registry`), which is what ``sim://NAME?key=value…``
+opens; a setup's :attr:`Setup.name` is its entry's name. The experiments in ``scenarios/`` run setups and
 evaluate what comes out.
 """
 
@@ -19,15 +20,7 @@ from models.fixtures import ExtendedCurve, build_connect, build_groove, build_tu
 from twin import shapes
 from twin.io.options import Option, parse_options
 
-__all__ = ["SETUPS", "CalibrationPoses", "Setup", "StaticShape", "parse_params", "register"]
-
-#: name → Setup subclass; ``sim://NAME?…`` instantiates it with the query parameters.
-SETUPS: dict[str, type[Setup]] = {}
-
-
-def register(cls: type[Setup]) -> type[Setup]:
-    SETUPS[cls.name] = cls
-    return cls
+__all__ = ["CalibrationPoses", "Setup", "StaticShape", "parse_params"]
 
 
 class Setup:
@@ -103,7 +96,6 @@ def parse_params(cls: type[Setup], params: dict[str, str]) -> dict:
     return parse_options(f"sim://{cls.name}", params, spec)
 
 
-@register
 class StaticShape(Setup):
     """The catheter held in one library shape (the paper's static experiment).
 
@@ -152,7 +144,6 @@ class StaticShape(Setup):
                 "segments": self.spec.n_segments, "timestep": self.spec.timestep}
 
 
-@register
 class CalibrationPoses(Setup):
     """The two poses of the two-step calibration, on request: ``straight``, then an in-plane ``bend``.
 

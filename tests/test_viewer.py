@@ -612,7 +612,7 @@ def test_sink_in_the_live_loop_at_1_khz_draws_at_most_its_rate(make_viewer):
 
 # ------------------------------------------------------------------------------------------------ command line
 def test_take_viewer_options_anywhere_among_the_scenario_options():
-    from twin.cli.run import take_viewer_options
+    from twin.cli.run_command import take_viewer_options
 
     assert take_viewer_options(["--shapes", "arc", "--viewer", "--json"]) == (["--shapes", "arc", "--json"],
                                                                              True, None, False)

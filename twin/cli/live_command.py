@@ -42,6 +42,9 @@ from twin.live import LiveLoop, LiveSummary, PrinterSink
 from twin.reconstruct import Reconstructor
 from twin.reference_errors import TruthError, VendorDistance
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"
+
 __all__ = ["add_arguments", "run"]
 
 #: schemes whose opener takes the fibre model (to program peak windows, map peaks to gratings, …)

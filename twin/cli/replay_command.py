@@ -34,6 +34,9 @@ from twin.fiber import FiberModel
 from twin.metrics import REGISTRATIONS
 from twin.replay_summary import ReplaySummary, summarize
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "reconstruct a recording (twin HDF5 or ILLumiSense log) and summarise it"
+
 __all__ = ["add_arguments", "format_summary", "run"]
 
 

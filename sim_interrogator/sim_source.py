@@ -7,26 +7,14 @@ Query keys are the setup's own parameters (e.g. ``shape``, ``fixture``), plus th
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-
 from sim_interrogator.optics import OpticsConfig
-from sim_interrogator.setups import SETUPS, parse_params
+from sim_interrogator.setups import parse_params
 from sim_interrogator.sim import SimInterrogator
+from twin import registry
 from twin.io.options import Option, parse_options
 from twin.io.source import parse_url
 
 __all__ = ["open_sim"]
-
-#: Modules that register more setups (imported on first use; absent ones are skipped).
-SETUP_MODULES = ("sim_interrogator.sheath", "sim_interrogator.tendon", "sim_interrogator.thermal")
-
-
-def _load_setups() -> None:
-    for name in SETUP_MODULES:
-        if importlib.util.find_spec(name) is not None:
-            importlib.import_module(name)
-
 
 #: the interrogator's options of ``sim://`` (:mod:`twin.io.options`); every other key is the setup's
 SIM_OPTIONS = {
@@ -41,20 +29,21 @@ SIM_OPTIONS = {
 
 def open_sim(url: str, **options) -> SimInterrogator:
     """Build the setup named in ``url`` and return its SimInterrogator (``options`` override the query)."""
-    _load_setups()
     _, name, params = parse_url(url)
     fiber = options.pop("fiber", None)
     params.update({k: str(v) for k, v in options.items()})
     name = name.strip("/")
-    if name not in SETUPS:
-        raise ValueError(f"{url!r}: unknown simulated setup {name!r}; known: {', '.join(sorted(SETUPS))}")
+    known = registry.entries("twin.sim_setups")
+    if name not in known:
+        raise ValueError(f"{url!r}: unknown simulated setup {name!r}; known: {', '.join(known)}")
     opts = parse_options(url, params, SIM_OPTIONS, extra=True)
     cfg = OpticsConfig() if opts["optics"] == "realistic" else OpticsConfig.ideal()
     if "noise_pm" in opts:
         cfg = cfg.replace(noise=opts["noise_pm"] * 1e-3)
     if "seed" in opts:
         cfg = cfg.replace(seed=opts["seed"])
-    setup = SETUPS[name](**parse_params(SETUPS[name], opts["_extra"]))
+    cls = registry.load("twin.sim_setups", name)
+    setup = cls(**parse_params(cls, opts["_extra"]))
     sim = SimInterrogator(setup, fiber, optics=cfg, rate=opts["rate"], realtime=opts["realtime"], truth=opts["truth"])
     sim.url = url
     return sim
