@@ -11,9 +11,12 @@ source), the demo and the tests count the same frames the same way; docs/figures
   :data:`twin.io.illumisense.vendor.VENDOR_FROM_BASE`'s, and the registration makes the figures independent
   of it.
 
-Which frames: every frame whose reconstruction is complete (all gratings solved) and which carries the
-reference (a truth present; sensor ``sensor``'s block present), or every ``every``-th such frame counted from
-the first frame the sink sees — a rule that depends on the frames only, never on how they were batched.
+Which frames: among the frames whose reconstruction is complete (all gratings solved) and which carry the
+reference (a truth present; sensor ``sensor``'s block present), the first of each 1/``per_second`` s slot of the
+source's timestamps (10 a second of source time by default: a comparison costs about as much as a
+reconstruction, so every frame of a 1 kHz stream would not keep up); ``per_second=None`` takes every one. A frame
+without a timestamp is a slot of its own. The rule depends on the frames only, never on how they were batched or
+paced, so every path compares the same frames.
 """
 
 from __future__ import annotations
@@ -108,18 +111,25 @@ class TruthErrors:
     tip_error_mm_max: float
 
 
-class _Stride:
-    """Every ``every``-th frame counted from the first the sink sees (path-independent sampling)."""
+class _Slots:
+    """The first eligible frame of each 1/``per_second`` s slot of the source's timestamps (module docstring)."""
 
-    def __init__(self, every: int):
-        if every < 1:
-            raise ValueError(f"every must be at least 1, got {every}")
-        self.every, self.seen = int(every), 0
+    def __init__(self, per_second: float | None):
+        if per_second is not None and not per_second > 0:
+            raise ValueError(f"per_second must be positive (or None: every frame), got {per_second}")
+        self.per_second = per_second
+        self._last = np.nan  # slot of the last frame taken
 
-    def take(self, n: int) -> np.ndarray:
-        idx = np.arange(self.seen, self.seen + n)
-        self.seen += n
-        return idx % self.every == 0
+    def take(self, eligible: np.ndarray, timestamps: np.ndarray) -> np.ndarray:
+        """Indices of the frames to compare, of those ``eligible`` (bool per frame)."""
+        idx = np.flatnonzero(eligible)
+        if self.per_second is None or not idx.size:
+            return idx
+        slot = np.floor(np.asarray(timestamps, np.float64)[idx] * self.per_second)
+        prev = np.concatenate([[self._last], slot[:-1]])
+        new = ~(slot == prev)  # NaN (no timestamp) never equals: a slot of its own
+        self._last = slot[-1]
+        return idx[new]
 
 
 class TruthError:
@@ -129,8 +139,8 @@ class TruthError:
     ----------
     register : str
         Registration before comparing (:func:`twin.metrics.shape_error`).
-    every : int
-        Compare every ``every``-th frame (1: all).
+    per_second : float or None
+        Frames compared per second of source time (module docstring); None: every eligible frame.
 
     Attributes
     ----------
@@ -142,25 +152,22 @@ class TruthError:
         Some frame carried a truth.
     """
 
-    def __init__(self, register: str = "kabsch", every: int = 1):
+    def __init__(self, register: str = "kabsch", per_second: float | None = 10.0):
         self.register = register
-        self._stride = _Stride(every)
+        self._slots = _Slots(per_second)
         self._parts: dict[str, list[np.ndarray]] = {"mean": [], "max": [], "rms": [], "tip": []}
         self.latest: ErrorStats | None = None
         self.note: str | None = None
         self.seen_truth = False
 
     def __call__(self, frames: Frame, shapes: Shape | None, status) -> None:
-        if not len(frames):
-            return
-        take = self._stride.take(len(frames))
         truth = frames.truth
-        if truth is None:
+        if not len(frames) or truth is None:
             return
         self.seen_truth = True
         if shapes is None or self.note is not None:
             return
-        sel = np.flatnonzero(take & shapes.all_valid & truth.all_present)
+        sel = self._slots.take(shapes.all_valid & truth.all_present, frames.timestamp)
         if not sel.size:
             return
         try:
@@ -209,13 +216,13 @@ class VendorDistance:
     ----------
     sensor : int
         Which sensor block is the fibre we reconstruct (0: the first).
-    every : int
-        Compare every ``every``-th frame (1: all).
+    per_second : float or None
+        Frames compared per second of source time (module docstring); None: every eligible frame.
     """
 
-    def __init__(self, sensor: int = 0, every: int = 1):
+    def __init__(self, sensor: int = 0, per_second: float | None = 10.0):
         self.sensor = sensor
-        self._stride = _Stride(every)
+        self._slots = _Slots(per_second)
         self._max: list[np.ndarray] = []
         self._mean: list[np.ndarray] = []
         self.latest: ErrorStats | None = None
@@ -240,14 +247,11 @@ class VendorDistance:
         self.latest = ErrorStats(*(float(np.atleast_1d(getattr(e, k))[-1]) for k in ("max", "mean", "rms", "tip")))
 
     def __call__(self, frames: Frame, shapes: Shape | None, status) -> None:
-        if not len(frames):
-            return
-        take = self._stride.take(len(frames))
         v = frames.vendor
-        if shapes is None or not v or len(v) <= self.sensor:
+        if not len(frames) or shapes is None or not v or len(v) <= self.sensor:
             return
         arrays = v[self.sensor]
-        sel = np.flatnonzero(take & arrays.present & shapes.all_valid)
+        sel = self._slots.take(arrays.present & shapes.all_valid, frames.timestamp)
         if sel.size:
             self.add(shapes.positions[sel], shapes.s, arrays.positions[sel], arrays.s)
 

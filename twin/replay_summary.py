@@ -24,6 +24,10 @@ from twin.reference_errors import TruthError, TruthErrors, VendorDistance
 
 __all__ = ["ReplaySummary", "TruthErrors", "summarize"]
 
+#: the live loop's counts a replay summary carries as they are (docs/figures.md)
+_COUNTED = ("lost_samples", "sequence_gaps", "sequence_resets", "frames_complete", "frames_partial",
+            "frames_unusable", "frames_missing_peaks", "invalid_nodes", "peaks_outside_window")
+
 
 @dataclass(frozen=True)
 class ReplaySummary:
@@ -100,7 +104,7 @@ class ReplaySummary:
 
 
 def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration: Calibration | None = None,
-              method: str = "material", register: str = "kabsch", max_compare: int | None = None,
+              method: str = "material", register: str = "kabsch", compare_rate: float | None = 10.0,
               channels_as: str = "cores", n_cores: int | None = None, batch: int = 512,
               salvage: bool = False, handle_signals: bool = False) -> ReplaySummary:
     """Reconstruct a recording through the live loop and summarise it.
@@ -113,9 +117,9 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
         Default: the ones stored in the recording (else the reference fibre, said in the notes).
     method, register :
         Reconstruction method; registration before comparing with the truth.
-    max_compare : int or None
-        Compare at most about this many frames with the references, every k-th frame (k = ⌈frames /
-        max_compare⌉); None: every frame, as ``twin live`` does.
+    compare_rate : float or None
+        Frames compared with the references per second of the recording's time, as ``twin live`` compares
+        them (:mod:`twin.reference_errors`); None: every complete frame.
     channels_as, n_cores :
         Log files: channel layout (:mod:`twin.io.record`).
     batch : int
@@ -148,12 +152,11 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
         if len(source.reader) and shape != (fiber.n_gratings, fiber.n_cores):
             raise ValueError(f"{path}: frames have {shape[0]} gratings × {shape[1]} cores but the fibre model has "
                              f"{fiber.n_gratings} × {fiber.n_cores}; give the sensor's model with --fiber")
-        every = 1 if not max_compare else max(1, -(-len(source.reader) // max(1, max_compare)))
     except BaseException:
         source.close()
         raise
     rec = Reconstructor(fiber, calibration, method=method)
-    truth, vendor = TruthError(register, every=every), VendorDistance(every=every)
+    truth, vendor = TruthError(register, per_second=compare_rate), VendorDistance(per_second=compare_rate)
     loop = LiveLoop(source, rec, [truth, vendor], max_batch=batch, realtime=False, quiet=True)
     run = loop.run(handle_signals=handle_signals)
     info = source.info
@@ -196,15 +199,7 @@ def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth:
         frames_recorded=max(n, info["frames_recorded"]),
         time_span=None if span is None else round(span, 6),
         rate_hz=round((n - 1) / span, 3) if span is not None and span > 0 and n >= 2 else None,
-        lost_samples=st.lost_samples,
-        sequence_gaps=st.sequence_gaps,
-        sequence_resets=st.sequence_resets,
-        frames_complete=st.frames_complete,
-        frames_partial=st.frames_partial,
-        frames_unusable=st.frames_unusable,
-        frames_missing_peaks=st.frames_missing_peaks,
-        invalid_nodes=st.invalid_nodes,
-        peaks_outside_window=st.peaks_outside_window,
+        **{k: getattr(st, k) for k in _COUNTED},
         reconstruct_frames_per_s=None if rfs is None else round(rfs, 1),
         skipped_lines=info["skipped_lines"],
         damage=tuple(info["damage"]),

@@ -1,6 +1,6 @@
 """`twin replay FILE`: reconstruct a recording and print its summary (:func:`twin.replay_summary.summarize`).
 
-    twin replay run.h5 [--fiber FILE] [--calibration FILE] [--json] [--register kabsch] [--max-compare N]
+    twin replay run.h5 [--fiber FILE] [--calibration FILE] [--json] [--register kabsch] [--compare-rate HZ]
     twin replay illumisense_log.txt --fiber sensor.toml
     twin replay cut.h5 --salvage
 
@@ -9,7 +9,8 @@ process) or an ILLumiSense log file (:mod:`twin.io.illumisense.log`), reconstruc
 batches — the live loop over the file at full speed, so it reports what ``twin live replay://FILE`` reports —
 frames, time span, lost samples, partial and unusable frames, invalid nodes and the reconstruction throughput of
 the run. When the recording holds the simulator's truth, it also reports the shape error against it (after
-``--register``; on every complete frame, or every k-th with ``--max-compare N``, in mm). When the recording (a
+``--register``; on the first complete frame of each 0.1 s of the recording's time, as ``twin live`` compares,
+or on ``--compare-rate`` frames a second, 0 for every complete frame; in mm). When the recording (a
 twin HDF5 recording or an ILLumiSense log) carries the interrogator's own shape (sensor blocks), it reports the
 distance between that shape and ours after a rigid registration (``vendor_distance_*_mm``,
 :mod:`twin.reference_errors`). docs/figures.md defines every figure.
@@ -47,9 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=("material", "paper"), default="material")
     parser.add_argument("--register", choices=REGISTRATIONS, default="kabsch",
                         help="registration before comparing with the truth (default kabsch)")
-    parser.add_argument("--max-compare", type=int, default=None, metavar="N",
-                        help="compare about N frames with the truth and the interrogator's shape, every k-th "
-                             "(default: every complete frame, as twin live does)")
+    parser.add_argument("--compare-rate", type=float, default=10.0, metavar="HZ",
+                        help="frames compared with the truth and the interrogator's shape per second of the "
+                             "recording's time, as twin live compares them (default 10; 0: every complete frame)")
     parser.add_argument("--channels", choices=("cores", "single"), default="cores",
                         help="log files: one channel per core (default) or all cores on one channel")
     parser.add_argument("--cores", type=int, default=None, help="log files with --channels single: core count")
@@ -60,10 +61,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.compare_rate >= 0:  # NaN too
+        raise ValueError(f"--compare-rate must be a number of frames per second >= 0, got {args.compare_rate}")
     fiber = FiberModel.load(args.fiber) if args.fiber else None
     calibration = Calibration.load(args.calibration) if args.calibration else None
     summary = summarize(args.file, fiber=fiber, calibration=calibration, method=args.method, register=args.register,
-                        max_compare=args.max_compare, channels_as=args.channels, n_cores=args.cores,
+                        compare_rate=args.compare_rate or None, channels_as=args.channels, n_cores=args.cores,
                         salvage=args.salvage, handle_signals=True)
     if args.json:
         print(jsonout.dumps(summary.as_dict()))
