@@ -15,7 +15,7 @@ from twin.viewer.client import ViewerError
 
 if TYPE_CHECKING:  # pragma: no cover
     from twin.live import LiveStatus
-    from twin.viewer import Viewer
+    from twin.viewer.view import Viewer
 
 __all__ = ["ViewerSink"]
 
