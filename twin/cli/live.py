@@ -29,6 +29,7 @@ one a recording carries, else none.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -58,7 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=("material", "paper"), default="material",
                         help="reconstruction method (default material)")
     parser.add_argument("--stale", type=float, default=0.5, help="seconds without a usable frame before 'stale'")
-    parser.add_argument("--print-rate", type=float, default=1.0, help="status lines per second (default 1)")
+    parser.add_argument("--print-rate", type=float, default=1.0,
+                        help="status lines per second (default 1; 0: on state changes only)")
     parser.add_argument("--json", action="store_true", help="print the final summary as one JSON object")
     parser.add_argument("--quiet", action="store_true", help="no status lines")
     parser.add_argument("--viewer", action="store_true", help="show the shapes live in a browser (meshcat)")
@@ -77,6 +79,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames must be at least 1, got {args.frames}")
+    if not (math.isfinite(args.print_rate) and args.print_rate >= 0):
+        raise ValueError(f"--print-rate must be a finite number of status lines per second >= 0 (0: on state "
+                         f"changes only), got {args.print_rate}")
     if not args.stale > 0:
         raise ValueError(f"--stale must be a positive number of seconds, got {args.stale}")
     if args.viewer and not args.viewer_rate > 0:
