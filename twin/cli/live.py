@@ -164,6 +164,8 @@ def run(args: argparse.Namespace) -> int:
         out["igtl_frames"] = igtl_sink.frames_sent
         out["igtl_clients"] = igtl_sink.server.clients_seen
         out["igtl_errors"] = igtl_sink.errors
+        out["igtl_bundles_dropped"] = igtl_sink.server.bundles_dropped  # for clients that did not keep up
+        out["igtl_evicted"] = igtl_sink.server.evicted
     if args.json:
         print(jsonout.dumps(out))
     else:
