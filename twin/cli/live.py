@@ -129,8 +129,7 @@ def run(args: argparse.Namespace) -> int:
         if args.viewer:
             from twin.viewer import Viewer, ViewerConfig, ViewerSink
 
-            viewer = Viewer(ViewerConfig(max_fps=args.viewer_rate),
-                            calibration=args.calibration.name if args.calibration else None)
+            viewer = Viewer(ViewerConfig(max_fps=args.viewer_rate), calibration=calibration_label(args, calibration))
             viewer_sink = ViewerSink(viewer, rate=args.viewer_rate, close_viewer=not args.keep_open)
             sinks.append(viewer_sink)
         if args.igtl is not None:
@@ -157,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
         out["recorded_vendor_dropped"] = recorder.vendor_dropped
     if viewer_sink is not None:
         out["viewer_frames"] = viewer_sink.frames_shown
+        out["viewer_calibration"] = viewer_sink.viewer.info.get("calibration")
         out["viewer_errors"] = viewer_sink.errors
         if viewer_sink.errors:
             print(f"twin live: viewer: {viewer_sink.errors} errors, last: {viewer_sink.last_error}", file=sys.stderr)
@@ -175,6 +175,16 @@ def run(args: argparse.Namespace) -> int:
 
         keep_open(viewer_sink.viewer)
     return 1 if summary.sink_errors or summary.reason == "source failed" else 0
+
+
+def calibration_label(args: argparse.Namespace, calibration: Calibration | None) -> str | None:
+    """How the viewer names the calibration in use: the file given, else the source's own (a recording stores
+    the one it was made with), else None (the viewer says "none")."""
+    if args.calibration:
+        return args.calibration.name
+    if calibration is not None:
+        return f"the source's ({args.url})"
+    return None
 
 
 def format_summary(summary: LiveSummary, out: dict) -> str:

@@ -70,6 +70,16 @@ class ViewerConfig:
         Longest wait for the server's answer to one message, s (never hangs).
     web_port : int
         The page's port, or the next free one after it (0: any free one).
+    magnify : float or None
+        The magnified-error view's factor (None: chosen per frame so that the largest deviation shows as about
+        ``magnified_deviation``, a round 1-2-5 number, stated in the overlay).
+    magnified_deviation : float
+        The largest magnified deviation aimed at, m.
+    magnify_color : int
+    show_magnified : bool
+        Whether the magnified-error view is drawn (with a truth, when the factor exceeds 1).
+    profile_points : int
+        Most points of the error-along-the-catheter plot.
     """
 
     radius: float = 1.3e-3
@@ -94,8 +104,19 @@ class ViewerConfig:
     vendor_sensor: int = 0
     timeout: float = 2.0
     web_port: int = 7000
+    magnify: float | None = None
+    magnified_deviation: float = 10e-3
+    magnify_color: int = 0x0090FF
+    show_magnified: bool = True
+    profile_points: int = 120
 
     def __post_init__(self) -> None:
+        if self.magnify is not None and not (np.isfinite(self.magnify) and self.magnify >= 1):
+            raise ValueError(f"ViewerConfig.magnify must be a finite factor >= 1 (None: chosen), got {self.magnify}")
+        if not (np.isfinite(self.magnified_deviation) and self.magnified_deviation > 0):
+            raise ValueError(f"ViewerConfig.magnified_deviation must be positive, got {self.magnified_deviation}")
+        if self.profile_points < 2:
+            raise ValueError(f"ViewerConfig.profile_points must be at least 2, got {self.profile_points}")
         for name in ("radius", "truth_radius", "fixture_radius", "marker_size", "scale", "timeout"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
@@ -151,6 +172,9 @@ class Viewer:
         self.errors: dict[str, float] | None = None
         self.vendor_errors: dict[str, float] | None = None
         self._vendor_shown = False
+        self._magnified_shown = False
+        self.magnification: float | None = None
+        self._profile: dict | None = None
         self.info: dict[str, object] = {"calibration": calibration or "none"}
         self._due = -float("inf")
         self._framed = False
@@ -310,13 +334,18 @@ class Viewer:
             ts, tp = np.asarray(truth.s, dtype=np.float64), np.asarray(truth.positions, dtype=np.float64)
             ok = np.all(np.isfinite(tp), axis=1)
             truth_pts, ts = tp[ok], ts[ok]
-            d = geo.local_error(world, truth_pts)
+            d, nearest = geo.local_error(world, truth_pts, return_closest=True)
             tip = float(np.linalg.norm(world[-1] - geo.interp_curve(shape.s[-1:], ts, truth_pts)[0]))
             self.errors = {"max": float(d.max()), "mean": float(d.mean()), "tip": tip}
             self._mode = "error"
             ring_colors = geo.colormap(d[keep], *cfg.error_range)
+            self._profile = _profile(shape.s, d, cfg.profile_points)
+            magnified = self._magnified(world[keep], nearest[keep], float(d.max()))
         else:
             self.errors = None
+            self._profile = None
+            magnified = None
+            self.magnification = None
             self._mode = "curvature"
             k = np.linalg.norm(np.asarray(shape.curvature, dtype=np.float64), axis=-1)
             good = np.isfinite(k)
@@ -346,6 +375,30 @@ class Viewer:
             mat = cmd.material("MeshBasicMaterial", cfg.truth_color, depthTest=False, transparent=True)
             self._send(cmd.set_object("/twin/truth", cmd.mesh(tv, tf, mat, render_order=10)))
         self._draw_vendor(vendor_pts)
+        self._draw_magnified(magnified)
+
+    def _magnified(self, world: np.ndarray, nearest: np.ndarray, max_error: float) -> np.ndarray | None:
+        """The reconstruction's deviation from the truth magnified about the truth: each point's nearest truth
+        point plus ``factor`` times the way from there to the point (world, m); None when not drawn."""
+        cfg = self.config
+        factor = cfg.magnify or geo.magnification(max_error, cfg.magnified_deviation)
+        self.magnification = factor
+        if not cfg.show_magnified or factor <= 1:
+            return None
+        return nearest + factor * (world - nearest)
+
+    def _draw_magnified(self, points: np.ndarray | None) -> None:
+        cfg = self.config
+        if points is None or len(points) < 2:
+            if self._magnified_shown:
+                self._send(cmd.delete("/twin/magnified"))
+                self._magnified_shown = False
+            return
+        verts, faces = tube_mesh(points, cfg.truth_radius, 8)
+        # unlit, over the translucent tube and under the truth: where the two part, the error shows
+        mat = cmd.material("MeshBasicMaterial", cfg.magnify_color, depthTest=False, transparent=True)
+        self._send(cmd.set_object("/twin/magnified", cmd.mesh(verts, faces, mat, render_order=8)))
+        self._magnified_shown = True
 
     def _vendor_world(self, shape: Shape, vendor, R: np.ndarray, p: np.ndarray) -> np.ndarray | None:
         """The interrogator's shape registered onto ``shape`` and placed like it (world, m), or None."""
@@ -464,7 +517,8 @@ class Viewer:
         self._update_hud(time.monotonic(), force=changed)
 
     def set_info(self, **info) -> None:
-        """Figures for the overlay: ``rate_hz``, ``lost``, ``frames``, ``calibration`` (None removes one)."""
+        """Figures for the overlay: ``arrival_hz`` (frames received per second), ``rate_hz`` (the source's own
+        rate), ``lost``, ``frames``, ``calibration`` (None removes one)."""
         for k, v in info.items():
             if v is None:
                 self.info.pop(k, None)
@@ -484,8 +538,12 @@ class Viewer:
         if self.vendor_errors is not None:
             figures += [["vs interrogator's shape", "after Kabsch registration"]] + [
                 [f"{k} distance", f"{1e3 * self.vendor_errors[k]:.3f} mm"] for k in ("max", "mean")]
+        if self.errors is not None and self._magnified_shown:
+            figures.append(["magnified view", f"deviation × {self.magnification:g}"])
+        if "arrival_hz" in self.info:
+            figures.append(["arrival rate", f"{float(self.info['arrival_hz']):.1f} frames/s"])
         if "rate_hz" in self.info:
-            figures.append(["rate", f"{float(self.info['rate_hz']):.1f} Hz"])
+            figures.append(["source rate", f"{float(self.info['rate_hz']):.1f} Hz"])
         if "lost" in self.info:
             figures.append(["lost frames", f"{int(self.info['lost'])}"])
         if "frames" in self.info:
@@ -503,6 +561,9 @@ class Viewer:
         legend = []
         if self._mode == "error":
             legend.append([_css(cfg.truth_color), "truth (centreline, drawn on top)"])
+        if self._mode == "error" and self._magnified_shown:
+            legend.append([_css(cfg.magnify_color), f"reconstruction's deviation from the truth × "
+                                                    f"{self.magnification:g} (magnified)"])
         if self.vendor_errors is not None:
             legend.append([_css(cfg.vendor_color), "interrogator's own shape (registered onto ours)"])
         legend += [["rgba(120,120,120,0.45)", "reconstruction (translucent tube, 8 Fr)"],
@@ -512,10 +573,13 @@ class Viewer:
         legend.append([_css(cfg.stale_color), "grey catheter: stale stream"])
         if self._bar_length:
             legend.append([_css(cfg.scale_color), f"scale bar: {1e3 * self._bar_length:g} mm"])
-        state_text = self._state.upper() + (f" ({self._detail})" if self._detail else "") if self._stale \
-            else self._state
-        return {"title": self._label or "catheter-twin", "state": self._state, "state_text": state_text,
-                "figures": figures, "colorbar": bar, "legend": legend}
+        loud = self._stale or self._state == "ended"  # the page must not look live when it is not
+        state_text = self._state.upper() + (f" ({self._detail})" if self._detail else "") if loud else self._state
+        out = {"title": self._label or "catheter-twin", "state": self._state, "state_text": state_text,
+               "figures": figures, "colorbar": bar, "legend": legend}
+        if self._mode == "error" and self._profile is not None:
+            out["profile"] = self._profile
+        return out
 
     def _update_hud(self, now: float, force: bool = False) -> None:
         if not self._framed or (not force and now - self._hud_at < 0.25):
@@ -561,6 +625,17 @@ def _drain(stream) -> None:
     with contextlib.suppress(Exception):
         while stream.read(4096):
             pass
+
+
+def _profile(s: np.ndarray, error: np.ndarray, most: int) -> dict:
+    """The error-along-the-catheter plot's data for the page: at most ``most`` points (each the largest error
+    of its stretch of the catheter, at the stretch's middle, so no peak is lost), mm, with round axis ends."""
+    edges = np.linspace(0, len(s), min(most, len(s)) + 1).astype(int)
+    peak = np.maximum.reduceat(error, edges[:-1])
+    s_mm, e_mm = 1e3 * np.asarray(s)[(edges[:-1] + edges[1:] - 1) // 2], 1e3 * peak
+    return {"s": np.round(s_mm, 2).tolist(), "e": np.round(e_mm, 4).tolist(),
+            "s_max": round(float(1e3 * s[-1]), 2), "e_max": geo.nice_ceiling(float(e_mm.max()) * 1.05 or 1e-3),
+            "label": "local error (mm) along the catheter (mm)"}
 
 
 def _translation(v) -> np.ndarray:
