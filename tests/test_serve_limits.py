@@ -14,8 +14,8 @@ from io_helpers import wait_until
 from sim_interrogator.servers import HyperionServer, IllumisenseServer
 from sim_interrogator.servers.common import MAX_CLIENTS
 from twin.cli import main
-from twin.io.hyperion_driver import HyperionSource
-from twin.io.illumisense_driver import IllumisenseSource
+from twin.io.hyperion.driver import HyperionSource
+from twin.io.illumisense.driver import IllumisenseSource
 from twin.io.synthetic import SyntheticSource, multicore_fiber
 
 

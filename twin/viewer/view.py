@@ -411,7 +411,7 @@ class Viewer:
             block = vendor[k] if len(vendor) > k else None
         if block is None:
             return None
-        from twin.io.illumisense_vendor import vendor_in_base
+        from twin.io.illumisense.vendor import vendor_in_base
 
         moved = vendor_in_base(shape.positions, shape.s, block.positions, block.s)
         if moved is None:  # no overlap, or NaN points: nothing to show or report
