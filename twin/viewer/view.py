@@ -388,17 +388,24 @@ class Viewer:
         return nearest + factor * (world - nearest)
 
     def _draw_magnified(self, points: np.ndarray | None) -> None:
+        # over the translucent tube and under the truth: where the two part, the error shows
+        self._magnified_shown = self._draw_centreline("/twin/magnified", points, self.config.magnify_color, 8,
+                                                      self._magnified_shown)
+
+    def _draw_centreline(self, path: str, points: np.ndarray | None, color: int, render_order: int,
+                         shown: bool) -> bool:
+        """A thin unlit centreline drawn over the translucent tube at ``path`` (world points, m), or the one
+        ``shown`` there deleted when ``points`` is None; returns whether one is shown now."""
         cfg = self.config
         if points is None or len(points) < 2:
-            if self._magnified_shown:
-                self._send(cmd.delete("/twin/magnified"))
-                self._magnified_shown = False
-            return
-        verts, faces = tube_mesh(points, cfg.truth_radius, 8)
-        # unlit, over the translucent tube and under the truth: where the two part, the error shows
-        mat = cmd.material("MeshBasicMaterial", cfg.magnify_color, depthTest=False, transparent=True)
-        self._send(cmd.set_object("/twin/magnified", cmd.mesh(verts, faces, mat, render_order=8)))
-        self._magnified_shown = True
+            if shown:
+                self._send(cmd.delete(path))
+            return False
+        k = geo.subsample(len(points), cfg.max_rings)
+        verts, faces = tube_mesh(points[k], cfg.truth_radius, 8)
+        mat = cmd.material("MeshBasicMaterial", color, depthTest=False, transparent=True)
+        self._send(cmd.set_object(path, cmd.mesh(verts, faces, mat, render_order=render_order)))
+        return True
 
     def _vendor_world(self, shape: Shape, vendor, R: np.ndarray, p: np.ndarray) -> np.ndarray | None:
         """The interrogator's shape registered onto ``shape`` and placed like it (world, m), or None."""
@@ -421,22 +428,13 @@ class Viewer:
         return base @ R.T + p
 
     def _draw_vendor(self, points: np.ndarray | None) -> None:
-        cfg = self.config
-        if points is None or len(points) < 2:
-            if self._vendor_shown:
-                self._send(cmd.delete("/twin/vendor"))
-                self._vendor_shown = False
-            return
-        k = geo.subsample(len(points), cfg.max_rings)
-        verts, faces = tube_mesh(points[k], cfg.truth_radius, 8)
         # like the truth: unlit, over the translucent tube (under the truth and the gratings)
-        mat = cmd.material("MeshBasicMaterial", cfg.vendor_color, depthTest=False, transparent=True)
-        # the object hangs under the node /twin/vendor, whose visibility (the page's scene controls, or
-        # show_vendor) therefore survives the next frame's object
-        self._send(cmd.set_object("/twin/vendor", cmd.mesh(verts, faces, mat, render_order=9)))
-        if not self._vendor_shown:
-            self._send(cmd.set_property("/twin/vendor", "visible", bool(cfg.show_vendor)))
-            self._vendor_shown = True
+        was = self._vendor_shown
+        self._vendor_shown = self._draw_centreline("/twin/vendor", points, self.config.vendor_color, 9, was)
+        if self._vendor_shown and not was:
+            # the object hangs under the node /twin/vendor, whose visibility (the page's scene controls, or
+            # show_vendor) therefore survives the next frame's object
+            self._send(cmd.set_property("/twin/vendor", "visible", bool(self.config.show_vendor)))
 
     def _draw_reconstruction(self) -> None:
         if self._last is None:
