@@ -1,0 +1,222 @@
+"""The ``nuisance`` jig model: the physical model with the jig's own errors estimated beside the sensor
+(:func:`fit_nuisance`), weighted by the error covariance it fits, not by the interrogator's standard errors.
+
+A real jig is far from the ideal one (docs/jig.md, "Error budget"): the sensor is re-seated at every rotation
+(a roll error, and a different fraction of the groove it follows), the flat groove is not the zero of the bent
+poses, and every groove seats it a little differently. The interrogator's noise is 10–100 times smaller than
+these, so its standard errors are the wrong weights (χ²/dof ≈ 10⁴ on the AMIRo table). Per grating n, pose p of
+rotation o and core i, in the common-mode-free coordinates y = qᵀe (q: an orthonormal basis orthogonal to
+(1, …, 1), so the per-pose common mode drops out exactly),
+
+    y_pn = A_n (z_o ⊙ j_p) + d_on + ε_pn,
+
+* A_n, (n_cores − 1) × 2: the sensor (β_n = q A_n, as in the physical model);
+* z_o: a complex gain per rotation, shared by all gratings — its phase is the roll error of that seating, its
+  modulus how much of the groove the sensor follows there (``"roll"``, ``"gain"``). Gauge: their geometric mean is
+  1 (a common roll is the jig's roll α, a common gain is the sensor's);
+* d_on: the zero of rotation o (``"offset"``): the reference is not the zero of the bent poses;
+* ε: a seating error shared by the trials of one groove (``"seating"``, a random effect: as a fixed effect it
+  would absorb every groove's mean and leave nothing to fit) plus a per-pose error, with covariances Σ_seat,n
+  and Σ_pose,n per grating fitted from the residuals.
+
+Because the trials of one groove share their regressors, generalised least squares on the poses is least squares
+on the groove means with weight (Σ_pose/T + Σ_seat)⁻¹ (T: the groove's trials). The fit alternates A, d | z
+(one weighted linear solve per grating, batched) and z | A, d (a 2-unknown solve per rotation over all
+gratings), and re-estimates the covariances from the residuals each time, until z settles.
+
+The fitted error model predicts how far a new pose's curvature is from the jig's label (used for the 95 %
+intervals of :mod:`twin.calibration.jig.validation`): Σ_pose + Σ_seat + Σ_ref (the scatter of the rotations'
+zeros) through the calibration's map, plus κ²(σ_roll² across + σ_gain² along the bend) from the scatter of the
+z_o, plus the parameters' own covariance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: The jig errors the nuisance model can estimate (all by default; fewer for the ablation).
+TERMS = frozenset({"roll", "gain", "offset", "seating"})
+#: Alternating least squares converges linearly (≈ 0.7 per step on the AMIRo table): up to this many steps,
+#: until no z_o moves by more than _TOL (rad, relative gain).
+_MAX_ITER = 300
+_TOL = 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class NuisanceFit:
+    """What :func:`fit_nuisance` estimated (per-grating arrays follow the fitted gratings).
+
+    Attributes
+    ----------
+    beta : ndarray, shape (G, C, 2)
+        The cores' response in the jig frame (as the physical model's β).
+    beta_cov : ndarray, shape (G, 2C, 2C)
+        Its covariance (ordered core, component), from the weighted normal equations at the fitted error model.
+    offsets : ndarray, shape (O, G, C)
+        Each rotation's zero δ_o (strain; 0 without ``"offset"``).
+    gain : ndarray of complex, shape (O,)
+        z_o: phase = roll error of that seating (rad), modulus = fraction of the groove followed, relative.
+    strain_cov_pose, strain_cov_seat, strain_cov_ref : ndarray, shape (G, C, C)
+        Fitted error covariances in strain (rank C − 1, common mode excluded): per pose, per groove (shared by its
+        trials), and the scatter of the rotations' zeros.
+    roll_std, gain_std : float
+        Scatter of arg z_o (rad) and of ln|z_o| over the rotations (0 when the term is off).
+    iterations : int
+    terms : frozenset of str
+    """
+
+    beta: np.ndarray
+    beta_cov: np.ndarray
+    offsets: np.ndarray
+    gain: np.ndarray
+    strain_cov_pose: np.ndarray
+    strain_cov_seat: np.ndarray
+    strain_cov_ref: np.ndarray
+    roll_std: float
+    gain_std: float
+    iterations: int
+    terms: frozenset
+
+
+def _groove_means(y: np.ndarray, seat: np.ndarray, n_seat: int):
+    """Per grating and groove: mean y (G, S, D), trial count (G, S), pooled within-groove covariance (G, D, D)."""
+    ok = np.all(np.isfinite(y), axis=-1)  # (P, G)
+    y0 = np.where(ok[..., None], y, 0.0)
+    onehot = np.eye(n_seat)[seat]  # (P, S)
+    count = np.einsum("ps,pg->gs", onehot, ok.astype(float))
+    mean = np.einsum("ps,pgd->gsd", onehot, y0) / np.maximum(count, 1.0)[..., None]
+    dev = np.where(ok[..., None], y0 - np.transpose(mean, (1, 0, 2))[seat], 0.0)  # (P, G, D)
+    dof = np.sum(np.maximum(count - 1.0, 0.0), axis=1)  # (G,)
+    pooled = np.einsum("pga,pgb->gab", dev, dev) / np.maximum(dof, 1.0)[:, None, None]
+    pooled[dof == 0] = 0.0
+    return mean, count, pooled
+
+
+def _psd(m: np.ndarray) -> np.ndarray:
+    """The nearest positive semi-definite matrices (eigenvalues clipped at 0), batched (..., D, D)."""
+    w, v = np.linalg.eigh(0.5 * (m + np.swapaxes(m, -1, -2)))
+    return np.einsum("...ij,...j,...kj->...ik", v, np.maximum(w, 0.0), v)
+
+
+def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int, seat: np.ndarray,
+                 q: np.ndarray, terms=TERMS) -> NuisanceFit | None:
+    """Fit the nuisance model (module docstring) to the gratings of ``e``.
+
+    Parameters
+    ----------
+    e : ndarray, shape (P, G, C)
+        Strain against each row's own reference (NaN: missing peak; that grating of that pose is left out).
+    j : ndarray, shape (P, 2)
+        The jig's curvature in the jig frame, 1/m (0 for reference rows).
+    group : ndarray of int, shape (P,)
+        Rotation (orientation) of each pose, in 0 … n_groups − 1.
+    seat : ndarray of int, shape (P,)
+        Groove seating of each pose (the poses of one rotation in one groove), 0-based, contiguous.
+    q : ndarray, shape (C, C − 1)
+        Orthonormal basis orthogonal to (1, …, 1).
+    terms : iterable of str
+        Subset of :data:`TERMS` to estimate.
+
+    Returns
+    -------
+    NuisanceFit, or None when the poses do not determine the sensor.
+    """
+    terms = frozenset(terms)
+    if not terms <= TERMS:
+        raise ValueError(f"unknown nuisance terms {sorted(terms - TERMS)}; expected some of {sorted(TERMS)}")
+    n_g, n_c = e.shape[1:]
+    dim = n_c - 1
+    y = np.einsum("pgc,cd->pgd", e, q)
+    n_seat = int(seat.max()) + 1
+    ybar, count, cov_pose = _groove_means(y, seat, n_seat)
+    # each groove's rotation and label (constant within a groove)
+    s_group = np.zeros(n_seat, dtype=np.int64)
+    s_group[seat] = group
+    s_j = np.zeros((n_seat, 2))
+    s_j[seat] = j
+    rot90 = np.array([[0.0, -1.0], [1.0, 0.0]])
+    eye = np.eye(dim)
+    n_off = n_groups * dim if "offset" in terms else 0
+    n_par = 2 * dim + n_off
+    z = np.ones(n_groups, dtype=complex)
+    cov_seat = np.zeros((n_g, dim, dim))
+    # start without a seating part: the groove means weighted by their count (ordinary least squares on poses)
+    scale0 = np.einsum("gaa->g", cov_pose) / dim
+    floor = np.maximum(1e-6 * scale0, 1e-24)  # strain² (strain variances here are ≈ 1e-10)
+    for it in range(1, _MAX_ITER + 1):
+        x_s = np.stack([z[s_group].real * s_j[:, 0] - z[s_group].imag * s_j[:, 1],
+                        z[s_group].imag * s_j[:, 0] + z[s_group].real * s_j[:, 1]], axis=-1)  # (S, 2)
+        design = np.zeros((n_seat, dim, n_par))
+        design[:, :, :dim] = x_s[:, 0, None, None] * eye
+        design[:, :, dim:2 * dim] = x_s[:, 1, None, None] * eye
+        if n_off:
+            col = 2 * dim + s_group[:, None] * dim + np.arange(dim)  # the groove's rotation's zero
+            design[np.arange(n_seat)[:, None], np.arange(dim)[None, :], col] = 1.0
+        # weight of a groove mean: (Σ_pose/T + Σ_seat)⁻¹, 0 where the groove has no valid trial
+        tot = cov_pose[:, None] / np.maximum(count, 1.0)[..., None, None] + (cov_seat[:, None] if "seating" in terms
+                                                                             else 0.0)
+        tot = tot + floor[:, None, None, None] * eye
+        weight = np.linalg.inv(tot) * (count > 0)[..., None, None]  # (G, S, D, D)
+        normal = np.einsum("sak,gsab,sbl->gkl", design, weight, design)
+        rhs = np.einsum("sak,gsab,gsb->gk", design, weight, ybar)
+        ev = np.linalg.eigvalsh(normal)
+        if np.any(ev[:, 0] <= 1e-12 * ev[:, -1]):
+            return None
+        theta = np.linalg.solve(normal, rhs[..., None])[..., 0]  # (G, K)
+        a = np.stack([theta[:, :dim], theta[:, dim:2 * dim]], axis=-1)  # (G, D, 2)
+        d = (theta[:, 2 * dim:].reshape(n_g, n_groups, dim) if n_off else np.zeros((n_g, n_groups, dim)))
+        # z | A, d: per rotation, r = Re z · A j + Im z · A J j, summed over its grooves and every grating
+        r = ybar - d[:, s_group]  # (G, S, D)
+        f = np.stack([np.einsum("gdk,sk->gsd", a, s_j), np.einsum("gdk,kl,sl->gsd", a, rot90, s_j)], axis=-1)
+        z_new = z
+        if terms & {"roll", "gain"}:
+            onehot = np.eye(n_groups)[s_group]  # (S, O)
+            nz = np.einsum("so,gsak,gsab,gsbl->okl", onehot, f, weight, f)
+            rz = np.einsum("so,gsak,gsab,gsb->ok", onehot, f, weight, r)
+            sol = np.linalg.solve(nz + 1e-300 * np.eye(2), rz[..., None])[..., 0]
+            zc = sol[:, 0] + 1j * sol[:, 1]
+            log_gain = np.log(np.abs(zc)) if "gain" in terms else np.zeros(n_groups)
+            phase = np.angle(zc) if "roll" in terms else np.zeros(n_groups)
+            # gauge: a common roll is α, a common gain the sensor's; both go to A
+            z_new = np.exp((log_gain - log_gain.mean()) + 1j * (phase - np.angle(np.exp(1j * phase).mean())))
+        # error covariances from the residuals of the groove means (their expectation: Σ_pose/T + Σ_seat)
+        resid = ybar - np.einsum("sak,gk->gsa", design, theta)
+        used = count > 0
+        n_used = used.sum(axis=1)
+        dof = np.maximum(n_used - n_par / dim, 1.0)
+        outer = np.einsum("gsa,gsb->gab", resid * used[..., None], resid)
+        expected_pose = np.einsum("gs,gab->gab", used / np.maximum(count, 1.0), cov_pose)
+        cov_seat_new = _psd((outer - expected_pose) / dof[:, None, None])
+        if "seating" not in terms:  # one covariance per grating for every pose, independent
+            cov_pose_all = outer / dof[:, None, None] * (np.einsum("gs->g", used * count) / np.maximum(n_used, 1))[
+                :, None, None]
+            cov_pose = 0.5 * (cov_pose_all + np.swapaxes(cov_pose_all, 1, 2))
+            cov_seat_new = np.zeros_like(cov_seat)
+        change = float(np.max(np.abs(z_new - z)))
+        z, cov_seat = z_new, cov_seat_new
+        if change < _TOL and it > 1:
+            break
+    inv_normal = np.linalg.inv(normal)
+    big = np.kron(q, np.eye(2))  # vec(β) (core, component) from vec(A) (dim, component)
+    perm = np.arange(2 * dim).reshape(2, dim).T.ravel()  # θ is (component, dim); vec(A) is (dim, component)
+    cov_a = inv_normal[:, :2 * dim, :2 * dim][:, perm][:, :, perm]
+    beta = np.einsum("cd,gdk->gck", q, a)
+    offsets = np.einsum("cd,god->ogc", q, d)
+    ref = d - d.mean(axis=1, keepdims=True)
+    cov_ref = (np.einsum("goa,gob->gab", ref, ref) / max(n_groups - 1, 1) if n_off
+               else np.zeros((n_g, dim, dim)))
+    return NuisanceFit(
+        beta=beta,
+        beta_cov=big @ cov_a @ big.T,
+        offsets=offsets,
+        gain=z,
+        strain_cov_pose=np.einsum("cd,gde,fe->gcf", q, cov_pose, q),
+        strain_cov_seat=np.einsum("cd,gde,fe->gcf", q, cov_seat, q),
+        strain_cov_ref=np.einsum("cd,gde,fe->gcf", q, cov_ref, q),
+        roll_std=float(np.std(np.angle(z), ddof=1)) if "roll" in terms and n_groups > 1 else 0.0,
+        gain_std=float(np.std(np.log(np.abs(z)), ddof=1)) if "gain" in terms and n_groups > 1 else 0.0,
+        iterations=it,
+        terms=terms,
+    )
