@@ -555,8 +555,11 @@ def _error_model(fiber: FiberModel, nz: NuisanceFit, alpha: float) -> dict:
     curvature is expected to deviate from the jig's, used for the 95 % intervals of :func:`validate`.
 
     * ``jig_error_strain_cov``: per fitted grating, the per-pose strain error covariance (C × C): pose + groove
-      seating + the scatter of a rotation's zero;
-    * ``jig_reseat_roll_std_rad``, ``jig_reseat_gain_std``: scatter of the roll and of ln(gain) between seatings;
+      seating;
+    * ``jig_reference_bias_1_per_m``, ``jig_reference_std_1_per_m``: per fitted grating, the mean and the scatter
+      over the rotations of the reference pose's curvature in the jig's frame (along, across the bend);
+    * ``jig_reseat_roll_std_rad``, ``jig_reseat_gain_std``: scatter of the roll and of ln(gain) between seatings,
+      shared by the gratings; ``jig_local_roll_std_rad``, ``jig_local_gain_std``: what each grating adds;
     * ``jig_positions_cov_m2``: the covariance of the design's bend columns (fibre frame; 2C × 2C, ordered core,
       component), the parameters' own uncertainty.
     """
@@ -567,8 +570,12 @@ def _error_model(fiber: FiberModel, nz: NuisanceFit, alpha: float) -> dict:
     cov_p = np.einsum("ab,gbc,dc->gad", rot @ t, nz.beta_cov, rot @ t)
     return {
         "jig_error_terms": sorted(nz.terms),
-        "jig_error_strain_cov": (nz.strain_cov_pose + nz.strain_cov_seat + nz.strain_cov_ref).tolist(),
+        "jig_error_strain_cov": (nz.strain_cov_pose + nz.strain_cov_seat).tolist(),
+        "jig_reference_bias_1_per_m": nz.reference.mean(axis=0).tolist(),
+        "jig_reference_std_1_per_m": nz.reference_std.tolist(),
         "jig_reseat_roll_std_rad": nz.roll_std,
         "jig_reseat_gain_std": nz.gain_std,
+        "jig_local_roll_std_rad": nz.local_roll_std,
+        "jig_local_gain_std": nz.local_gain_std,
         "jig_positions_cov_m2": cov_p.tolist(),
     }

@@ -42,6 +42,23 @@ TERMS = frozenset({"roll", "gain", "offset", "seating"})
 #: until no z_o moves by more than _TOL (rad, relative gain).
 _MAX_ITER = 300
 _TOL = 1e-9
+#: Prior 1σ of a seating's roll (rad) and relative gain: the AMIRo table's (docs/jig.md, error budget). With few
+#: rotations the z_o compete with the sensor's own anisotropy (3 rotations leave 2 numbers per grating to
+#: tell them apart); the prior keeps them at the size a jig's reseating has.
+PRIOR_ROLL = float(np.deg2rad(3.0))
+PRIOR_GAIN = 0.05
+#: The rotation-level variances (roll, gain, a rotation's zero) rest on 1–3 degrees of freedom in a 4-rotation
+#: table, too few to state intervals on. Each is combined with the jig's error budget (docs/jig.md) as a prior worth
+#: PRIOR_DOF rotations: σ² = (ν s² + ν₀ σ₀²) / (ν + ν₀). σ₀: shared roll 3°; per grating, roll 1.2° (twist when
+#: pressed in) and gain 4.5 % (conformity); the reference's curvature 0.10 1/m per component.
+PRIOR_DOF = 3.0
+BUDGET = {"roll": float(np.deg2rad(3.0)), "gain": 0.0, "local_roll": float(np.deg2rad(1.2)), "local_gain": 0.045,
+          "reference": 0.10}
+
+
+def _pooled(s2: float, dof: float, prior: float) -> float:
+    """Standard deviation from a sample variance on ``dof`` degrees of freedom and the budget's prior."""
+    return float(np.sqrt((dof * s2 + PRIOR_DOF * prior**2) / (dof + PRIOR_DOF)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,8 +78,19 @@ class NuisanceFit:
     strain_cov_pose, strain_cov_seat, strain_cov_ref : ndarray, shape (G, C, C)
         Fitted error covariances in strain (rank C − 1, common mode excluded): per pose, per groove (shared by its
         trials), and the scatter of the rotations' zeros.
+    reference : ndarray, shape (O, G, 2)
+        Each rotation's zero as the curvature of its reference pose in the jig's frame, 1/m: along the grooves'
+        bend direction and across it (90° counter-clockwise). Its mean over the rotations is a property of the
+        jig (a "flat" groove that holds the sensor slightly bent), its scatter that of the reseating.
+    reference_std : ndarray, shape (G, 2)
+        That scatter (along, across), 1/m, pooled with the budget's prior (:data:`PRIOR_DOF`).
     roll_std, gain_std : float
-        Scatter of arg z_o (rad) and of ln|z_o| over the rotations (0 when the term is off).
+        Scatter of arg z_o (rad) and of ln|z_o| over the rotations, pooled with the budget's prior.
+    local_roll_std, local_gain_std : float
+        What each rotation adds at each grating (the sensor twisted when pressed in, following the groove
+        differently at each grating): from the slopes with κ of the groove means' residual across and along the
+        bend. A rotation alone on its axis (no opposite rotation fitted) has its slope fitted away by the sensor's
+        anisotropy; with n rotations on an axis a slope keeps 1 − 1/n of the variance, which is corrected for.
     iterations : int
     terms : frozenset of str
     """
@@ -74,8 +102,12 @@ class NuisanceFit:
     strain_cov_pose: np.ndarray
     strain_cov_seat: np.ndarray
     strain_cov_ref: np.ndarray
+    reference: np.ndarray
+    reference_std: np.ndarray
     roll_std: float
     gain_std: float
+    local_roll_std: float
+    local_gain_std: float
     iterations: int
     terms: frozenset
 
@@ -175,7 +207,9 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
             onehot = np.eye(n_groups)[s_group]  # (S, O)
             nz = np.einsum("so,gsak,gsab,gsbl->okl", onehot, f, weight, f)
             rz = np.einsum("so,gsak,gsab,gsb->ok", onehot, f, weight, r)
-            sol = np.linalg.solve(nz + 1e-300 * np.eye(2), rz[..., None])[..., 0]
+            prior = np.diag([1.0 / PRIOR_GAIN**2 if "gain" in terms else 0.0,
+                             1.0 / PRIOR_ROLL**2 if "roll" in terms else 0.0])
+            sol = np.linalg.solve(nz + prior, (rz + prior @ np.array([1.0, 0.0]))[..., None])[..., 0]
             zc = sol[:, 0] + 1j * sol[:, 1]
             log_gain = np.log(np.abs(zc)) if "gain" in terms else np.zeros(n_groups)
             phase = np.angle(zc) if "roll" in terms else np.zeros(n_groups)
@@ -204,6 +238,29 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
     cov_a = inv_normal[:, :2 * dim, :2 * dim][:, perm][:, :, perm]
     beta = np.einsum("cd,gdk->gck", q, a)
     offsets = np.einsum("cd,god->ogc", q, d)
+    # a rotation's zero as its reference pose's curvature (strain is taken against it: the zero is −A c_ref),
+    # along and across the rotation's bend direction u_o
+    u = np.zeros((n_groups, 2))
+    np.add.at(u, group, j / np.maximum(np.hypot(j[:, 0], j[:, 1]), 1e-300)[:, None])
+    u /= np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-300)[:, None]
+    c_ref = -np.einsum("gkd,god->ogk", np.linalg.pinv(a), d)
+    reference = np.stack([np.einsum("ogk,ok->og", c_ref, u),
+                          np.einsum("ogk,ok->og", c_ref, np.stack([-u[:, 1], u[:, 0]], axis=-1))], axis=-1)
+    # per rotation and grating, the residual's slope with κ along and across the bend
+    c_res = np.einsum("gkd,gsd->gsk", np.linalg.pinv(a), resid)
+    w_o = np.stack([-u[:, 1], u[:, 0]], axis=-1)
+    kap = np.hypot(s_j[:, 0], s_j[:, 1])
+    onehot_o = np.eye(n_groups)[s_group] * used[..., None]  # (G, S, O)
+    k2 = np.einsum("gso,s->go", onehot_o, kap**2)
+    slopes = np.stack([np.einsum("gso,s,gsk,sk->go", onehot_o, kap, c_res, u[s_group]),
+                       np.einsum("gso,s,gsk,sk->go", onehot_o, kap, c_res, w_o[s_group])], axis=-1)
+    slopes = slopes / np.where(k2 > 0, k2, np.nan)[..., None]
+    n_axis = np.sum(np.abs(u @ u.T) > np.cos(np.deg2rad(10.0)), axis=1)  # fitted rotations on each one's axis
+    kept = np.broadcast_to(1.0 - 1.0 / n_axis, slopes.shape[:2])
+    have = np.isfinite(slopes[..., 0])
+    dof_local = float(np.sum(kept[have]))
+    s2_local = (np.sum(np.where(have[..., None], slopes, 0.0) ** 2, axis=(0, 1)) / dof_local if dof_local > 0
+                else np.zeros(2))  # (along, across)
     ref = d - d.mean(axis=1, keepdims=True)
     cov_ref = (np.einsum("goa,gob->gab", ref, ref) / max(n_groups - 1, 1) if n_off
                else np.zeros((n_g, dim, dim)))
@@ -215,8 +272,15 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
         strain_cov_pose=np.einsum("cd,gde,fe->gcf", q, cov_pose, q),
         strain_cov_seat=np.einsum("cd,gde,fe->gcf", q, cov_seat, q),
         strain_cov_ref=np.einsum("cd,gde,fe->gcf", q, cov_ref, q),
-        roll_std=float(np.std(np.angle(z), ddof=1)) if "roll" in terms and n_groups > 1 else 0.0,
-        gain_std=float(np.std(np.log(np.abs(z)), ddof=1)) if "gain" in terms and n_groups > 1 else 0.0,
+        reference=reference,
+        reference_std=np.array([[_pooled(v, n_groups - 1, BUDGET["reference"]) for v in row] for row in
+                                (reference.var(axis=0, ddof=1) if n_groups > 1 else np.zeros(reference.shape[1:]))]),
+        roll_std=_pooled(np.var(np.angle(z), ddof=1) if "roll" in terms and n_groups > 1 else 0.0,
+                         n_groups - 1 if "roll" in terms else 0, BUDGET["roll"]),
+        gain_std=_pooled(np.var(np.log(np.abs(z)), ddof=1) if "gain" in terms and n_groups > 1 else 0.0,
+                         n_groups - 1 if "gain" in terms else 0, BUDGET["gain"]),
+        local_roll_std=_pooled(s2_local[1], dof_local, BUDGET["local_roll"]),
+        local_gain_std=_pooled(s2_local[0], dof_local, BUDGET["local_gain"]),
         iterations=it,
         terms=terms,
     )

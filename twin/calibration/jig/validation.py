@@ -44,8 +44,11 @@ class JigValidation:
         The summary covers poses with |κ| ≥ this, 1/m.
     source : str
     magnitude_sigma : ndarray, shape (P, G), or None
-        Stated 1σ of |k̂| about the jig's κ, 1/m, from the calibration's error model (``nuisance`` calibrations;
-        None otherwise): its 95 % interval is |k̂| ± 1.96σ.
+        Stated 1σ of |k̂| about its expected value, 1/m, from the calibration's error model (``nuisance``
+        calibrations; None otherwise).
+    magnitude_bias : ndarray, shape (G,), or None
+        Expected |k̂| − κ in this jig, 1/m: minus the jig's reference bias along the bend (the flat groove holds
+        the sensor slightly bent). The 95 % interval of κ is |k̂| − bias ± 1.96σ.
     """
 
     gratings: np.ndarray
@@ -60,6 +63,7 @@ class JigValidation:
     min_curvature: float
     source: str = ""
     magnitude_sigma: np.ndarray | None = None
+    magnitude_bias: np.ndarray | None = None
 
     @property
     def levels(self) -> np.ndarray:
@@ -118,7 +122,7 @@ class JigValidation:
         (None, 0 without an error model)."""
         if self.magnitude_sigma is None:
             return None, 0
-        return coverage(self.magnitude_error, self.magnitude_sigma)
+        return coverage(self.magnitude_error - self.magnitude_bias, self.magnitude_sigma)
 
     def passes(self, max_error: float, max_direction_error_deg: float) -> bool:
         """Whether every pose with |κ| ≥ ``min_curvature`` is within both tolerances (invalid poses fail)."""
@@ -214,7 +218,7 @@ def validate(
     z = (k_hat[..., 0] + 1j * k_hat[..., 1]) * np.conj(k[:, None, 0] + 1j * k[:, None, 1])
     direction = np.angle(z)
     direction = np.where(np.isnan(mag), np.nan, direction)
-    sigma = _magnitude_sigma(prov, design, g, k_hat, k) if "jig_error_strain_cov" in prov else None
+    sigma, bias = _magnitude_sigma(prov, design, g, k_hat, k) if "jig_error_strain_cov" in prov else (None, None)
     s = prov.get("jig_grating_s_m")
     if fiber is not None:
         grating_s = fiber.grating_s[g]
@@ -233,46 +237,65 @@ def validate(
         min_curvature=float(min_curvature),
         source=poses.source,
         magnitude_sigma=sigma,
+        magnitude_bias=bias,
     )
 
 
-def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """1σ of |k̂| about the jig's κ from a calibration's error model (``jig_error_*`` provenance), (P, G), 1/m.
+def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.ndarray, k: np.ndarray):
+    """1σ of |k̂| (P, G) and its expected bias |k̂| − κ (G,) in this jig from a calibration's error model
+    (``jig_*`` provenance of a ``nuisance`` fit), 1/m.
 
     The curvature error covariance of a pose at grating n, in the fibre frame, is
 
-        C = M Σ_e Mᵀ + κ² (σ_roll² w wᵀ + σ_gain² u uᵀ) + M (I ⊗ k̂ᵀ) Σ_p (I ⊗ k̂) Mᵀ,
+        C = M Σ_e Mᵀ + σ_along² u uᵀ + σ_across² w wᵀ + κ² (σ_roll² w wᵀ + σ_gain² u uᵀ)
+            + κ² (1 + 1/n) (σ_roll,n² w wᵀ + σ_gain,n² u uᵀ) + M (I ⊗ k̂ᵀ) Σ_p (I ⊗ k̂) Mᵀ,
 
     with M the calibration's strain → curvature map (rows 1–2 of the design's pseudo-inverse), Σ_e the per-pose
-    strain error covariance (pose + groove seating + a rotation's zero), u the jig's bend direction and w ⟂ u,
-    σ_roll and σ_gain the scatter of the seatings' roll and gain, and Σ_p the covariance of the design's bend
-    columns (the parameters). The stated σ is that of the radial component: ûᵀ C û, û = k̂/|k̂|. Gratings the
-    error model does not cover get NaN.
+    strain error covariance (pose + groove seating), u the jig's bend direction and w ⟂ u, σ_along, σ_across the
+    scatter of the rotations' reference curvature, σ_roll and σ_gain that of the seatings' roll and gain shared
+    by the gratings, σ_roll,n and σ_gain,n what each grating adds — twice: the pose's own seating, and the map,
+    which took it from the n fitted rotations on the pose's axis (1 when none is) — and Σ_p the covariance of the
+    design's bend columns (the parameters). The stated σ is that of the radial
+    component, ûᵀ C û with û = k̂/|k̂|; the bias is minus the jig's mean reference curvature along the bend.
+    Gratings the error model does not cover get NaN.
     """
     fit_g = list(prov.get("jig_gratings", []))
     strain_cov = np.asarray(prov["jig_error_strain_cov"], dtype=np.float64)
     pos_cov = np.asarray(prov["jig_positions_cov_m2"], dtype=np.float64)
     s_roll, s_gain = float(prov["jig_reseat_roll_std_rad"]), float(prov["jig_reseat_gain_std"])
+    ref_bias = np.asarray(prov["jig_reference_bias_1_per_m"], dtype=np.float64)
+    ref_std = np.asarray(prov["jig_reference_std_1_per_m"], dtype=np.float64)
+    l_roll, l_gain = float(prov["jig_local_roll_std_rad"]), float(prov["jig_local_gain_std"])
+    fitted = np.asarray(prov["jig_orientations_rad"], dtype=np.float64)
+    psi = float(prov["jig_roll_rad"]) - np.arctan2(k[:, 1], k[:, 0])  # each pose's rotation, from its label
+    n_axis = np.maximum(np.sum(np.abs(np.sin(psi[:, None] - fitted[None, :])) < np.sin(np.deg2rad(10.0)), axis=1),
+                        1)
     n_c = design.shape[1]
     out = np.full(k_hat.shape[:2], np.nan)
+    bias = np.full(k_hat.shape[1], np.nan)
     kappa = np.hypot(k[:, 0], k[:, 1])
     u = k / np.maximum(kappa, 1e-300)[:, None]
     w = np.stack([-u[:, 1], u[:, 0]], axis=-1)
-    jig_part = kappa[:, None, None] ** 2 * (s_roll**2 * np.einsum("pa,pb->pab", w, w)
-                                            + s_gain**2 * np.einsum("pa,pb->pab", u, u))
+    loc = 1.0 + 1.0 / n_axis
+    jig_part = kappa[:, None, None] ** 2 * (
+        (s_roll**2 + loc * l_roll**2)[:, None, None] * np.einsum("pa,pb->pab", w, w)
+        + (s_gain**2 + loc * l_gain**2)[:, None, None] * np.einsum("pa,pb->pab", u, u))
     for i, n in enumerate(g):  # a few gratings
         if int(n) not in fit_g:
             continue
         f = fit_g.index(int(n))
+        bias[i] = -ref_bias[f, 0]
+        ref_part = (ref_std[f, 0] ** 2 * np.einsum("pa,pb->pab", u, u)
+                    + ref_std[f, 1] ** 2 * np.einsum("pa,pb->pab", w, w))
         m = np.linalg.pinv(design[n])[1:]  # (2, C)
         kh = k_hat[:, i]
         lift = np.einsum("ce,pk->pcek", np.eye(n_c), kh).reshape(-1, n_c, 2 * n_c)  # (I ⊗ k̂ᵀ)
         ml = np.einsum("ac,pcx->pax", m, lift)
-        cov = m @ strain_cov[f] @ m.T + jig_part + np.einsum("pax,xy,pby->pab", ml, pos_cov[f], ml)
+        cov = m @ strain_cov[f] @ m.T + ref_part + jig_part + np.einsum("pax,xy,pby->pab", ml, pos_cov[f], ml)
         r = np.hypot(kh[:, 0], kh[:, 1])
         uh = kh / np.where(r > 0, r, np.nan)[:, None]
         out[:, i] = np.sqrt(np.einsum("pa,pab,pb->p", uh, cov, uh))
-    return out
+    return out, bias
 
 
 def cross_validate(
