@@ -449,7 +449,7 @@ def leave_one_rotation_out(
                                        np.concatenate([c.direction_error for c in checks]),
                                        orientations=orientations, levels=levels)
     judged = [c for c in checks if c.magnitude_sigma is not None]
-    cover, n_cover = (coverage(np.concatenate([c.magnitude_error for c in judged]),
+    cover, n_cover = (coverage(np.concatenate([c.magnitude_error - c.magnitude_bias for c in judged]),
                                np.concatenate([c.magnitude_sigma for c in judged])) if judged else (None, 0))
     return LoroStatistics(
         gratings=g,
