@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twin.calibration import Calibration
-from twin.calibration.jig.nuisance import TERMS, NuisanceFit, fit_nuisance
+from twin.calibration.jig.nuisance import DEFAULT_TERMS, NuisanceFit, fit_nuisance
 from twin.calibration.jig.poses import MODELS, JigPoses, _rot, _wrap, jig_curvature, match_orientations
 from twin.fiber import FiberModel
 from twin.strain import design_matrix
@@ -345,7 +345,7 @@ def fit(
     orientations=None,
     trust_references: bool = False,
     min_explained: float = 0.5,
-    terms=TERMS,
+    terms=DEFAULT_TERMS,
 ) -> JigFit:
     """Fit a jig calibration (see the module docstring for the models and conventions).
 
@@ -372,8 +372,8 @@ def fit(
         A fitted grating whose strain the jig curvature explains less than this (R²) is an error: it is most
         likely not in the groove. Below 0.99 a warning is given.
     terms : iterable of str
-        ``nuisance`` model only: the jig errors to estimate (default all of
-        :data:`~twin.calibration.jig.nuisance.TERMS`; ``trust_references`` drops ``"offset"``).
+        ``nuisance`` model only: the jig errors to estimate, some of :data:`~twin.calibration.jig.nuisance.TERMS`
+        (default :data:`~twin.calibration.jig.nuisance.DEFAULT_TERMS`; ``trust_references`` drops ``"offset"``).
 
     Raises
     ------
@@ -392,7 +392,10 @@ def fit(
         raise ValueError(f"{poses.source}: only reference rows (curvature 0); the fit needs bent poses")
     e_all, sigma_all = poses.strain()
     trust = trust_references or model == "linear"  # the plain baseline takes the references as they are
-    rows = bent if trust else np.ones(poses.n_poses, bool)
+    # the nuisance model's zero per rotation is free: the reference rows, which only define the strain's zero, would
+    # pin it (their strain is 0 by construction), so they are left out and the zero rests on the bent poses alone
+    free_zero = model == "nuisance" and "offset" in frozenset(terms)
+    rows = bent if trust or free_zero else np.ones(poses.n_poses, bool)
     e, j = e_all[rows], jig_curvature(poses.orientation[rows], poses.curvature[rows])
     group = None if trust else poses.orientation_index[rows]
     n_groups = poses.orientations.size

@@ -12,8 +12,12 @@ rotation o and core i, in the common-mode-free coordinates y = qᵀe (q: an orth
 
 * A_n, (n_cores − 1) × 2: the sensor (β_n = q A_n, as in the physical model);
 * z_o: a complex gain per rotation, shared by all gratings — its phase is the roll error of that seating, its
-  modulus how much of the groove the sensor follows there (``"roll"``, ``"gain"``). Gauge: their geometric mean is
-  1 (a common roll is the jig's roll α, a common gain is the sensor's);
+  modulus how much of the groove the sensor follows there (``"roll"``, ``"gain"``). Gauge: what the rotations on
+  one axis (ψ and ψ + π) have in common is the sensor's, not the jig's: a roll common to both is a shear of the
+  map (core angles), a gain common to both its scale along that axis. So ln z_o has mean 0 over the rotations of
+  each axis; only the differences between opposite rotations are the jig's (a rotation alone on its axis keeps
+  z_o = 1). A jig at 0°/90°/180°/270° therefore cannot tell the sensor's shear from the part of the roll errors
+  that differs between its two axes; no calibration from it can;
 * d_on: the zero of rotation o (``"offset"``): the reference is not the zero of the bent poses;
 * ε: a seating error shared by the trials of one groove (``"seating"``, a random effect: as a fixed effect it
   would absorb every groove's mean and leave nothing to fit) plus a per-pose error, with covariances Σ_seat,n
@@ -36,12 +40,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: The jig errors the nuisance model can estimate (all by default; fewer for the ablation).
+#: The jig errors the nuisance model can estimate.
 TERMS = frozenset({"roll", "gain", "offset", "seating"})
+#: Those it estimates by default. A gain per rotation competes with the sensor's own anisotropy: a 4-rotation jig
+#: bends the sensor along 2 axes only, so with a complex z_o per rotation the 2 × 2 map of each grating is left with
+#: 2 redundant numbers, and with 3 rotations (leave one out) with none. On both real AMIRo tables and on the twin's
+#: second sessions it made the calibration no better (docs/jig.md, "Which terms help"); it stays available.
+DEFAULT_TERMS = frozenset({"roll", "offset", "seating"})
 #: Alternating least squares converges linearly (≈ 0.7 per step on the AMIRo table): up to this many steps,
 #: until no z_o moves by more than _TOL (rad, relative gain).
 _MAX_ITER = 300
 _TOL = 1e-9
+#: Smallest error variance in strain², (0.01 pm / 1550 nm)².
+_FLOOR = (1e-5 / 1550.0) ** 2
 #: Prior 1σ of a seating's roll (rad) and relative gain: the AMIRo table's (docs/jig.md, error budget). With few
 #: rotations the z_o compete with the sensor's own anisotropy (3 rotations leave 2 numbers per grating to
 #: tell them apart); the prior keeps them at the size a jig's reseating has.
@@ -133,7 +144,7 @@ def _psd(m: np.ndarray) -> np.ndarray:
 
 
 def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int, seat: np.ndarray,
-                 q: np.ndarray, terms=TERMS) -> NuisanceFit | None:
+                 q: np.ndarray, terms=DEFAULT_TERMS) -> NuisanceFit | None:
     """Fit the nuisance model (module docstring) to the gratings of ``e``.
 
     Parameters
@@ -149,7 +160,7 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
     q : ndarray, shape (C, C − 1)
         Orthonormal basis orthogonal to (1, …, 1).
     terms : iterable of str
-        Subset of :data:`TERMS` to estimate.
+        Subset of :data:`TERMS` to estimate (default :data:`DEFAULT_TERMS`).
 
     Returns
     -------
@@ -173,10 +184,17 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
     n_off = n_groups * dim if "offset" in terms else 0
     n_par = 2 * dim + n_off
     z = np.ones(n_groups, dtype=complex)
+    # each rotation's bend direction in the jig frame, and the rotations that share its axis (ψ, ψ + π)
+    u = np.zeros((n_groups, 2))
+    np.add.at(u, group, j / np.maximum(np.hypot(j[:, 0], j[:, 1]), 1e-300)[:, None])
+    u /= np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-300)[:, None]
+    same_axis = (np.abs(u @ u.T) > np.cos(np.deg2rad(10.0))).astype(float)
+    axis_mean = same_axis / same_axis.sum(axis=1, keepdims=True)  # (O, O): mean over each rotation's axis
     cov_seat = np.zeros((n_g, dim, dim))
     # start without a seating part: the groove means weighted by their count (ordinary least squares on poses)
     scale0 = np.einsum("gaa->g", cov_pose) / dim
-    floor = np.maximum(1e-6 * scale0, 1e-24)  # strain² (strain variances here are ≈ 1e-10)
+    # no error is smaller than 0.01 pm at 1550 nm: noise-free data converge instead of weighting ever harder
+    floor = np.maximum(1e-6 * scale0, _FLOOR)
     for it in range(1, _MAX_ITER + 1):
         x_s = np.stack([z[s_group].real * s_j[:, 0] - z[s_group].imag * s_j[:, 1],
                         z[s_group].imag * s_j[:, 0] + z[s_group].real * s_j[:, 1]], axis=-1)  # (S, 2)
@@ -211,10 +229,8 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
                              1.0 / PRIOR_ROLL**2 if "roll" in terms else 0.0])
             sol = np.linalg.solve(nz + prior, (rz + prior @ np.array([1.0, 0.0]))[..., None])[..., 0]
             zc = sol[:, 0] + 1j * sol[:, 1]
-            log_gain = np.log(np.abs(zc)) if "gain" in terms else np.zeros(n_groups)
-            phase = np.angle(zc) if "roll" in terms else np.zeros(n_groups)
-            # gauge: a common roll is α, a common gain the sensor's; both go to A
-            z_new = np.exp((log_gain - log_gain.mean()) + 1j * (phase - np.angle(np.exp(1j * phase).mean())))
+            log_z = (np.log(np.abs(zc)) if "gain" in terms else 0.0) + 1j * (np.angle(zc) if "roll" in terms else 0.0)
+            z_new = np.exp(log_z - axis_mean @ log_z)  # gauge (module docstring): mean 0 on each axis
         # error covariances from the residuals of the groove means (their expectation: Σ_pose/T + Σ_seat)
         resid = ybar - np.einsum("sak,gk->gsa", design, theta)
         used = count > 0
@@ -240,9 +256,6 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
     offsets = np.einsum("cd,god->ogc", q, d)
     # a rotation's zero as its reference pose's curvature (strain is taken against it: the zero is −A c_ref),
     # along and across the rotation's bend direction u_o
-    u = np.zeros((n_groups, 2))
-    np.add.at(u, group, j / np.maximum(np.hypot(j[:, 0], j[:, 1]), 1e-300)[:, None])
-    u /= np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-300)[:, None]
     c_ref = -np.einsum("gkd,god->ogk", np.linalg.pinv(a), d)
     reference = np.stack([np.einsum("ogk,ok->og", c_ref, u),
                           np.einsum("ogk,ok->og", c_ref, np.stack([-u[:, 1], u[:, 0]], axis=-1))], axis=-1)
@@ -255,7 +268,7 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
     slopes = np.stack([np.einsum("gso,s,gsk,sk->go", onehot_o, kap, c_res, u[s_group]),
                        np.einsum("gso,s,gsk,sk->go", onehot_o, kap, c_res, w_o[s_group])], axis=-1)
     slopes = slopes / np.where(k2 > 0, k2, np.nan)[..., None]
-    n_axis = np.sum(np.abs(u @ u.T) > np.cos(np.deg2rad(10.0)), axis=1)  # fitted rotations on each one's axis
+    n_axis = same_axis.sum(axis=1)  # fitted rotations on each one's axis
     kept = np.broadcast_to(1.0 - 1.0 / n_axis, slopes.shape[:2])
     have = np.isfinite(slopes[..., 0])
     dof_local = float(np.sum(kept[have]))
