@@ -117,7 +117,9 @@ class JigParams:
         Draws the as-built sensor and, unless ``session_seed`` is given, the session.
     session_seed : int or None
         Draws the session (jig errors, seating, interrogator noise, temperatures) apart from the sensor: two
-        values give two sessions of the same sensor in the same jig.
+        values give two sessions of the same sensor (core angles, radii, twist) in the same jig. The optics' as-built
+        λ0 scatter and thermal mismatch are drawn with the session: each orientation's reference removes the
+        first, and the second acts only through the 1 K session temperatures.
     """
 
     curvatures: tuple[float, ...] = (0.0, 0.25, 0.8, 1.0, 1.25, 3.125)
