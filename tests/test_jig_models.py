@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from sim_interrogator.jig import needle_fiber
+from sim_interrogator.needle_jig import needle_fiber
 from twin import Calibration, strain
 from twin.calibration.jig import JigPoses, fit, jig_curvature, leave_one_rotation_out, validate, write_poses
 from twin.calibration.jig.nuisance import DEFAULT_TERMS, TERMS
