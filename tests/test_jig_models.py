@@ -211,11 +211,11 @@ def test_cli_linear_and_nuisance_models(tmp_path, capsys):
     poses = session(true, roll_errors=np.deg2rad([1.0, -1.0, 0.5, -0.5]), references=0.05 * np.eye(4, 2))
     csv_path = tmp_path / "poses.csv"
     write_poses(csv_path, poses)
-    fibre = ["--fiber", str(tmp_path / "n.toml")]
+    fiber_args = ["--fiber", str(tmp_path / "n.toml")]
     NEEDLE.save(tmp_path / "n.toml")
     for model in ("linear", "nuisance"):
         out = tmp_path / f"{model}.toml"
-        assert main(["jig-calibrate", str(csv_path), *fibre, "--model", model, "--out", str(out)]) == 0
+        assert main(["jig-calibrate", str(csv_path), *fiber_args, "--model", model, "--out", str(out)]) == 0
         assert f"({model} model)" in capsys.readouterr().out
         assert Calibration.load(out).provenance["jig_model"] == model
     assert main(["jig-validate", str(csv_path), "--calibration", str(tmp_path / "nuisance.toml"), "--json"]) == 0
@@ -224,7 +224,7 @@ def test_cli_linear_and_nuisance_models(tmp_path, capsys):
     assert set(summary["score"]) >= {"magnitude_error_1_per_m", "direction_error_deg", "bands"}
     assert main(["jig-validate", str(csv_path), "--calibration", str(tmp_path / "linear.toml"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["results"][0]["validation"]["summary"]["coverage_95"] is None
-    assert main(["jig-validate", str(csv_path), *fibre, "--leave-one-rotation-out"]) == 0
+    assert main(["jig-validate", str(csv_path), *fiber_args, "--leave-one-rotation-out"]) == 0
     out = capsys.readouterr().out
     assert "Score, leave one rotation out" in out
     for model in ("physical", "matrix", "linear", "nuisance"):
