@@ -96,6 +96,7 @@ class JigValidation:
         """Worst errors over poses with |κ| ≥ ``min_curvature`` (and over all bent poses), JSON-ready."""
         big = np.abs(self.curvature) >= self.min_curvature
         m, d = self.magnitude_error, np.rad2deg(self.direction_error)
+        cover, n_cover = self.coverage()
         return {
             "min_curvature_1_per_m": self.min_curvature,
             "n_poses": int(big.sum()),
@@ -106,8 +107,8 @@ class JigValidation:
             "rms_direction_error_deg": _stat(lambda x: np.sqrt(np.nanmean(x**2)), d[big]),
             "all_levels_max_abs_magnitude_error_1_per_m": _stat(np.nanmax, np.abs(m)),
             "all_levels_max_abs_direction_error_deg": _stat(np.nanmax, np.abs(d)),
-            "coverage_95": self.coverage()[0],
-            "n_coverage": self.coverage()[1],
+            "coverage_95": cover,
+            "n_coverage": n_cover,
             "score": self.score(CLINICAL).to_dict(),
             "score_all_levels": self.score(ALL_LEVELS).to_dict(),
         }
