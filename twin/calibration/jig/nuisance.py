@@ -28,10 +28,11 @@ on the groove means with weight (Σ_pose/T + Σ_seat)⁻¹ (T: the groove's tria
 (one weighted linear solve per grating, batched) and z | A, d (a 2-unknown solve per rotation over all
 gratings), and re-estimates the covariances from the residuals each time, until z settles.
 
-The fitted error model predicts how far a new pose's curvature is from the jig's label (used for the 95 %
-intervals of :mod:`twin.calibration.jig.validation`): Σ_pose + Σ_seat + Σ_ref (the scatter of the rotations'
-zeros) through the calibration's map, plus κ²(σ_roll² across + σ_gain² along the bend) from the scatter of the
-z_o, plus the parameters' own covariance.
+The fitted error model predicts how far a new pose's curvature is from the jig's label (the 95 % intervals of
+:func:`twin.calibration.jig.validate`): the jig's mean reference curvature along the bend as a bias; Σ_pose + Σ_seat
+through the calibration's map; the scatter of the rotations' zeros along and across the bend; κ² times the
+seatings' roll and gain variances (shared, and per grating); and the parameters' own covariance. The variances at
+the rotation level rest on 1–3 degrees of freedom and are pooled with the error budget as a prior.
 """
 
 from __future__ import annotations
