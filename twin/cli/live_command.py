@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 from pathlib import Path
 
@@ -64,7 +65,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=("material", "paper"), default="material",
                         help="reconstruction method (default material)")
     parser.add_argument("--stale", type=float, default=0.5, help="seconds without a usable frame before 'stale'")
-    parser.add_argument("--print-rate", type=float, default=1.0, help="status lines per second (default 1)")
+    parser.add_argument("--print-rate", type=float, default=1.0,
+                        help="status lines per second (default 1; 0: on state changes only)")
     parser.add_argument("--json", action="store_true", help="print the final summary as one JSON object")
     parser.add_argument("--quiet", action="store_true", help="no status lines")
     parser.add_argument("--viewer", action="store_true", help="show the shapes live in a browser (meshcat)")
@@ -83,6 +85,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames must be at least 1, got {args.frames}")
+    if not (math.isfinite(args.print_rate) and args.print_rate >= 0):
+        raise ValueError(f"--print-rate must be a finite number of status lines per second >= 0 (0: on state "
+                         f"changes only), got {args.print_rate}")
     if not args.stale > 0:
         raise ValueError(f"--stale must be a positive number of seconds, got {args.stale}")
     if args.viewer and not args.viewer_rate > 0:
@@ -130,8 +135,7 @@ def run(args: argparse.Namespace) -> int:
         if args.viewer:
             from twin.viewer import Viewer, ViewerConfig, ViewerSink
 
-            viewer = Viewer(ViewerConfig(max_fps=args.viewer_rate),
-                            calibration=args.calibration.name if args.calibration else None)
+            viewer = Viewer(ViewerConfig(max_fps=args.viewer_rate), calibration=calibration_label(args, calibration))
             viewer_sink = ViewerSink(viewer, rate=args.viewer_rate, close_viewer=not args.keep_open)
             sinks.append(viewer_sink)
         if args.igtl is not None:
@@ -163,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
         out["recorded_vendor_dropped"] = recorder.vendor_dropped
     if viewer_sink is not None:
         out["viewer_frames"] = viewer_sink.frames_shown
+        out["viewer_calibration"] = viewer_sink.viewer.info.get("calibration")
         out["viewer_errors"] = viewer_sink.errors
         if viewer_sink.errors:
             print(f"twin live: viewer: {viewer_sink.errors} errors, last: {viewer_sink.last_error}", file=sys.stderr)
@@ -170,6 +175,8 @@ def run(args: argparse.Namespace) -> int:
         out["igtl_frames"] = igtl_sink.frames_sent
         out["igtl_clients"] = igtl_sink.server.clients_seen
         out["igtl_errors"] = igtl_sink.errors
+        out["igtl_bundles_dropped"] = igtl_sink.server.bundles_dropped  # for clients that did not keep up
+        out["igtl_evicted"] = igtl_sink.server.evicted
     if args.json:
         print(jsonout.dumps(out))
     else:
@@ -179,6 +186,16 @@ def run(args: argparse.Namespace) -> int:
 
         keep_open(viewer_sink.viewer)
     return 1 if summary.sink_errors or summary.reason == "source failed" else 0
+
+
+def calibration_label(args: argparse.Namespace, calibration: Calibration | None) -> str | None:
+    """How the viewer names the calibration in use: the file given, else the source's own (a recording stores
+    the one it was made with), else None (the viewer says "none")."""
+    if args.calibration:
+        return args.calibration.name
+    if calibration is not None:
+        return f"the source's ({args.url})"
+    return None
 
 
 def format_summary(summary: LiveSummary, out: dict) -> str:

@@ -216,11 +216,32 @@ def interp_curve(s_new, s, points) -> np.ndarray:
     return np.stack([np.interp(s_new, s, pts[:, k]) for k in range(3)], axis=-1)
 
 
-def local_error(points, truth_polyline) -> np.ndarray:
-    """Exact distance from each point (n, 3) to the truth polyline (k, 3), same unit (n,)."""
+def local_error(points, truth_polyline, *, return_closest: bool = False):
+    """Exact distance from each point (n, 3) to the truth polyline (k, 3), same unit (n,); with
+    ``return_closest`` also the closest point of the polyline to each (n, 3)."""
     from twin.metrics import point_to_polyline
 
-    return point_to_polyline(points, truth_polyline)
+    return point_to_polyline(points, truth_polyline, return_closest=return_closest)
+
+
+def magnification(max_error: float, target: float) -> float:
+    """The factor that shows a deviation of ``max_error`` as at most ``target`` (same unit): the largest of
+    1, 2, 5 × 10^k not above ``target / max_error`` (a round number a person can read), at least 1."""
+    if not (np.isfinite(max_error) and max_error > 0):
+        return 1.0
+    ratio = target / max_error * (1 + 1e-6)  # an error a hair above a round one (rounding) keeps its factor
+    if ratio <= 1:
+        return 1.0
+    decade = 10.0 ** np.floor(np.log10(ratio))
+    return float(max(m * decade for m in (1.0, 2.0, 5.0) if m * decade <= ratio))
+
+
+def nice_ceiling(value: float) -> float:
+    """The smallest of 1, 2, 5 × 10^k at or above ``value`` > 0 (an axis' end)."""
+    if not (np.isfinite(value) and value > 0):
+        return 1.0
+    decade = 10.0 ** np.floor(np.log10(value))
+    return float(min(m * decade for m in (1.0, 2.0, 5.0, 10.0) if m * decade >= value * (1 - 1e-12)))
 
 
 def _check_pose(base_pose) -> tuple[np.ndarray, np.ndarray]:
