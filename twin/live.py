@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 import signal
 import sys
 import threading
@@ -421,17 +422,26 @@ class LiveLoop:
         c.frames_unusable += n_unusable
         c.frames_complete += n - n_partial - n_unusable
         c.invalid_nodes += g * n - int(n_valid.sum())
-        ts = frames.timestamp[np.isfinite(frames.timestamp)]
-        if ts.size:
-            if np.isnan(c.time_first):
-                c.time_first = float(ts[0])
-            c.time_last = float(ts[-1])
+        self._count_span(frames.timestamp)
         if n_unusable < n:
             self._last_valid = time.monotonic()
             last = n - 1 if not unusable[-1] else int(np.flatnonzero(~unusable)[-1])
             self._tip = shapes.positions[last, -1].copy()
         c.process_s += time.perf_counter() - t0
         return frames, shapes, flags
+
+    def _count_span(self, timestamps: np.ndarray) -> None:
+        """First and last finite source timestamps (the ends of a batch are enough when they are finite)."""
+        first, last = float(timestamps[0]), float(timestamps[-1])
+        if not (math.isfinite(first) and math.isfinite(last)):
+            ts = timestamps[np.isfinite(timestamps)]
+            if not ts.size:
+                return
+            first, last = float(ts[0]), float(ts[-1])
+        c = self.c
+        if math.isnan(c.time_first):
+            c.time_first = first
+        c.time_last = last
 
     def _reject(self, n: int, bad: tuple) -> None:
         """Count n frames of another (n_gratings, n_cores) than the fibre model's; a configuration error when
@@ -591,7 +601,7 @@ class LiveLoop:
                     if self.c.frames and backoff.failures:
                         backoff.reset()
                     changed = self._update_state()
-                    if len(good) or changed:
+                    if (len(good) or changed) and self.sinks:  # a status only for someone to read it
                         self._emit(good, shapes, self.status(flags))
                         last_emit = t
                 else:
