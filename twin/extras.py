@@ -25,6 +25,9 @@ EXTRAS: dict[str, str] = {
     "dask": "study",
     "distributed": "study",
     "pyarrow": "study",
+    "mcap": "ros",
+    "zstandard": "ros",
+    "foxglove": "ros",
 }
 
 

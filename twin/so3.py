@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["exp", "exp_coefficients", "exp_entries", "log", "log_entries"]
+__all__ = ["exp", "exp_coefficients", "exp_entries", "from_quaternion", "log", "log_entries", "to_quaternion"]
 
 
 @njit(cache=True, nogil=True)
@@ -86,3 +86,37 @@ def log(matrices) -> np.ndarray:
     out = np.empty((flat.shape[0], 3))
     _log_batch(flat, out)
     return out.reshape(*r.shape[:-2], 3)
+
+
+def to_quaternion(matrices) -> np.ndarray:
+    """Unit quaternions (..., 4), scalar last (x, y, z, w) as ROS writes them, of rotation matrices (..., 3, 3).
+
+    Shepperd's method: each quaternion comes from the largest of 1 + trace and the 1 + 2 R_ii − trace, so no
+    division by a small number; w ≥ 0 (q and −q are the same rotation).
+    """
+    r = np.asarray(matrices, dtype=np.float64)
+    r00, r11, r22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
+    r01, r02, r10, r12, r20, r21 = r[..., 0, 1], r[..., 0, 2], r[..., 1, 0], r[..., 1, 2], r[..., 2, 0], r[..., 2, 1]
+    t = np.stack([1 + r00 + r11 + r22, 1 + r00 - r11 - r22, 1 - r00 + r11 - r22, 1 - r00 - r11 + r22], axis=-1)
+    cand = np.stack([
+        np.stack([r21 - r12, r02 - r20, r10 - r01, t[..., 0]], axis=-1),  # from w
+        np.stack([t[..., 1], r01 + r10, r02 + r20, r21 - r12], axis=-1),  # from x
+        np.stack([r01 + r10, t[..., 2], r12 + r21, r02 - r20], axis=-1),  # from y
+        np.stack([r02 + r20, r12 + r21, t[..., 3], r10 - r01], axis=-1),  # from z
+    ], axis=-2)
+    k = np.argmax(t, axis=-1)
+    q = np.take_along_axis(cand, k[..., None, None], axis=-2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., 3:] < 0, -q, q)
+
+
+def from_quaternion(quaternions) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of quaternions (..., 4), scalar last (x, y, z, w); normalised first."""
+    q = np.asarray(quaternions, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=-2)
