@@ -94,7 +94,7 @@ class McapRecording:
         meta: dict[str, dict] = {}
         attachments: dict[str, bytes] = {}
         try:
-            fh = open(self.path, "rb")  # noqa: SIM115 - closed below
+            fh = open(self.path, "rb")
         except FileNotFoundError:
             raise FileNotFoundError(f"{self.path}: no such recording") from None
         with fh:
@@ -270,8 +270,9 @@ class McapRecording:
 
     def damage_line(self) -> str:
         """One line for a damaged file: the file, frames readable of how many, the first damage, what to do."""
-        return (f"{self.path}: damaged recording: {self._n} frames readable ({self.damage[0] if self.damage else 'no damage'}); "
-                "--salvage (replay://FILE?salvage=1) uses the readable frames")
+        why = self.damage[0] if self.damage else "no damage"
+        return (f"{self.path}: damaged recording: {self._n} frames readable ({why}); --salvage "
+                "(replay://FILE?salvage=1) uses the readable frames")
 
     @property
     def shape(self) -> tuple[int, int] | None:

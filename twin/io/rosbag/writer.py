@@ -110,7 +110,7 @@ class McapRecorder:
         self.path = Path(path)
         self.flush_interval = float(flush_interval)
         try:
-            self._fh = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+            self._fh = open(self.path, "wb")
         except OSError as exc:
             raise OSError(f"{self.path}: cannot create the recording ({exc})") from None
         self._w = writer.Writer(self._fh, chunk_size=int(chunk_size), compression=writer.CompressionType.ZSTD)
