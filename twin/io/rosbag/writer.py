@@ -143,22 +143,27 @@ class McapRecorder:
             self.flush()
 
     def append(self, frames: Sequence[Frame] | Frame, shapes: Shape | None = None,
-               received: float | None = None) -> None:
+               received: float | np.ndarray | None = None, vendor: Sequence | None = None) -> None:
         """Write a batch: frames (a 1-D batch Frame, a single frame or a sequence of frames) and, optionally,
         their reconstructions (``shapes[i]`` of ``frames[i]``; unusable ones — not finite — are left out).
 
-        ``received``: wall-clock time of the batch, s since the Unix epoch (default now): the messages' log time.
+        ``received``: wall-clock time of the batch, or of each frame (n,), s since the Unix epoch (default now):
+        the messages' log time (NaN: now). ``vendor``: the interrogator's blocks of each frame (a tuple of
+        VendorSensor or None, n entries); default: the single frames' :attr:`Frame.vendor`.
         """
         if self._closed:
             raise ValueError(f"{self.path}: recorder is closed")
         items = [frames] if isinstance(frames, Frame) else list(frames)
         if not items:
             return
-        vendor = [getattr(f, "vendor", None) for f in items for _ in range(len(f) if f.batch_shape else 1)]
+        if vendor is None:
+            vendor = [getattr(f, "vendor", None) for f in items for _ in range(len(f) if f.batch_shape else 1)]
         batch = Frame.stack(items) if not (len(items) == 1 and items[0].batch_shape) else items[0]
         n = len(batch)
         rows = self.frames_written + np.arange(n)
-        log = int(time.time_ns() if received is None else round(received * 1e9))
+        now = time.time_ns()
+        log = np.full(n, now, np.int64) if received is None else np.where(
+            np.isfinite(received), np.rint(np.nan_to_num(np.broadcast_to(received, (n,))) * 1e9), now).astype(np.int64)
         t = batch.timestamp
         self._write("/fbg/wavelengths", msgs.encode_wavelengths(batch.wavelengths, t, batch.sequence, batch.powers,
                                                                 batch.status), rows, log)
@@ -168,9 +173,9 @@ class McapRecorder:
             if sel.size:
                 q = so3.to_quaternion(shapes.frames[sel])
                 self._write("/catheter/shape", msgs.encode_path(shapes.positions[sel], q, t[sel], "fiber_base"),
-                            rows[sel], log)
+                            rows[sel], log[sel])
                 self._write("/catheter/tip", msgs.encode_pose(shapes.positions[sel, -1], q[:, -1], t[sel],
-                                                              "fiber_base"), rows[sel], log)
+                                                              "fiber_base"), rows[sel], log[sel])
                 self.shapes_written += sel.size
         if batch.truth is not None:
             self._write_truth(batch, rows, log)
@@ -180,20 +185,21 @@ class McapRecorder:
         if time.monotonic() - self._last_flush >= self.flush_interval:
             self.flush()
 
-    def _write(self, topic: str, payloads: list[bytes], rows: np.ndarray, log: int) -> None:
+    def _write(self, topic: str, payloads: list[bytes], rows: np.ndarray, log: np.ndarray) -> None:
         ch = self._channels.get(topic)
         if ch is None:
             ch = self._channels[topic] = self._w.register_channel(
                 topic, "cdr", self._schemas[TOPICS[topic]], {"offered_qos_profiles": _QOS_TEXT})
             self._counts[topic] = 0
         add = self._w.add_message
-        for row, data in zip(rows.tolist(), payloads, strict=True):
-            add(channel_id=ch, log_time=log, data=data, publish_time=log, sequence=row & 0xFFFFFFFF)
+        for row, t, data in zip(rows.tolist(), log.tolist(), payloads, strict=True):
+            add(channel_id=ch, log_time=t, data=data, publish_time=t, sequence=row & 0xFFFFFFFF)
         self._counts[topic] += len(payloads)
-        self._t_first = log if self._t_first is None else self._t_first
-        self._t_last = log
+        if len(log):
+            self._t_first = int(log.min()) if self._t_first is None else min(self._t_first, int(log.min()))
+            self._t_last = int(log.max()) if self._t_last is None else max(self._t_last, int(log.max()))
 
-    def _write_truth(self, batch: Frame, rows: np.ndarray, log: int) -> None:
+    def _write_truth(self, batch: Frame, rows: np.ndarray, log: np.ndarray) -> None:
         truth = batch.truth
         sel = np.flatnonzero(truth.all_present)
         if not sel.size:
@@ -205,10 +211,10 @@ class McapRecorder:
             return  # another layout than the first: not stored (the reader has one arc-length axis)
         q = None if truth.frames is None else so3.to_quaternion(truth.frames[sel])
         self._write("/catheter/truth", msgs.encode_path(truth.positions[sel], q, batch.timestamp[sel], "world"),
-                    rows[sel], log)
+                    rows[sel], log[sel])
         self.truth_written += sel.size
 
-    def _write_vendor(self, vendor: list, t: np.ndarray, rows: np.ndarray, log: int) -> None:
+    def _write_vendor(self, vendor: Sequence, t: np.ndarray, rows: np.ndarray, log: np.ndarray) -> None:
         # group the blocks by (sensor, G, N, spacing) so each group encodes as one batch
         groups: dict[tuple, list[int]] = {}
         for i, blocks in enumerate(vendor):
@@ -218,7 +224,7 @@ class McapRecorder:
             blocks = [vendor[i][k] for i in idx]
             self._write("/fbg/vendor_shape", msgs.encode_vendor(
                 k, np.stack([b.curvature for b in blocks]), np.stack([b.angle for b in blocks]),
-                np.stack([b.positions for b in blocks]), spacing, t[idx]), rows[idx], log)
+                np.stack([b.positions for b in blocks]), spacing, t[idx]), rows[idx], log[idx])
             self.vendor_written += len(idx)
 
     def flush(self) -> None:
