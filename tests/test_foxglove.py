@@ -19,7 +19,6 @@ import time
 
 import numpy as np
 import pytest
-
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
