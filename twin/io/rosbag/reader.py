@@ -7,7 +7,7 @@ with the recorded truth (``/catheter/truth``) and the interrogator's own shape (
 recorded reconstructions (``/catheter/shape``, ``/catheter/tip``) are for other tools; replay makes its own.
 
 The file is read once, record by record (the ``mcap`` package's stream reader, chunks checked against their CRC),
-and its frames are held in memory as arrays (about 0.4 kB a frame for 18 gratings × 4 cores; a truth of m points
+and its frames are held in memory as arrays (about 1.2 kB a frame for 18 gratings × 4 cores; a truth of m points
 adds 96·m bytes). The messages of one frame are tied by their MCAP ``sequence`` (the frame's row,
 :mod:`twin.io.rosbag.writer`).
 
