@@ -120,10 +120,7 @@ class FoxgloveServer:
                 if full:
                     self.clients_refused += 1
             if full:
-                with contextlib.suppress(OSError):
-                    conn.settimeout(1.0)
-                    conn.sendall(_REFUSE)
-                conn.close()
+                threading.Thread(target=_refuse, args=(conn,), name="foxglove-refuse", daemon=True).start()
                 continue
             conn.settimeout(5.0)  # the handshake's deadline; the relay then blocks
             with self._lock:
@@ -225,6 +222,23 @@ def _handshake(client: socket.socket, server: socket.socket) -> None:
     if asked_spec:
         reply, _ = _swap_protocol(reply, SDK_SUBPROTOCOL, SPEC_SUBPROTOCOL)
     client.sendall(reply + rest)
+
+
+def _refuse(conn: socket.socket) -> None:
+    """Answer a client over the cap with HTTP 503 after its request (a reply before it, or a close with its
+    request unread, can reach the client as a reset instead of the answer); at most 2 s in all."""
+    try:
+        conn.settimeout(1.0)
+        with contextlib.suppress(OSError, ValueError):
+            _read_head(conn)
+        conn.sendall(_REFUSE)
+        conn.shutdown(socket.SHUT_WR)
+        while conn.recv(4096):  # until the client closes (or the timeout)
+            pass
+    except OSError:
+        pass
+    finally:
+        conn.close()
 
 
 def _relay(src: socket.socket, dst: socket.socket, done: threading.Barrier) -> None:

@@ -117,6 +117,7 @@ class McapRecorder:
         self._w.start(profile="ros2", library=f"catheter-twin {__version__}")
         self._schemas = {name: self._w.register_schema(name, "ros2msg", text) for name, text in msgs.SCHEMAS.items()}
         self._channels: dict[str, int] = {}
+        self._queue: list[tuple] = []  # a batch's messages per topic, written frame by frame by _emit
         self._counts: dict[str, int] = {}
         self._t_first = self._t_last = None
         now = time.time_ns()
@@ -181,23 +182,36 @@ class McapRecorder:
             self._write_truth(batch, rows, log)
         if any(v for v in vendor):
             self._write_vendor(vendor, t, rows, log)
+        self._emit()
         self.frames_written += n
         if time.monotonic() - self._last_flush >= self.flush_interval:
             self.flush()
 
     def _write(self, topic: str, payloads: list[bytes], rows: np.ndarray, log: np.ndarray) -> None:
+        """Queue a topic's messages of the batch (:meth:`_emit` writes them)."""
         ch = self._channels.get(topic)
         if ch is None:
             ch = self._channels[topic] = self._w.register_channel(
                 topic, "cdr", self._schemas[TOPICS[topic]], {"offered_qos_profiles": _QOS_TEXT})
             self._counts[topic] = 0
-        add = self._w.add_message
-        for row, t, data in zip(rows.tolist(), log.tolist(), payloads, strict=True):
-            add(channel_id=ch, log_time=t, data=data, publish_time=t, sequence=row & 0xFFFFFFFF)
+        self._queue.append((np.full(len(payloads), ch), rows, log, payloads))
         self._counts[topic] += len(payloads)
         if len(log):
             self._t_first = int(log.min()) if self._t_first is None else min(self._t_first, int(log.min()))
             self._t_last = int(log.max()) if self._t_last is None else max(self._t_last, int(log.max()))
+
+    def _emit(self) -> None:
+        """Write the queued messages frame by frame (a frame's wavelengths, shape, tip, truth, sensor blocks
+        together), so that a file cut anywhere loses whole frames, and its readers meet a frame's messages at once."""
+        if not self._queue:
+            return
+        ch, rows, log = (np.concatenate([q[i] for q in self._queue]) for i in range(3))
+        payloads = [p for q in self._queue for p in q[3]]
+        self._queue.clear()
+        add = self._w.add_message
+        for i in np.argsort(rows, kind="stable").tolist():  # stable: topics keep their order within a frame
+            t = int(log[i])
+            add(channel_id=int(ch[i]), log_time=t, data=payloads[i], publish_time=t, sequence=int(rows[i]) & 0xFFFFFFFF)
 
     def _write_truth(self, batch: Frame, rows: np.ndarray, log: np.ndarray) -> None:
         truth = batch.truth
