@@ -27,6 +27,7 @@ EXTRAS: dict[str, str] = {
     "pyarrow": "study",
     "mcap": "ros",
     "zstandard": "ros",
+    "lz4": "ros",
     "foxglove": "ros",
 }
 

@@ -92,22 +92,34 @@ def to_quaternion(matrices) -> np.ndarray:
     """Unit quaternions (..., 4), scalar last (x, y, z, w) as ROS writes them, of rotation matrices (..., 3, 3).
 
     Shepperd's method: each quaternion comes from the largest of 1 + trace and the 1 + 2 R_ii − trace, so no
-    division by a small number; w ≥ 0 (q and −q are the same rotation).
+    division by a small number; w ≥ 0 (q and −q are the same rotation). Each of the four cases is computed on
+    the matrices that take it only (a few array operations per case, whatever the batch).
     """
     r = np.asarray(matrices, dtype=np.float64)
-    r00, r11, r22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
-    r01, r02, r10, r12, r20, r21 = r[..., 0, 1], r[..., 0, 2], r[..., 1, 0], r[..., 1, 2], r[..., 2, 0], r[..., 2, 1]
-    t = np.stack([1 + r00 + r11 + r22, 1 + r00 - r11 - r22, 1 - r00 + r11 - r22, 1 - r00 - r11 + r22], axis=-1)
-    cand = np.stack([
-        np.stack([r21 - r12, r02 - r20, r10 - r01, t[..., 0]], axis=-1),  # from w
-        np.stack([t[..., 1], r01 + r10, r02 + r20, r21 - r12], axis=-1),  # from x
-        np.stack([r01 + r10, t[..., 2], r12 + r21, r02 - r20], axis=-1),  # from y
-        np.stack([r02 + r20, r12 + r21, t[..., 3], r10 - r01], axis=-1),  # from z
-    ], axis=-2)
-    k = np.argmax(t, axis=-1)
-    q = np.take_along_axis(cand, k[..., None, None], axis=-2)[..., 0, :]
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., 3:] < 0, -q, q)
+    flat = r.reshape(-1, 3, 3)
+    d = np.einsum("nii->ni", flat)
+    t = np.stack([1 + d.sum(axis=1), 1 + d[:, 0] - d[:, 1] - d[:, 2], 1 - d[:, 0] + d[:, 1] - d[:, 2],
+                  1 - d[:, 0] - d[:, 1] + d[:, 2]], axis=1)
+    case = np.argmax(t, axis=1)
+    q = np.empty((len(flat), 4))
+    # (component filled by the largest term, then the three from sums/differences of off-diagonal pairs)
+    pairs = {0: ((3, (2, 1), (1, 2), -1), (0, (2, 1), (1, 2), -1), (1, (0, 2), (2, 0), -1), (2, (1, 0), (0, 1), -1)),
+             1: ((0, (0, 0), (0, 0), 0), (1, (0, 1), (1, 0), 1), (2, (0, 2), (2, 0), 1), (3, (2, 1), (1, 2), -1)),
+             2: ((1, (0, 0), (0, 0), 0), (0, (0, 1), (1, 0), 1), (2, (1, 2), (2, 1), 1), (3, (0, 2), (2, 0), -1)),
+             3: ((2, (0, 0), (0, 0), 0), (0, (0, 2), (2, 0), 1), (1, (1, 2), (2, 1), 1), (3, (1, 0), (0, 1), -1))}
+    for k, terms in pairs.items():
+        sel = np.flatnonzero(case == k)
+        if not sel.size:
+            continue
+        m, tk = flat[sel], t[sel, k]
+        half = 0.5 / np.sqrt(tk)
+        main, *rest = terms
+        q[sel, main[0]] = tk * half
+        for comp, (i, j), (u, v), sign in rest:
+            q[sel, comp] = (m[:, i, j] + sign * m[:, u, v]) * half
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 3] < 0] *= -1
+    return q.reshape(*r.shape[:-2], 4)
 
 
 def from_quaternion(quaternions) -> np.ndarray:
