@@ -258,3 +258,30 @@ def test_an_mcap_file_that_is_not_a_twin_recording_is_one_line(tmp_path):
         w.finish()
     out = _twin("replay", str(p))
     assert out.returncode == 2 and out.stderr.count("\n") == 1 and "not a twin recording" in out.stderr
+
+
+def test_the_interrogators_own_shape_round_trips_and_is_compared_like_hdf5s(run, tmp_path):
+    """Sensor blocks (two sensors, on every other frame) come back per sensor, and replay reports the same
+    vendor distance for the MCAP and the HDF5 recording of the same frames."""
+    from dataclasses import replace
+
+    from twin.io.illumisense.vendor import vendor_sensors
+    from twin.io.record import Recorder
+
+    with open_recording(run / "x.mcap") as r:
+        frames, fiber = r.frames(0, 60), r.fiber
+        shapes = Reconstructor(fiber, r.calibration)(frames.wavelengths)
+    blocks = vendor_sensors(shapes)
+    singles = [replace(f, vendor=(blocks[i], blocks[i]) if i % 2 == 0 else None) for i, f in enumerate(frames)]
+    with McapRecorder(tmp_path / "v.mcap", fiber=fiber) as m:
+        m.append(singles, shapes)
+    with Recorder(tmp_path / "v.h5", fiber=fiber) as h:
+        h.append(singles)
+    with open_recording(tmp_path / "v.mcap") as r, open_recording(tmp_path / "v.h5") as h:
+        assert r.has_vendor and len(r.vendor()) == 2
+        for a, b in zip(r.vendor(), h.vendor(), strict=True):
+            assert np.array_equal(a.present, b.present) and a.present.sum() == 30
+            assert np.array_equal(a.positions, b.positions, equal_nan=True)
+            assert np.array_equal(a.curvature, b.curvature, equal_nan=True) and a.spacing == b.spacing
+    vm, vh = summarize(tmp_path / "v.mcap").vendor, summarize(tmp_path / "v.h5").vendor
+    assert vm and vm == vh
