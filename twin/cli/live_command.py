@@ -235,6 +235,10 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
     if "vendor_distance_max_mm" in out:
         lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): max "
                      f"{out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
+    if "foxglove_frames" in out:
+        lines.append(f"  Foxglove: {out['foxglove_frames']} updates, {out['foxglove_clients']} clients"
+                     + (f", {out['foxglove_clients_refused']} refused (over the cap)" if out["foxglove_clients_refused"]
+                        else "") + (f", {out['foxglove_errors']} errors" if out["foxglove_errors"] else ""))
     for r in out.get("recordings", ()):
         lines.append(f"  recorded {r['frames']} frames to {r['file']}"
                      + (f"; {r['vendor_dropped']} sensor blocks not stored (a layout other than the "
