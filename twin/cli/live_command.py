@@ -164,8 +164,12 @@ def run(args: argparse.Namespace) -> int:
             from twin.igtl import parse_address
 
             fox = FoxgloveServer(*parse_address(args.foxglove), max_clients=args.foxglove_clients)
-            foxglove_sink = FoxgloveSink(fox, rate=args.foxglove_rate,
-                                         calibration=args.calibration.name if args.calibration else None)
+            try:
+                foxglove_sink = FoxgloveSink(fox, rate=args.foxglove_rate,
+                                             calibration=args.calibration.name if args.calibration else None)
+            except BaseException:
+                fox.close()
+                raise
             sinks.append(foxglove_sink)
             print(f"twin live: Foxglove on ws://{fox.address[0]}:{fox.address[1]} (open connection, Foxglove "
                   "WebSocket)", file=sys.stderr, flush=True)
