@@ -178,6 +178,7 @@ def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth:
         notes.append(truth.note or "truth present but no complete frame to compare")
     if info["skipped_lines"]:
         notes.append(f"{info['skipped_lines']} line(s) skipped, first: {info['skipped'][0]}")
+    notes.extend(info["notes"])  # what the reader had to assume (an MCAP recording's)
     if st.reconstruct_errors:
         notes.append(f"reconstruction failed on {st.reconstruct_errors} batch(es): their frames are counted "
                      "unusable")

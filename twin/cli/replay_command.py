@@ -36,7 +36,7 @@ from twin.metrics import REGISTRATIONS
 from twin.replay_summary import ReplaySummary, summarize
 
 #: one-line help (read by `twin --help` without importing this module)
-HELP = "reconstruct a recording (twin HDF5 or ILLumiSense log) and summarise it"
+HELP = "reconstruct a recording (twin HDF5 or MCAP, ILLumiSense log) and summarise it"
 
 __all__ = ["add_arguments", "format_summary", "run"]
 

@@ -23,7 +23,7 @@ from twin.frames import Shape, Truth
 from twin.viewer import commands as cmd
 from twin.viewer import geometry as geo
 from twin.viewer.client import SceneClient, ViewerError
-from twin.viewer.geometry import placement, tube_mesh
+from twin.viewer.geometry import tube_mesh
 
 __all__ = ["CAMERA_FOV_DEG", "Viewer", "ViewerConfig", "keep_open"]
 
@@ -325,36 +325,21 @@ class Viewer:
         if not np.all(np.isfinite(shape.positions)):
             raise ValueError("Viewer.show: the shape has NaN points (an unusable frame)")
         cfg = self.config
-        R, p, how = placement(shape, truth, base_pose)
-        self.placement = how
-        world = shape.positions @ R.T + p
+        sc = geo.frame_scene(shape, truth, vendor, base_pose, cfg.vendor_sensor)
+        R, world, truth_pts, ok = sc.R, sc.world, sc.truth, sc.truth_ok
+        self.placement, self.errors, self._mode = sc.how, sc.errors, sc.mode
         keep = geo.subsample(len(world), cfg.max_rings)
-        truth_pts = None
-        if truth is not None:
-            ts, tp = np.asarray(truth.s, dtype=np.float64), np.asarray(truth.positions, dtype=np.float64)
-            ok = np.all(np.isfinite(tp), axis=1)
-            truth_pts, ts = tp[ok], ts[ok]
-            d, nearest = geo.local_error(world, truth_pts, return_closest=True)
-            tip = float(np.linalg.norm(world[-1] - geo.interp_curve(shape.s[-1:], ts, truth_pts)[0]))
-            self.errors = {"max": float(d.max()), "mean": float(d.mean()), "tip": tip}
-            self._mode = "error"
-            ring_colors = geo.colormap(d[keep], *cfg.error_range)
-            self._profile = _profile(shape.s, d, cfg.profile_points)
-            magnified = self._magnified(world[keep], nearest[keep], float(d.max()))
+        ring_colors = geo.colormap(sc.values[keep], *(cfg.error_range if sc.mode == "error" else cfg.curvature_range))
+        if sc.mode == "error":
+            self._profile = _profile(shape.s, sc.values, cfg.profile_points)
+            magnified = self._magnified(world[keep], sc.nearest[keep], float(sc.values.max()))
         else:
-            self.errors = None
             self._profile = None
             magnified = None
             self.magnification = None
-            self._mode = "curvature"
-            k = np.linalg.norm(np.asarray(shape.curvature, dtype=np.float64), axis=-1)
-            good = np.isfinite(k)
-            k_at = np.interp(shape.s[keep], shape.grating_s[good], k[good]) if good.any() else np.full(len(keep),
-                                                                                                      np.nan)
-            ring_colors = geo.colormap(k_at, *cfg.curvature_range)
         if fixture is None and truth is not None:
             fixture = truth.fixture
-        vendor_pts = self._vendor_world(shape, vendor, R, p)
+        vendor_pts, self.vendor_errors = sc.vendor, sc.vendor_errors
         if not self._framed or reframe:
             sensed = np.concatenate([c for c in (world, truth_pts, vendor_pts) if c is not None])
             self._frame(sensed)
@@ -363,9 +348,8 @@ class Viewer:
         if fixture is not None:
             self._draw_fixture(np.asarray(fixture, dtype=np.float64))
         verts, faces = tube_mesh(world[keep], cfg.radius, cfg.sides, normals=(shape.frames[:, :, 0] @ R.T)[keep])
-        markers = geo.interp_curve(shape.grating_s, shape.s, world)
         self._last = {"verts": verts, "faces": faces, "colors": geo.tube_colors(ring_colors, cfg.sides),
-                      "markers": markers}
+                      "markers": sc.markers}
         self._draw_reconstruction()
         if truth_pts is not None and len(truth_pts) >= 2:
             tk = geo.subsample(len(truth_pts), cfg.max_rings)
@@ -406,26 +390,6 @@ class Viewer:
         mat = cmd.material("MeshBasicMaterial", color, depthTest=False, transparent=True)
         self._send(cmd.set_object(path, cmd.mesh(verts, faces, mat, render_order=render_order)))
         return True
-
-    def _vendor_world(self, shape: Shape, vendor, R: np.ndarray, p: np.ndarray) -> np.ndarray | None:
-        """The interrogator's shape registered onto ``shape`` and placed like it (world, m), or None."""
-        self.vendor_errors = None
-        if vendor is None:
-            return None
-        block = vendor
-        if isinstance(vendor, tuple | list):
-            k = self.config.vendor_sensor
-            block = vendor[k] if len(vendor) > k else None
-        if block is None:
-            return None
-        from twin.reference_errors import vendor_in_base
-
-        moved = vendor_in_base(shape.positions, shape.s, block.positions, block.s)
-        if moved is None:  # no overlap, or NaN points: nothing to show or report
-            return None
-        base, e = moved
-        self.vendor_errors = {"max": float(e.max), "mean": float(e.mean), "tip": float(e.tip)}
-        return base @ R.T + p
 
     def _draw_vendor(self, points: np.ndarray | None) -> None:
         # like the truth: unlit, over the translucent tube (under the truth and the gratings)
