@@ -16,7 +16,8 @@ What it prints on stdout, one line per endpoint, flushed at once (scripts may pa
     twin serve: hyperion commands on tcp://127.0.0.1:51971, peak stream on tcp://127.0.0.1:51972
     twin serve: fispec core 0 on /dev/pts/7
 
-then serves until Ctrl-C (or SIGTERM, ``--duration``, or the end of the source) and prints a summary.
+then serves until Ctrl-C (or SIGTERM, ``--duration``, or the end of the source) and prints a summary. Exit
+status 0; 130 when Ctrl-C cut a ``--duration`` short; 1 when the source failed.
 """
 
 from __future__ import annotations
@@ -123,7 +124,12 @@ def run(args: argparse.Namespace) -> int:
     if warnings:
         print(f"twin serve: {len(warnings)} MuJoCo solver warning(s), expected at the flex rod's start-up "
               f"(docs/simulation.md §1); the first: {warnings[0]}", flush=True)
-    return 1 if reason[0] == "source failed" else 0
+    if reason[0] == "source failed":
+        return 1
+    from twin.cli import interrupted_status
+
+    # Ctrl-C is how an open-ended server stops (0); a --duration it cut short is 130
+    return interrupted_status(reason[0] == "interrupted", args.duration is not None)
 
 
 def _start(args: argparse.Namespace, source):

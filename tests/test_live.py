@@ -615,10 +615,12 @@ def test_ctrl_c_at_start_up_is_one_line_and_exit_130(delay):
     finally:
         proc.kill()
     assert "Traceback" not in stderr
-    if proc.returncode == 130:  # still starting up
-        assert stderr.strip() == "twin live: interrupted" and stdout == ""
+    # a bounded run (--duration 20) cut short: 130 either way (tests/test_ctrl_c.py has the whole rule)
+    assert proc.returncode == 130
+    if stdout == "":  # still starting up
+        assert stderr.strip() == "twin live: interrupted"
     else:  # the loop was already running (a fast machine): it ends cleanly with its summary
-        assert proc.returncode == 0 and "ended: interrupted" in stdout
+        assert "ended: interrupted" in stdout
 
 
 @pytest.mark.parametrize("bad, got", [([[1510.0, 1515.0], [1520.0]], "a ragged sequence of 2 rows"),

@@ -7,8 +7,14 @@ above the core (the demo, ``serve``, every ``twin run NAME``) come from the regi
 A command that needs an optional dependency which is not installed says which extra installs it.
 
 User mistakes (bad files, wrong options, unreachable sources) print one line on stderr and exit with status 2;
-set TWIN_DEBUG=1 to see the traceback instead. Ctrl-C prints ``twin COMMAND: interrupted`` and exits with 130,
-whenever it comes: this module imports almost nothing at load time (the registry, the extras and every
+set TWIN_DEBUG=1 to see the traceback instead.
+
+Ctrl-C, one rule for every command (README, "Exit status"): it always ends the command cleanly — a run that has
+a summary prints it — and the exit status is 130 when it cut a bounded run short (``--duration``/``--frames``,
+``twin run``, ``twin study``, ``twin calibrate``, the demo's run, any command computing a result) and 0 when it
+stopped an open-ended one (``twin live``/``twin serve`` without a bound, a viewer's page kept open after its run):
+:func:`interrupted_status`. A Ctrl-C that no command catches prints ``twin COMMAND: interrupted`` and exits with
+130, whenever it comes: this module imports almost nothing at load time (the registry, the extras and every
 command are imported inside :func:`main`'s handler, and ``twin`` itself loads its names lazily), so the handler
 is in place within a few tens of milliseconds of start-up.
 """
@@ -42,6 +48,28 @@ PLUGIN_HELP: dict[str, str] = {
     "serve": "serve a simulated interrogator over illumisense, fispec or hyperion",
     "study": "run a design study (a sweep over parameters and seeds) on Dask distributed",
 }
+
+
+#: exit status when Ctrl-C cut a bounded run short (128 + SIGINT, what a shell reports for a Ctrl-C)
+EXIT_INTERRUPTED = 130
+
+
+def interrupted_status(interrupted: bool, bounded: bool) -> int:
+    """The exit status after a run that may have been ended by Ctrl-C (see the module docstring).
+
+    Parameters
+    ----------
+    interrupted : bool
+        Ctrl-C ended the run.
+    bounded : bool
+        The run had an end of its own (a duration, a frame count, a task list): Ctrl-C cut it short.
+
+    Returns
+    -------
+    int
+        :data:`EXIT_INTERRUPTED` (130) for a bounded run cut short, else 0.
+    """
+    return EXIT_INTERRUPTED if interrupted and bounded else 0
 
 
 class UserError(Exception):
@@ -118,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(_command_module(args._command).run(args) or 0)
     except KeyboardInterrupt:
         print(f"twin{' ' + command if command else ''}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except ImportError as exc:
         extra = missing_extra(exc)
         if extra is None or os.environ.get("TWIN_DEBUG"):

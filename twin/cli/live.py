@@ -7,15 +7,16 @@
 Prints a status line about once a second (state, frame rate, lost samples, framing errors, reconnects,
 partial/unusable frames, tip position in mm; on stderr with ``--json``) and a summary at the end; ``--json``
 prints the summary as one JSON object on stdout. Ctrl-C ends the run cleanly: the recording is flushed and
-marked complete, and the summary is printed. Exit status 0, or 1 when a sink failed (e.g. the recording could
-not be written) or the source failed for good (a damaged recording: ``replay://FILE?salvage=1`` replays the
-frames before the damage instead).
+marked complete, and the summary is printed. Exit status 0; 130 when Ctrl-C cut a run with ``--duration`` or
+``--frames`` short (without a bound, Ctrl-C is how a run ends: 0); 1 when a sink failed (e.g. the recording
+could not be written) or the source failed for good (a damaged recording: ``replay://FILE?salvage=1`` replays
+the frames before the damage instead).
 
 ``--viewer`` shows the shapes live in a browser (meshcat, :mod:`twin.viewer`; the URL to open is printed on
 stderr): the latest shape at most ``--viewer-rate`` times a second (30), the truth beside it when the source
 carries one (the simulator), the interrogator's own shape when the frames carry one (ILLumiSense sensor blocks,
 live or replayed), grey when the stream is stale. The viewer's server stops when the run ends, or
-with ``--keep-open`` stays until Ctrl-C.
+with ``--keep-open`` stays until Ctrl-C (not after a Ctrl-C that cut a bounded run short: that ends the command).
 
 ``--igtl [HOST:]PORT`` serves the shapes over OpenIGTLink for 3D Slicer (:mod:`twin.igtl`; 127.0.0.1 unless a
 host is given; the address is printed on stderr): POLYDATA ``CatheterShape``, TRANSFORM ``CatheterTip`` and,
@@ -163,11 +164,19 @@ def run(args: argparse.Namespace) -> int:
         print(jsonout.dumps(out))
     else:
         print(format_summary(summary, out))
-    if viewer_sink is not None and args.keep_open:
-        from twin.viewer import keep_open
+    from twin.cli import interrupted_status
 
-        keep_open(viewer_sink.viewer)
-    return 1 if summary.sink_errors or summary.reason == "source failed" else 0
+    # Ctrl-C is how an open-ended run ends (0); a run with --duration/--frames it cut short ends the command (130)
+    cut_short = interrupted_status(summary.reason == "interrupted",
+                                   args.duration is not None or args.frames is not None)
+    if viewer_sink is not None and args.keep_open:
+        if cut_short:
+            viewer_sink.viewer.close()
+        else:
+            from twin.viewer import keep_open
+
+            keep_open(viewer_sink.viewer)
+    return 1 if summary.sink_errors or summary.reason == "source failed" else cut_short
 
 
 def format_summary(summary: LiveSummary, out: dict) -> str:

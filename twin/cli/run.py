@@ -6,6 +6,9 @@
 ``viewer = getattr(args, "viewer", None)`` then ``viewer.show(shape, truth, label=…)`` (``getattr``: the same
 ``run(args)`` also serves the scenario's own ``__main__``, whose parser has no viewer). A scenario that does not
 draw still runs; the viewer's server stops when the scenario returns, or with ``--keep-open`` stays until Ctrl-C.
+
+A scenario is a bounded run: Ctrl-C ends it with ``twin run: interrupted`` and exit status 130 (``twin.cli``);
+Ctrl-C on a page kept open after a finished run exits with the scenario's own status.
 """
 
 from __future__ import annotations
@@ -103,14 +106,17 @@ def run(args: argparse.Namespace) -> int:
         from twin.viewer import Viewer, ViewerConfig
 
         ns.viewer = Viewer(ViewerConfig(max_fps=rate if rate is not None else 30.0))
+    finished = False
     try:
-        return int(module.run(ns) or 0)
+        status = int(module.run(ns) or 0)
+        finished = True
+        return status
     finally:
         if ns.viewer is not None:
             if ns.viewer.frames_shown == 0:
                 print(f"twin run: scenario {args.name} drew nothing in the viewer (it does not use args.viewer)",
                       file=sys.stderr)
-            if keep:
+            if keep and finished:  # not after Ctrl-C or an error: those end the command
                 from twin.viewer import keep_open
 
                 keep_open(ns.viewer)
