@@ -324,9 +324,9 @@ def test_live_cli_runs_a_synthetic_source_and_prints_a_summary(tmp_path):
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     assert out["frames"] == 600 and out["reason"] == "source ended" and out["frames_missing_peaks"] > 0
-    bad = subprocess.run([*TWIN, "live", "illumisense://127.0.0.1:1"], capture_output=True, text=True, env=ENV,
-                         timeout=60)
-    assert bad.returncode == 2 and "illumisense://127.0.0.1:1: cannot connect" in bad.stderr
+    bad = subprocess.run([*TWIN, "live", "illumisense://127.0.0.1:1?start_wait=0"], capture_output=True, text=True,
+                         env=ENV, timeout=60)
+    assert bad.returncode == 2 and "illumisense://127.0.0.1:1?start_wait=0: cannot connect" in bad.stderr
     assert "Traceback" not in bad.stderr
 
 

@@ -102,6 +102,8 @@ class FispecSource(Driver):
         See :class:`Driver`.
     """
 
+    START_WAIT = 0.0  #: a serial device that is not there is more likely a wrong path: fail at once by default
+
     def __init__(self, ports: Sequence[str], *, rate: float = 100.0, fiber: FiberModel | None = None,
                  cores: Sequence[int] | None = None, window: float = 3.0, baudrate: int = fispec.BAUDRATE,
                  reply_timeout: float = 0.5, url: str = "", **kw):
