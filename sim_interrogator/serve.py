@@ -122,8 +122,10 @@ def run(args: argparse.Namespace) -> int:
     stats = ", ".join(f"{k} {v}" for k, v in server.stats().items())
     print(f"twin serve: stopped ({reason[0]}) after {time.monotonic() - t0:.1f} s: {stats}", flush=True)
     if warnings:
-        print(f"twin serve: {len(warnings)} MuJoCo solver warning(s), expected at the flex rod's start-up "
-              f"(docs/simulation.md §1); the first: {warnings[0]}", flush=True)
+        from models.catheter import WARNINGS_NOTE
+
+        print(f"twin serve: {len(warnings)} MuJoCo solver warning(s), {WARNINGS_NOTE}; the first: {warnings[0]}",
+              flush=True)
     if reason[0] == "source failed":
         return 1
     from twin.cli import interrupted_status

@@ -196,6 +196,9 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
     ]
     if s.tip is not None:
         lines.append("  last tip (" + ", ".join(f"{1e3 * x:.2f}" for x in s.tip) + ") mm")
+    source = s.source
+    if source.get("warnings"):  # e.g. the simulator's MuJoCo start-up notes, collected and explained by the source
+        lines.append(f"  source warnings: {source['warnings']} ({source.get('warnings_note', 'see --json')})")
     if "vendor_distance_max_mm" in out:
         lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): max "
                      f"{out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
