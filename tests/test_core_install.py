@@ -84,6 +84,6 @@ def test_the_core_works_without_extras(core, tmp_path):
         out = run("twin", *command)
         lines = out.stderr.strip().splitlines()
         assert out.returncode == 2 and len(lines) == 1, out.stderr
-        assert "'sim' extra" in lines[0] and "catheter-twin[sim]" in lines[0]
+        assert "'sim' extra" in lines[0] and "pip install '.[sim]' from a catheter-twin checkout" in lines[0]
     out = run("twin", "live", "synthetic://", "--duration", "0.2", "--record", "r.h5")
     assert out.returncode == 2 and "'record' extra" in out.stderr

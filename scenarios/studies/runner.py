@@ -14,7 +14,7 @@ A :class:`Study` is a list of tasks, each a JSON-ready parameter dict, and one t
    ``OUT/summary.json`` and ``OUT/report.md``.
 
 Workers import the task function by name, so on a cluster they need the project installed (``pip install
-'catheter-twin[study]'``); results travel back to the client as small dicts.
+'.[study]'`` from a checkout); results travel back to the client as small dicts.
 """
 
 from __future__ import annotations

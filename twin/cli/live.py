@@ -30,6 +30,7 @@ one a recording carries, else none.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -132,7 +133,12 @@ def run(args: argparse.Namespace) -> int:
         if args.igtl is not None:
             from twin.igtl import IgtlServer, IgtlSink, parse_address
 
-            server = IgtlServer(*parse_address(args.igtl))
+            host, port = parse_address(args.igtl)
+            try:
+                server = IgtlServer(host, port)
+            except OSError as exc:  # "[Errno 98] … ('127.0.0.1', 18944)" named neither the option nor the protocol
+                reason = os.strerror(exc.errno).lower() if exc.errno else str(exc)
+                raise OSError(f"--igtl {args.igtl}: cannot serve OpenIGTLink on {host}:{port}: {reason}") from None
             igtl_sink = IgtlSink(server, rate=args.igtl_rate)
             sinks.append(igtl_sink)
             print(f"twin live: OpenIGTLink on {server.address[0]}:{server.address[1]}", file=sys.stderr, flush=True)
