@@ -1,10 +1,12 @@
 """A lab with hardware only: `pip install .` without extras gives a working sensing core (issue 10's acceptance).
 
 Slow (it builds a fresh virtual environment): a reconstruction from Python, `twin live synthetic://`, `twin replay`
-of an ILLumiSense log written here by hand, `twin jig-validate` on the real AMIRo table; mujoco is absent, and a
+of an ILLumiSense log written here by hand, `twin jig-validate` on the real AMIRo table, `twin run real-jig` from
+the installed package data (not a checkout: `tests/` is not copied); mujoco is absent, and a
 command that needs the simulator names the extra in one line (exit status 2).
 """
 
+import json
 import shutil
 import subprocess
 import venv
@@ -14,7 +16,7 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-AMIRO = ROOT / "tests" / "data" / "amiro"
+AMIRO = ROOT / "twin" / "data" / "jig" / "amiro"
 
 pytestmark = pytest.mark.slow
 
@@ -79,6 +81,12 @@ def test_the_core_works_without_extras(core, tmp_path):
               "--fiber", str(AMIRO / "needle.toml"), "--json")
     assert out.returncode in (0, 1), out.stderr  # 1: the real needle misses the acceptance goal; not an error
     assert out.stdout.lstrip().startswith("{")
+
+    # issue 23 A9: the real jig table is package data, there after a non-editable install (no tests/ installed)
+    out = run("twin", "run", "real-jig", "--seeds", "1", "--json")
+    assert out.returncode in (0, 1), out.stderr  # 1: a ratio outside the factor with one seed; not an error
+    real = json.loads(out.stdout)["real"]
+    assert real["loro_kappa_error_1_per_m"] > 0 and real["rms_strain_residual"] > 0
 
     for command in (["run", "static-shapes"], ["demo"]):
         out = run("twin", *command)
