@@ -2,7 +2,7 @@
 
 The real table (twin/data/jig/amiro/poses.csv, SOURCE.md beside it) is JHU AMIRo's needle_3CH_4AA_v2 in its
 calibration jig: 4 rotations, 7 grooves (0–4 1/m), 3 trials each. The twin (``twin run jig --sensor amiro``,
-:data:`sim_interrogator.jig.AMIRO`) simulates that needle in that jig. Both tables are judged the same way
+:data:`sim_interrogator.needle_jig.AMIRO`) simulates that needle in that jig. Both tables are judged the same way
 (:func:`twin.calibration.jig.leave_one_rotation_out`, physical model, the gratings in the groove):
 
 * ``rms_strain_residual`` — RMS strain residual of the fit on all rotations (in-sample);
@@ -22,7 +22,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from sim_interrogator.jig import AMIRO, MIN_CURVATURE, JigParams, amiro_fiber, loro
+from sim_interrogator.needle_jig import AMIRO, MIN_CURVATURE, JigParams, amiro_fiber, loro
 from twin import FiberModel, jsonout
 from twin.calibration.jig import leave_one_rotation_out, read_poses
 from twin.data import jig_dir

@@ -30,6 +30,9 @@ from urllib.parse import parse_qsl, urlencode, urlsplit
 
 from twin.io.source import open_source
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "serve a simulated interrogator over illumisense, fispec or hyperion"
+
 __all__ = ["add_arguments", "run", "source_url"]
 
 PROTOCOLS = ("illumisense", "fispec", "hyperion")
@@ -95,9 +98,6 @@ def run(args: argparse.Namespace) -> int:
     except BaseException:
         source.close()
         raise
-    for line in lines:
-        print(line, flush=True)
-    print(f"twin serve: serving {url}; Ctrl-C to stop", flush=True)
     stop = threading.Event()
     reason = ["interrupted"]
 
@@ -105,9 +105,14 @@ def run(args: argparse.Namespace) -> int:
         reason[0] = "interrupted" if signum == signal.SIGINT else "terminated"
         stop.set()
 
+    # the handlers are in place before the lines that say the server is up: a Ctrl-C right after them stops it
+    # cleanly (with the summary) instead of interrupting it
     previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     t0 = time.monotonic()
     try:
+        for line in lines:
+            print(line, flush=True)
+        print(f"twin serve: serving {url}; Ctrl-C to stop", flush=True)
         while not stop.wait(0.1):
             if server.pump.ended.is_set():
                 reason[0] = "source failed" if server.pump.error else "source ended"
@@ -137,20 +142,20 @@ def run(args: argparse.Namespace) -> int:
 def _start(args: argparse.Namespace, source):
     log = not args.quiet
     if args.protocol == "illumisense":
-        from sim_interrogator.servers.illumisense import IllumisenseServer
+        from sim_interrogator.servers.illumisense_server import IllumisenseServer
 
         port = 2055 if args.port is None else args.port
         server = IllumisenseServer(source, args.host, port, channels_as=args.channels, log=log).start()
         host, p = server.address
         return server, [f"twin serve: illumisense on tcp://{host}:{p}"]
     if args.protocol == "hyperion":
-        from sim_interrogator.servers.hyperion import HyperionServer
+        from sim_interrogator.servers.hyperion_server import HyperionServer
 
         port = 51971 if args.port is None else args.port
         server = HyperionServer(source, args.host, port, log=log).start()
         (h, p), (_, sp) = server.address, server.stream_address
         return server, [f"twin serve: hyperion commands on tcp://{h}:{p}, peak stream on tcp://{h}:{sp}"]
-    from sim_interrogator.servers.fispec import FispecServer
+    from sim_interrogator.servers.fispec_server import FispecServer
 
     cores = None
     if args.cores:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from scenarios.real_jig import EFFECTS, FACTOR, KEYS, compare, real_statistics
-from sim_interrogator.jig import AMIRO, amiro_fiber, loro
+from sim_interrogator.needle_jig import AMIRO, amiro_fiber, loro
 from twin import Calibration, FiberModel
 from twin.calibration import jig
 from twin.cli import main

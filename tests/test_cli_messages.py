@@ -11,7 +11,7 @@ import sys
 import pytest
 
 from twin.cli import main, scenarios
-from twin.cli.run import plain_help
+from twin.cli.run_command import plain_help
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg"}

@@ -1,8 +1,8 @@
-"""Setups with the sensing fibre as its own body in the catheter's lumen (:mod:`models.fibre`).
+"""Setups with the sensing fibre as its own body in the catheter's lumen (:mod:`models.lumen_fiber`).
 
-:class:`FibreStatic` holds the catheter in a library shape (connect constraints or a rigid tube) like
-``sim://static``; :class:`FibreSheathCycle` drives it in and out of the pre-bent sheath like
-``sim://sheath-cycle``. Both put a :class:`models.fibre.FibreSpec` fibre into the catheter and tell
+:class:`FiberStatic` holds the catheter in a library shape (connect constraints or a rigid tube) like
+``sim://static``; :class:`FiberSheathCycle` drives it in and out of the pre-bent sheath like
+``sim://sheath-cycle``. Both put a :class:`models.lumen_fiber.FiberSpec` fibre into the catheter and tell
 :class:`~sim_interrogator.sim.SimInterrogator` to read the optics from the fibre's own rod
 (:attr:`optics_rod_name`, :meth:`optics_roll`: a constant, the glue holds the roll), its axial strain from the
 fibre's tension (:meth:`conditions`), and to disturb the distal grating's peaks while the tip touches the lumen's end
@@ -22,16 +22,16 @@ import mujoco
 import numpy as np
 
 from models.catheter import CatheterSpec, Pose, Scene
-from models.fibre import FibreHandle, FibreSpec, LumenCoupler, add_fibre, place_fibre, settle_fibre
 from models.fixtures import SettleError, add_connect_fixture, add_tube_fixture
-from sim_interrogator.setups import Setup, StaticShape, register
-from sim_interrogator.sheath import SheathCycle
+from models.lumen_fiber import FiberHandle, FiberSpec, LumenCoupler, add_fiber, place_fiber, settle_fiber
+from sim_interrogator.setups import Setup, StaticShape
+from sim_interrogator.sheath_setups import SheathCycle
 from twin import PeakStatus, shapes
 
-__all__ = ["FIBRE_BASE_LENGTH", "FibreSheathCycle", "FibreStatic", "TipContact"]
+__all__ = ["FIBER_BASE_LENGTH", "FiberSheathCycle", "FiberStatic", "TipContact"]
 
 #: m, catheter shaft between the clamp and the first grating in the fibre setups
-FIBRE_BASE_LENGTH = 0.04
+FIBER_BASE_LENGTH = 0.04
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,63 +58,63 @@ class TipContact:
     axial_rigidity: float = 860.0
 
 
-class _FibreMixin:
+class _FiberMixin:
     """The fibre's share of a setup: its handle and coupler, the optics hooks."""
 
-    fibre: FibreSpec
-    handle: FibreHandle | None = None
+    fiber: FiberSpec
+    handle: FiberHandle | None = None
     coupler: LumenCoupler | None = None
     tip_contact = TipContact()
-    optics_rod_name = "fibre"
+    optics_rod_name = "fiber"
     actuated = True  # the coupler acts before every step
     _rng: np.random.Generator
     contact_frames = 0
     random_start = True  #: start the fibre at a seeded place within its clearance (False: on the lumen's axis)
     settled = True  #: False when a fibre without fixation was still sliding at the end of settling
 
-    def _add_fibre(self, scene: Scene, rod, world_pose=None) -> None:
-        self.handle = add_fibre(scene, rod, self.fibre, world_pose)
+    def _add_fiber(self, scene: Scene, rod, world_pose=None) -> None:
+        self.handle = add_fiber(scene, rod, self.fiber, world_pose)
         # the seed places the fibre within its clearance (a threaded fibre lies anywhere in its lumen)
         rng = np.random.default_rng([self.seed, 1]) if self.random_start else None
-        scene.on_build(lambda m, d: place_fibre(m, d, self.handle, rng))
+        scene.on_build(lambda m, d: place_fiber(m, d, self.handle, rng))
 
     def _install(self, model, data, carrier_acceleration=None, traction=None) -> None:
         self.coupler = LumenCoupler(model, data, self.handle, carrier_acceleration, traction)
         self._data = data
-        fid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, self.fibre.name)
+        fid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, self.fiber.name)
         self._va, self._nv = int(model.flex_vertadr[fid]), int(model.flex_vertnum[fid])
         self._l0 = np.diff(self.handle.s)
 
     def optics_roll(self) -> float:
         """The constant roll from MuJoCo's director of the fibre to the catheter's convention, rad (measured once
         after the first step: MuJoCo picks each rod's first reference director by itself). The glue holds the
-        roll through joint equalities (:func:`models.fibre.add_fibre`), so nothing else is needed; without
+        roll through joint equalities (:func:`models.lumen_fiber.add_fiber`), so nothing else is needed; without
         fixations nothing holds it, as in a real catheter."""
         return 0.0 if self.coupler is None else self.coupler.roll0
 
-    def fibre_curvature(self, s: np.ndarray) -> np.ndarray:
+    def fiber_curvature(self, s: np.ndarray) -> np.ndarray:
         """The fibre's own curvature (k_x, k_y) at fibre arc lengths ``s`` (m) now, in the catheter's roll
         convention, 1/m, shape (len(s), 2)."""
         c = self.coupler
-        d = c.fibre_reader.read(self._data).darboux_at(s)
+        d = c.fiber_reader.read(self._data).darboux_at(s)
         co, si = math.cos(c.roll0), math.sin(c.roll0)
         k1, k2 = co * d[:, 0] + si * d[:, 1], co * d[:, 1] - si * d[:, 0]
         return np.stack([k2, -k1], axis=-1)  # (k_x, k_y) = (κ2, −κ1)
 
     def curvature_error(self, s: np.ndarray) -> np.ndarray:
-        """|k_fibre − k_catheter| at fibre arc lengths ``s`` (m) now, 1/m: what the fibre's own mechanics add to the
+        """|k_fiber − k_catheter| at fibre arc lengths ``s`` (m) now, 1/m: what the fibre's own mechanics add to the
         curvature the welded model would read there (both in the catheter's roll convention)."""
         k_c = self.coupler.cath_reader.read(self._data).curvature_at(s)
-        return np.linalg.norm(self.fibre_curvature(s) - k_c, axis=-1)
+        return np.linalg.norm(self.fiber_curvature(s) - k_c, axis=-1)
 
     def roll_loss(self) -> np.ndarray:
         """Roll of the fibre against the catheter at its glued edges now, rad (0 when the glue holds it)."""
         c = self.coupler
-        c.fibre_reader.compute(self._data, c._fframes, c._fdarb)
+        c.fiber_reader.compute(self._data, c._fframes, c._fdarb)
         c.cath_reader.compute(self._data, c._cframes, c._cdarb)
         return c.roll_error(c._fframes, c.glued_edges)
 
-    def fibre_axial_strain(self, grating_s: np.ndarray) -> np.ndarray:
+    def fiber_axial_strain(self, grating_s: np.ndarray) -> np.ndarray:
         """The fibre's axial strain at the gratings: its tension from friction and the lumen's end over EA.
 
         (Not from the rod's edge lengths: the inextensible rod's edge constraints leave a slack of up to 3e-4
@@ -137,31 +137,30 @@ class _FibreMixin:
         row[lost] = np.nan
         status[g, lost] |= np.uint8(PeakStatus.MISSING)
 
-    def fibre_describe(self) -> dict:
-        d = {"fibre": self.fibre.describe()}
+    def fiber_describe(self) -> dict:
+        d = {"fiber": self.fiber.describe()}
         if self.coupler is not None:
-            d["fibre"].update(slide_max_m=float(np.abs(self.coupler.slide()).max()),
+            d["fiber"].update(slide_max_m=float(np.abs(self.coupler.slide()).max()),
                               tip_gap_m=self.coupler.tip_gap(), contact_frames=self.contact_frames)
         return d
 
 
-def base_length_for(fibre: FibreSpec, segments: int) -> float:
-    """The catheter's base length, m: :data:`FIBRE_BASE_LENGTH`, or longer when the glue spots need it (the
+def base_length_for(fiber: FiberSpec, segments: int) -> float:
+    """The catheter's base length, m: :data:`FIBER_BASE_LENGTH`, or longer when the glue spots need it (the
     catheter's first two vertices are clamped, so the fibre's base must lie beyond two edges)."""
     rest = CatheterSpec().sensed_length + CatheterSpec().tip_length
-    need = (-fibre.base_s() + 2 * rest / segments) / (1 - 2 / segments) + 1e-4
-    return max(FIBRE_BASE_LENGTH, math.ceil(need * 200) / 200)  # in whole 5 mm
+    need = (-fiber.base_s() + 2 * rest / segments) / (1 - 2 / segments) + 1e-4
+    return max(FIBER_BASE_LENGTH, math.ceil(need * 200) / 200)  # in whole 5 mm
 
 
-def _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension,
-                hub_share=FibreSpec.hub_share) -> FibreSpec:
-    return FibreSpec(clearance=float(clearance), friction=float(friction), n_fixations=int(fixations),
+def _fiber_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension,
+                hub_share=FiberSpec.hub_share) -> FiberSpec:
+    return FiberSpec(clearance=float(clearance), friction=float(friction), n_fixations=int(fixations),
                      dx_prox=float(dx_prox), dx_dist=float(dx_dist), offset=float(offset), glued=bool(glued),
                      lead_tension=float(lead_tension), hub_share=float(hub_share))
 
 
-@register
-class FibreStatic(_FibreMixin, Setup):
+class FiberStatic(_FiberMixin, Setup):
     """A library shape held by connect constraints or a 3 mm tube, with the fibre in a lumen.
 
     Parameters
@@ -169,7 +168,7 @@ class FibreStatic(_FibreMixin, Setup):
     shape : str
     fixture : {"connect", "tube"}
     clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension
-        The :class:`models.fibre.FibreSpec` (m, –, count, m, m, m, bool, N).
+        The :class:`models.lumen_fiber.FiberSpec` (m, –, count, m, m, m, bool, N).
     segments : int
     settle_time : float
         s.
@@ -177,28 +176,28 @@ class FibreStatic(_FibreMixin, Setup):
         Seed of the fibre's start within its clearance and of the tip-contact distortion.
     """
 
-    name = "fibre-static"
+    name = "fiber-static"
 
     def __init__(self, shape: str = "helix", fixture: str = "connect", clearance: float = 0.0,
                  friction: float = 0.2, fixations: int = 2, dx_prox: float = 0.015, dx_dist: float = 0.002,
-                 offset: float = 0.0, glued: bool = False, lead_tension: float = FibreSpec.lead_tension,
+                 offset: float = 0.0, glued: bool = False, lead_tension: float = FiberSpec.lead_tension,
                  segments: int = 100, settle_time: float = 10.0, seed: int = 0):
         if fixture not in ("connect", "tube"):
             raise ValueError(f"sim://{self.name}: fixture must be connect or tube, got {fixture!r}")
         self.curve = shapes.get(shape)
         self.fixture_kind = fixture
-        self.fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension)
-        self.spec = CatheterSpec(n_segments=int(segments), base_length=base_length_for(self.fibre, int(segments)))
+        self.fiber = _fiber_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension)
+        self.spec = CatheterSpec(n_segments=int(segments), base_length=base_length_for(self.fiber, int(segments)))
         self.settle_time = float(settle_time)
         self.seed = int(seed)
         self._rng = np.random.default_rng(seed)
         self.fixture = None
 
     def build(self):
-        scene = Scene(f"fibre-{self.fixture_kind}:{self.curve.name}")
+        scene = Scene(f"fiber-{self.fixture_kind}:{self.curve.name}")
         add = add_connect_fixture if self.fixture_kind == "connect" else add_tube_fixture
         self.fixture = add(scene, self.curve, self.spec)
-        self._add_fibre(scene, self.fixture.rod)
+        self._add_fiber(scene, self.fixture.rod)
         model, data = scene.build()
         self._install(model, data)
         return model, data
@@ -209,9 +208,9 @@ class FibreStatic(_FibreMixin, Setup):
             mujoco.mj_step(model, data)
 
         try:
-            self.settle_s = settle_fibre(model, data, step, max_time=self.settle_time, label=f"sim://{self.name}")
+            self.settle_s = settle_fiber(model, data, step, max_time=self.settle_time, label=f"sim://{self.name}")
         except SettleError:
-            if self.fibre.n_fixations or self.fibre.glued:
+            if self.fiber.n_fixations or self.fiber.glued:
                 raise
             # A fibre without fixation may never come to rest: it slides along the lumen (what the guideline
             # is about). Read it as it is, and say so.
@@ -222,47 +221,46 @@ class FibreStatic(_FibreMixin, Setup):
         self.coupler.apply(model, data)
 
     def conditions(self, t, grating_s):
-        return 0.0, self.fibre_axial_strain(grating_s)
+        return 0.0, self.fiber_axial_strain(grating_s)
 
     fixture_centreline = StaticShape.fixture_centreline  # the same fixture (self.curve, self.fixture)
 
     def describe(self):
         return {"setup": self.name, "shape": self.curve.name, "fixture": self.fixture_kind,
-                "segments": self.spec.n_segments, **self.fibre_describe()}
+                "segments": self.spec.n_segments, **self.fiber_describe()}
 
 
-@register
-class FibreSheathCycle(_FibreMixin, SheathCycle):
+class FiberSheathCycle(_FiberMixin, SheathCycle):
     """``sheath-cycle`` (in and out of a pre-bent sheath) with the fibre in a lumen.
 
-    Parameters are those of :class:`~sim_interrogator.sheath.SheathCycle` and the fibre's (see
-    :class:`FibreStatic`), plus ``hub_share``: the fraction of the hub actuator's axial force that reaches the
-    fibre's lead (:class:`models.fibre.FibreSpec`); ``sheath_friction`` is the sheath's μ.
+    Parameters are those of :class:`~sim_interrogator.sheath_setups.SheathCycle` and the fibre's (see
+    :class:`FiberStatic`), plus ``hub_share``: the fraction of the hub actuator's axial force that reaches the
+    fibre's lead (:class:`models.lumen_fiber.FiberSpec`); ``sheath_friction`` is the sheath's μ.
     """
 
-    name = "fibre-sheath-cycle"
+    name = "fiber-sheath-cycle"
 
     def __init__(self, cycles: int = 3, protrusion: float = 0.05, withdraw: float = 0.06, speed: float = 0.05,
                  dwell: float = 0.5, clearance: float = 0.0, friction: float = 0.2, fixations: int = 2,
                  dx_prox: float = 0.015, dx_dist: float = 0.002, offset: float = 0.0, glued: bool = False,
-                 lead_tension: float = FibreSpec.lead_tension, hub_share: float = FibreSpec.hub_share,
+                 lead_tension: float = FiberSpec.lead_tension, hub_share: float = FiberSpec.hub_share,
                  sheath_friction: float = 0.2, segments: int = 100, settle_time: float = 10.0, seed: int = 0):
-        fibre = _fibre_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension, hub_share)
-        base = base_length_for(fibre, int(segments))
+        fiber = _fiber_spec(clearance, friction, fixations, dx_prox, dx_dist, offset, glued, lead_tension, hub_share)
+        base = base_length_for(fiber, int(segments))
         extra = base - CatheterSpec().base_length
         super().__init__(cycles=cycles, protrusion=protrusion - extra, withdraw=withdraw, speed=speed, dwell=dwell,
                          friction=sheath_friction, segments=segments, settle_time=settle_time, seed=seed)
         self.spec = dataclasses.replace(self.spec, base_length=base)
         self.protrusion = float(protrusion)
-        self.fibre = fibre
+        self.fiber = fiber
         self.seed = int(seed)
         self._rng = np.random.default_rng(seed)
 
     def extend_scene(self, scene, rod) -> None:
         # MuJoCo hangs from a body with joints only rods pinned to it: the fibre hangs from the world at the
-        # hub's start pose and is carried with the hub's acceleration (models/fibre.py)
+        # hub's start pose and is carried with the hub's acceleration (models/lumen_fiber.py)
         hub = self.world @ Pose(self.curve.positions(self.hub_start), self.curve.frames(self.hub_start))
-        self._add_fibre(scene, rod, hub)
+        self._add_fiber(scene, rod, hub)
 
     def build(self):
         model, data = super().build()
@@ -273,7 +271,7 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
         def carrier(data):  # the hub slides along its own z axis (the sheath's guide)
             return data.qacc[dof] * data.xmat[hub].reshape(3, 3)[:, 2]
 
-        act, f = self._act[0], self.fibre
+        act, f = self._act[0], self.fiber
 
         def traction(data):  # the lead's pull, less the hub's push's share (pushing in slackens the lead)
             return f.lead_tension - f.hub_share * data.actuator_force[act]
@@ -288,7 +286,7 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
             self.coupler.apply(model, data)
             mujoco.mj_step(model, data)
 
-        self.settle_s = settle_fibre(model, data, step, max_time=self.settle_time,
+        self.settle_s = settle_fiber(model, data, step, max_time=self.settle_time,
                                      label=f"sim://{self.name} (catheter and fibre in the sheath)")
 
     def actuate(self, model, data, t):
@@ -296,7 +294,7 @@ class FibreSheathCycle(_FibreMixin, SheathCycle):
         self.coupler.apply(model, data)
 
     def conditions(self, t, grating_s):
-        return 0.0, self.fibre_axial_strain(grating_s)
+        return 0.0, self.fiber_axial_strain(grating_s)
 
     def describe(self):
-        return {**super().describe(), **self.fibre_describe()}
+        return {**super().describe(), **self.fiber_describe()}

@@ -1,6 +1,6 @@
 """A simulated needle in a calibration jig: the interrogator's pose table as a real jig session produces it.
 
-The needle (docs/needle-fibre.toml, or JHU AMIRo's needle_3CH_4AA_v2) is pressed into constant-curvature
+The needle (docs/needle-fiber.toml, or JHU AMIRo's needle_3CH_4AA_v2) is pressed into constant-curvature
 grooves at several orientations, trials each, with a flat-groove reference; every pose row is the mean of many
 interrogator frames through :mod:`sim_interrogator.optics`. :data:`AMIRO` adds what the real AMIRo table shows a
 jig does (docs/jig.md has the error budget). Used by ``twin run jig`` and ``twin run real-jig``.
@@ -23,7 +23,7 @@ MIN_CURVATURE = 0.8
 
 
 def needle_fiber() -> FiberModel:
-    """The 3-fibre needle of docs/needle-fibre.toml (kept identical to it; a test checks)."""
+    """The 3-fibre needle of docs/needle-fiber.toml (kept identical to it; a test checks)."""
     return FiberModel(
         name="3 single-core fibres glued at 120° on a 0.6 mm needle",
         handedness=1,

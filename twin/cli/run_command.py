@@ -20,6 +20,9 @@ import shutil
 import sys
 import textwrap
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "run a scenario (an experiment of the paper, or our own)"
+
 VIEWER_HELP = ("--viewer [--viewer-rate HZ] [--keep-open]: show the run in a browser (the URL is printed on "
                "stderr), at most HZ frames per second (default 30); --keep-open keeps it serving after the run, until "
                "Ctrl-C")

@@ -48,14 +48,13 @@ import math
 
 import numpy as np
 
-from sim_interrogator.setups import StaticShape, register
+from sim_interrogator.setups import StaticShape
 
 __all__ = ["Bath"]
 
 PROFILES = ("exponential", "linear")
 
 
-@register
 class Bath(StaticShape):
     """A catheter held in a library shape while the bath around it cools.
 

@@ -41,6 +41,9 @@ from twin.io.source import open_source, parse_url
 from twin.live import LiveLoop, LiveSummary, PrinterSink
 from twin.reconstruct import Reconstructor
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"
+
 __all__ = ["add_arguments", "run"]
 
 #: schemes whose opener takes the fibre model (to program peak windows, map peaks to gratings, …)
@@ -119,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
             recorder = Recorder(args.record, fiber=fiber, calibration=calibration, source_url=args.url,
                                 rate=first.rate)
             sinks.append(recorder)
-        from twin.io.illumisense_vendor import VendorDistance
+        from twin.io.illumisense.vendor import VendorDistance
 
         vendor = VendorDistance()  # ILLumiSense sends its own shape: compare ours with it (a few frames/s)
         sinks.append(vendor)

@@ -51,17 +51,17 @@ from models import _lumen_kernels
 from models.catheter import CatheterSpec, Pose, RodHandle, Scene, _fmt, set_rod_positions
 from models.rod_state import RodReader
 
-__all__ = ["PLACEMENT_RAMP", "TRACTION_RAMP", "FibreHandle", "FibreSpec", "LumenCoupler", "add_fibre", "place_fibre",
-           "settle_fibre"]
+__all__ = ["PLACEMENT_RAMP", "TRACTION_RAMP", "FiberHandle", "FiberSpec", "LumenCoupler", "add_fiber", "place_fiber",
+           "settle_fiber"]
 
 #: s, over which the lead's traction is ramped in from the first step (quasi-static loading)
 TRACTION_RAMP = 1.0
-#: m, over which a randomly placed fibre leaves the axis beyond its most distal glue spot (place_fibre)
+#: m, over which a randomly placed fibre leaves the axis beyond its most distal glue spot (place_fiber)
 PLACEMENT_RAMP = 0.01
 
 
 @dataclass(frozen=True)
-class FibreSpec:
+class FiberSpec:
     """A sensing fibre in a lumen of the catheter (SI units).
 
     Parameters
@@ -119,7 +119,7 @@ class FibreSpec:
         the traction enters the fibre as a couple T·e where it leaves the glue.
     """
 
-    name: str = "fibre"
+    name: str = "fiber"
     clearance: float = 0.0
     friction: float = 0.2
     n_fixations: int = 2
@@ -148,14 +148,14 @@ class FibreSpec:
                   "wall_damping", "slip_speed", "drag", "hub_share", "glue_eccentricity"):
             v = getattr(self, k)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"FibreSpec.{k}: expected a finite number >= 0, got {v!r}")
+                raise ValueError(f"FiberSpec.{k}: expected a finite number >= 0, got {v!r}")
         for k in ("dx_dist", "lead_tension"):
             if not (isinstance(getattr(self, k), int | float) and math.isfinite(getattr(self, k))):
-                raise ValueError(f"FibreSpec.{k}: expected a finite number, got {getattr(self, k)!r}")
+                raise ValueError(f"FiberSpec.{k}: expected a finite number, got {getattr(self, k)!r}")
         if self.n_fixations not in (0, 1, 2, 3):
-            raise ValueError(f"FibreSpec.n_fixations: expected 0–3, got {self.n_fixations!r}")
+            raise ValueError(f"FiberSpec.n_fixations: expected 0–3, got {self.n_fixations!r}")
         if self.glued and self.offset:
-            raise ValueError("FibreSpec: a glued fibre off the axis would have to stretch (an inextensible rod "
+            raise ValueError("FiberSpec: a glued fibre off the axis would have to stretch (an inextensible rod "
                              "cannot); use the welded model's OpticsConfig.fiber_offset instead")
 
     @property
@@ -178,12 +178,12 @@ class FibreSpec:
 
 
 @dataclass(frozen=True)
-class FibreHandle:
-    """What :func:`add_fibre` put into a scene: the fibre's rest grid on the catheter's vertex grid.
+class FiberHandle:
+    """What :func:`add_fiber` put into a scene: the fibre's rest grid on the catheter's vertex grid.
 
     Attributes
     ----------
-    spec : FibreSpec
+    spec : FiberSpec
     catheter : CatheterSpec
     s : ndarray (n,)
         Fibre arc length of the fibre's vertices at rest, m (a subset of the catheter's vertex arc lengths).
@@ -197,7 +197,7 @@ class FibreHandle:
         Fibre edges whose roll the glue holds (a joint equality with the catheter edge beside each).
     """
 
-    spec: FibreSpec
+    spec: FiberSpec
     catheter: CatheterSpec
     s: np.ndarray
     first: int
@@ -206,9 +206,9 @@ class FibreHandle:
     glued_edges: np.ndarray
 
 
-def add_fibre(scene: Scene, rod: RodHandle, spec: FibreSpec | None = None, world_pose: Pose | None = None
-              ) -> FibreHandle:
-    """Add the fibre rod in a lumen of ``rod`` (before :meth:`Scene.build`); returns its :class:`FibreHandle`.
+def add_fiber(scene: Scene, rod: RodHandle, spec: FiberSpec | None = None, world_pose: Pose | None = None
+              ) -> FiberHandle:
+    """Add the fibre rod in a lumen of ``rod`` (before :meth:`Scene.build`); returns its :class:`FiberHandle`.
 
     The fibre hangs from the same body as the catheter, or — when that body moves (a hub with joints, from
     which MuJoCo lets hang only a rod pinned to it) — from the world at ``world_pose``, the catheter's base pose
@@ -218,20 +218,20 @@ def add_fibre(scene: Scene, rod: RodHandle, spec: FibreSpec | None = None, world
     has a catheter vertex beside it; the catheter needs a base long enough for the fixations and a tip long
     enough for the tail and gap.
     """
-    spec = spec or FibreSpec()
+    spec = spec or FiberSpec()
     cath = rod.spec
     l = cath.segment_length
     cs = cath.vertex_s
     lo = spec.base_s()
     if lo < cs[0] + 2 * l - 1e-12:  # the catheter's first two vertices are clamped: no bodies to glue to
-        raise ValueError(f"add_fibre: the fixations reach s = {lo * 1e3:.1f} mm but the catheter starts at "
+        raise ValueError(f"add_fiber: the fixations reach s = {lo * 1e3:.1f} mm but the catheter starts at "
                          f"{cs[0] * 1e3:.1f} mm; lengthen CatheterSpec.base_length")
     first = int(np.floor((lo - cs[0]) / l + 1e-9))
     tip = cath.sensed_length + spec.tail
     last = int(np.ceil((tip - cs[0]) / l - 1e-9))
     lumen_end = cs[last] + spec.dx_dist
     if lumen_end > cs[-1] + 1e-12:
-        raise ValueError(f"add_fibre: the lumen would end {lumen_end * 1e3:.1f} mm beyond the catheter's tip "
+        raise ValueError(f"add_fiber: the lumen would end {lumen_end * 1e3:.1f} mm beyond the catheter's tip "
                          f"({cs[-1] * 1e3:.1f} mm); lengthen CatheterSpec.tip_length or reduce dx_dist")
     s = cs[first:last + 1]
     glued = np.zeros(s.size, bool)
@@ -279,7 +279,7 @@ def add_fibre(scene: Scene, rod: RodHandle, spec: FibreSpec | None = None, world
     scene.add_numeric(f"{spec.name}_s0", s[0])
     scene.add_numeric(f"{spec.name}_sensed_length", cath.sensed_length)
     scene.add_numeric(f"{spec.name}_vertex_damping", cath.dof_damping)
-    return FibreHandle(spec, cath, s, first, glued, float(lumen_end), edges)
+    return FiberHandle(spec, cath, s, first, glued, float(lumen_end), edges)
 
 
 def _twist_joint(rod: str, edge: int, n_edges: int) -> str:
@@ -297,7 +297,7 @@ def glued_edges(glued: np.ndarray) -> np.ndarray:
     return np.array(sorted(out), dtype=np.int64)
 
 
-def place_fibre(model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle,
+def place_fiber(model: mujoco.MjModel, data: mujoco.MjData, handle: FiberHandle,
                 rng: np.random.Generator | None = None) -> None:
     """Put the fibre on the lumen's axis of the catheter as it is now, at rest and untwisted (calls
     ``mj_forward``). Run it after the catheter has been placed (e.g. as a later :meth:`Scene.on_build` hook).
@@ -329,10 +329,10 @@ class LumenCoupler:
     models under construction, where the Python bindings fail ("engine error: Python exception raised").
 
     ``carrier_acceleration(data)`` → (3,) m/s², world: the acceleration of the body the catheter hangs from
-    when the fibre hangs from the world (see :func:`add_fibre`).
+    when the fibre hangs from the world (see :func:`add_fiber`).
     """
 
-    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, handle: FibreHandle,
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, handle: FiberHandle,
                  carrier_acceleration: Callable[[mujoco.MjData], np.ndarray] | None = None,
                  traction: Callable[[mujoco.MjData], float] | None = None) -> None:
         self.handle = h = handle
@@ -341,7 +341,7 @@ class LumenCoupler:
         self.spec = spec = handle.spec
         cath = handle.catheter
         self.cath_reader = RodReader(model, cath.name)
-        self.fibre_reader = RodReader(model, spec.name)
+        self.fiber_reader = RodReader(model, spec.name)
         nf = handle.s.size
         self._cframes = np.empty((cath.n_segments, 3, 3))
         self._cdarb = np.empty((cath.n_segments - 1, 3))
@@ -413,7 +413,7 @@ class LumenCoupler:
         base's x axis), from the present state (call after the first step, with the fibre at rest beside the
         catheter's grid)."""
         self.cath_reader.compute(data, self._cframes, self._cdarb)
-        self.fibre_reader.compute(data, self._fframes, self._fdarb)
+        self.fiber_reader.compute(data, self._fframes, self._fdarb)
         self.roll0 = 0.0
         self.roll0 = -float(np.median(self.roll_error(self._fframes, np.arange(self._fframes.shape[0]))))
         return self.roll0
@@ -424,7 +424,7 @@ class LumenCoupler:
         spec, h = self.spec, self.handle
         self.calls += 1
         x_c = self.cath_reader.compute(data, self._cframes, self._cdarb)
-        x_f = data.flexvert_xpos[self.fibre_reader._va: self.fibre_reader._va + self.fibre_reader._nv]
+        x_f = data.flexvert_xpos[self.fiber_reader._va: self.fiber_reader._va + self.fiber_reader._nv]
         rp = data.xmat[self._parent].reshape(3, 3)
         axes_w = self._axes @ rp.T  # (nf, 3, 3): joint axes in the world
         v_f = np.einsum("nj,nji->ni", data.qvel[self._dof], axes_w)
@@ -454,7 +454,7 @@ class LumenCoupler:
             model.eq_data[self._glue_eq, 3:6] = (spec.offset * self._cframes[np.minimum(
                 h.first + self._glue_idx, self._cframes.shape[0] - 1), :, 0]) @ data.xmat[
                     self._cath_parent].reshape(3, 3)
-        pa = self.fibre_reader._pa
+        pa = self.fiber_reader._pa
         if not self._roll_ready and (data.plastic[pa + 3] or data.plastic[pa + 4] or data.plastic[pa + 5]):
             self.calibrate_roll(data)  # MuJoCo has chosen the fibre's reference directors (after the first step)
             self._roll_ready = True
@@ -498,9 +498,9 @@ class LumenCoupler:
         return self.tip_gap() <= 0.0
 
 
-def settle_fibre(model: mujoco.MjModel, data: mujoco.MjData, step: Callable[[], None], *, tol: float = 1e-6,
+def settle_fiber(model: mujoco.MjModel, data: mujoco.MjData, step: Callable[[], None], *, tol: float = 1e-6,
                  window: float = 0.05, max_time: float = 10.0, min_time: float = TRACTION_RAMP,
-                 label: str = "fibre") -> float:
+                 label: str = "fiber") -> float:
     """Step (``step()`` applies the coupler and steps once) until no flex vertex moves more than ``tol`` (m) over
     ``window`` (s), and at least ``min_time`` (s: the lead's traction is ramped in over it); the settling time
     (s). Raises ``SettleError`` after ``max_time`` or on instability.

@@ -30,6 +30,8 @@ from twin.calibration.identify import Observation, identify, paper_cost, read_tr
 from twin.fiber import FiberModel
 from twin.io.record import open_recording
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "identify Δθ and g = r·S_ε from recordings of shapes of known geometry"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=Path, action="append", required=True,

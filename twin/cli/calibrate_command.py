@@ -23,6 +23,9 @@ from twin.calibration import Calibration, CalibrationError, two_step
 from twin.fiber import FiberModel
 from twin.io.source import Source, SourceClosed, open_source
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "two-step calibration (straight, then an in-plane bend) from a source"
+
 INSTRUCTIONS = {
     "straight": "Lay the catheter straight and unloaded (no bend, no tension), at a steady temperature.",
     "bend": "Bend the catheter in one plane into a single arc (≈ 0.16 1/cm, radius ≈ 6 cm) covering every "

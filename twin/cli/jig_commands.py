@@ -23,6 +23,12 @@ from twin.fiber import FiberModel
 CALIBRATE, VALIDATE = "jig-calibrate", "jig-validate"
 
 
+#: one-line help of each command this module serves (read by `twin --help` without importing it)
+HELP = {
+    "jig-calibrate": "fit a calibration from jig poses (grooves of known curvature)",
+    "jig-validate": "curvature and bend-direction errors of a calibration on jig poses",
+}
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     command = parser.get_default("_command") or parser.prog.rsplit(" ", 1)[-1]
     parser.add_argument("poses", metavar="POSES.csv", help="jig poses: orientation_rad, curvature_1_per_m, "

@@ -51,7 +51,7 @@ from scipy.spatial import cKDTree
 
 from models.catheter import CatheterSpec, Pose, Scene, set_rod_positions
 from models.fixtures import ExtendedCurve, RailSet, add_rails, settle, tube_rail_offsets
-from sim_interrogator.setups import Setup, register
+from sim_interrogator.setups import Setup
 from twin.shapes import ShapeCurve
 
 __all__ = [
@@ -546,7 +546,6 @@ def _hub_for_protrusion(geometry: SheathGeometry, spec_base: float, sensed: floa
     return geometry.length + protrusion - sensed - spec_base
 
 
-@register
 class SheathRotate(SheathSetup):
     """The catheter rotated inside a pre-bent 8 Fr sheath (the paper's rotation experiment).
 
@@ -602,7 +601,6 @@ class SheathRotate(SheathSetup):
                 "step_angles_rad": self.step_angles.tolist(), "dwell_ends_s": self.dwell_ends.tolist()}
 
 
-@register
 class SheathCycle(SheathSetup):
     """In and out of the same pre-bent sheath to a reference point, ``cycles`` times (the paper's repeatability).
 
@@ -661,7 +659,6 @@ class SheathCycle(SheathSetup):
                 "withdraw_m": self.withdraw, "reference_times_s": self.reference_times.tolist()}
 
 
-@register
 class SheathPath(SheathSetup):
     """The catheter pushed through the 510 mm rigid vascular-like sheath and back (the paper's sheath motion).
 

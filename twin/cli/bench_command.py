@@ -13,6 +13,9 @@ from pathlib import Path
 from twin import jsonout
 from twin.bench import measure_in_child, report, sections
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "measure reconstruction (and simulation, streaming) speed"
+
 __all__ = ["add_arguments", "run"]
 
 

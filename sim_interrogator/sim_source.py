@@ -7,37 +7,25 @@ Query keys are the setup's own parameters (e.g. ``shape``, ``fixture``), plus th
 
 from __future__ import annotations
 
-import importlib
-import importlib.util
-
 from sim_interrogator.optics import OpticsConfig
-from sim_interrogator.setups import SETUPS, parse_params
+from sim_interrogator.setups import parse_params
 from sim_interrogator.sim import SimInterrogator
+from twin import registry
 from twin.io.source import parse_url
 
 __all__ = ["open_sim"]
 
 _SOURCE_KEYS = {"rate", "realtime", "optics", "noise_pm", "seed", "truth"}
 
-#: Modules that register more setups (imported on first use; absent ones are skipped).
-SETUP_MODULES = ("sim_interrogator.sheath", "sim_interrogator.tendon", "sim_interrogator.thermal")
-
-
-def _load_setups() -> None:
-    for name in SETUP_MODULES:
-        if importlib.util.find_spec(name) is not None:
-            importlib.import_module(name)
-
-
 def open_sim(url: str, **options) -> SimInterrogator:
     """Build the setup named in ``url`` and return its SimInterrogator (``options`` override the query)."""
-    _load_setups()
     _, name, params = parse_url(url)
     fiber = options.pop("fiber", None)
     params.update({k: str(v) for k, v in options.items()})
     name = name.strip("/")
-    if name not in SETUPS:
-        raise ValueError(f"{url!r}: unknown simulated setup {name!r}; known: {', '.join(sorted(SETUPS))}")
+    known = registry.entries("twin.sim_setups")
+    if name not in known:
+        raise ValueError(f"{url!r}: unknown simulated setup {name!r}; known: {', '.join(known)}")
     source = {k: params.pop(k) for k in list(params) if k in _SOURCE_KEYS}
     kind = source.get("optics", "realistic")
     if kind not in ("realistic", "ideal"):
@@ -51,7 +39,8 @@ def open_sim(url: str, **options) -> SimInterrogator:
         rate = float(source.get("rate", 100.0))
     except ValueError as exc:
         raise ValueError(f"{url!r}: {exc}") from None
-    setup = SETUPS[name](**parse_params(SETUPS[name], params))
+    cls = registry.load("twin.sim_setups", name)
+    setup = cls(**parse_params(cls, params))
     flag = {"1", "true", "yes", "on"}
     sim = SimInterrogator(setup, fiber, optics=cfg, rate=rate, realtime=source.get("realtime", "0").lower() in flag,
                           truth=source.get("truth", "1").lower() in flag)

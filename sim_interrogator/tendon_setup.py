@@ -87,7 +87,7 @@ import numpy as np
 from models.catheter import CatheterSpec, Pose, Scene
 from models.fixtures import settle
 from models.rod_state import RodReader
-from sim_interrogator.setups import Setup, register
+from sim_interrogator.setups import Setup
 
 __all__ = ["Tendon", "hanging_pose"]
 
@@ -97,7 +97,6 @@ def hanging_pose(height: float = 0.3) -> Pose:
     return Pose((0.0, 0.0, height), np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]))
 
 
-@register
 class Tendon(Setup):
     """A steerable catheter: a deflectable distal section bent back and forth by pull-wires.
 

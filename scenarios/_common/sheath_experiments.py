@@ -23,10 +23,10 @@ import numpy as np
 # reached from here as ``common.NAME`` by the sheath experiments
 from scenarios._common.calibration import calibration_field
 from scenarios._common.entry import option
-from scenarios._common.optics import optics_config, optics_field
+from scenarios._common.optics_presets import optics_config, optics_field
 from scenarios._common.pipelines import MODES, reconstructors
 from scenarios._common.series import Series, collect, em_readings, show_frames
-from sim_interrogator.sheath import SheathSetup
+from sim_interrogator.sheath_setups import SheathSetup
 from sim_interrogator.sim import SimInterrogator
 from twin import FiberModel
 
