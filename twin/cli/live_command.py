@@ -99,8 +99,12 @@ def run(args: argparse.Namespace) -> int:
     first = open_source(args.url, **options)
     pending = [first]
 
+    # a reopening inside the live loop must not block it for start_wait s (the first opening waits for the
+    # interrogator to come up; a driver that lost it reconnects by itself)
+    reopen = {**options, "start_wait": 0.0} if scheme in HARDWARE else options
+
     def factory():
-        return pending.pop() if pending else open_source(args.url, **options)
+        return pending.pop() if pending else open_source(args.url, **reopen)
 
     sinks: list = []
     viewer_sink = igtl_sink = None

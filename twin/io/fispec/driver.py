@@ -233,7 +233,7 @@ class FispecSource(Driver):
 
 
 def open_fispec(url: str, **options) -> FispecSource:
-    """``fispec://PORT[,PORT…]?rate=HZ&cores=0,1,2,3&window=NM&baudrate=N&wait=0|1&retry_for=S``."""
+    """``fispec://PORT[,PORT…]?rate=HZ&cores=0,1,2,3&window=NM&baudrate=N&wait=0|1&retry_for=S&start_wait=S``."""
     _, rest, query = parse_url(url)
     ports = [p for p in rest.split(",") if p]
     if not ports:

@@ -109,7 +109,7 @@ class IllumisenseSource(Driver):
 
 
 def open_illumisense(url: str, **options) -> IllumisenseSource:
-    """``illumisense://HOST[:PORT]?channels=cores|single&cores=N&max_payload=B&wait=0|1&retry_for=S``."""
+    """``illumisense://HOST[:PORT]?channels=cores|single&cores=N&max_payload=B&wait=0|1&retry_for=S&start_wait=S``."""
     _, rest, query = parse_url(url)
     host, port = parse_host_port(rest, codec.DEFAULT_PORT, what=url)
     opts = url_options(url, query, {**COMMON_OPTIONS, "channels": str, "cores": int, "max_payload": int,
