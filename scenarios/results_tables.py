@@ -18,10 +18,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import re
 import subprocess
 import sys
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -44,29 +46,58 @@ RUNS: dict[str, list[str]] = {
     "spun-100-drift": ["spun-twist", "--spin", "100", "--noise", "0.1", "--drift", "0.02"],
 }
 
-MODES = ("paper", "paper-literal", "default")  # the columns' order: the paper's pipeline, literal, ours
+#: study name → the `twin study` arguments; its task results are kept as ``docs/results/NAME.json``
+STUDIES: dict[str, list[str]] = {
+    "integration-light": ["integration-light", "--seeds", "3", "--workers", "2"],
+}
 
 
 def rerun(names: list[str] | None = None, out: Path = RESULTS, say: Callable[[str], None] = print) -> None:
-    """Run each of ``names`` (default: all of :data:`RUNS`) with ``--json`` into ``out/NAME.json``."""
+    """Run each of ``names`` (default: all of :data:`RUNS` and :data:`STUDIES`) into ``out/NAME.json``."""
     out.mkdir(parents=True, exist_ok=True)
-    for name in names or list(RUNS):
-        argv = [sys.executable, "-m", "twin.cli", "run", *RUNS[name], "--json"]
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    for name in names or [*RUNS, *STUDIES]:
+        if name in STUDIES:
+            with tempfile.TemporaryDirectory() as tmp:  # a fresh study: nothing reused from an earlier run
+                argv = ["study", *STUDIES[name], "--out", tmp, "--json"]
+                say(f"results: twin study {' '.join(STUDIES[name])} …")
+                summary = json.loads(_twin(argv, env))
+                (out / f"{name}.json").write_text(json.dumps(study_results(Path(tmp), summary, name), indent=1))
+            continue
         say(f"results: twin run {' '.join(RUNS[name])} …")
-        done = subprocess.run(argv, capture_output=True, text=True, env={**os.environ, "MPLBACKEND": "Agg"})
-        if done.returncode != 0:
-            raise RuntimeError(f"twin run {' '.join(RUNS[name])}: exit {done.returncode}: {done.stderr[-2000:]}")
-        json.loads(done.stdout)  # one JSON object, or fail here rather than in the tables
-        (out / f"{name}.json").write_text(done.stdout)
+        text = _twin(["run", *RUNS[name], "--json"], env)
+        json.loads(text)  # one JSON object, or fail here rather than in the tables
+        (out / f"{name}.json").write_text(text)
+
+
+def _twin(argv: list[str], env: dict) -> str:
+    done = subprocess.run([sys.executable, "-m", "twin.cli", *argv], capture_output=True, text=True, env=env)
+    if done.returncode != 0:
+        raise RuntimeError(f"twin {' '.join(argv)}: exit {done.returncode}: {done.stderr[-2000:]}")
+    return done.stdout
+
+
+def study_results(out: Path, summary: dict, name: str) -> dict:
+    """What the tables need of a finished study in ``out``: its task results (flat numbers and labels, task
+    order by label and seed), counts and wall time."""
+    rows = []
+    for path in sorted((out / "tasks").glob("*.json")):
+        task = json.loads(path.read_text())
+        if task.get("status") == "ok":
+            rows.append({k: v for k, v in task["result"].items() if isinstance(v, int | float | str | bool)})
+    rows.sort(key=lambda r: (str(r.get("label")), r.get("seed", 0)))
+    return {"command": "twin study " + " ".join(STUDIES[name]),
+            "tasks": summary["tasks"], "failed": len(summary["failed"]), "wall_s": summary["wall_s"], "rows": rows}
 
 
 def load(where: Path = RESULTS) -> dict[str, dict]:
     """Every run's JSON in ``where``, by run name."""
-    missing = [n for n in RUNS if not (where / f"{n}.json").exists()]
+    names = [*RUNS, *STUDIES]
+    missing = [n for n in names if not (where / f"{n}.json").exists()]
     if missing:
         raise FileNotFoundError(f"{where}: no results of {', '.join(missing)} (python -m scenarios.results_tables "
                                 f"--rerun --only {' '.join(missing)})")
-    return {n: json.loads((where / f"{n}.json").read_text()) for n in RUNS}
+    return {n: json.loads((where / f"{n}.json").read_text()) for n in names}
 
 
 def f(x: float) -> str:
@@ -205,12 +236,60 @@ def spun(r: dict[str, dict]) -> str:
                    "rotation, worst dwell mean", "tip twist error (RMS)"], out)
 
 
+def _spread(values: list[float]) -> str:
+    """mean ± standard deviation (over seeds, n − 1), the mean to 3 significant digits, the std to as many
+    decimals."""
+    n = len(values)
+    mean = sum(values) / n
+    std = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1)) if n > 1 else 0.0
+    decimals = max(0, 2 - math.floor(math.log10(abs(mean)))) if mean else 3
+    return f"{mean:.{decimals}f} ± {std:.{decimals}f}"
+
+
+def integration(r: dict[str, dict]) -> str:
+    """One row per design point of the study, in the study's order, mean ± std over its seeds."""
+    d = r["integration-light"]
+    by: dict[str, list[dict]] = {}
+    for row in d["rows"]:
+        by.setdefault(row["label"], []).append(row)
+    from scenarios.integration import design_points  # the study's order of its points
+
+    out = []
+    for point in design_points("guidelines"):
+        rows = by.get(point["label"])
+        if not rows:
+            continue
+
+        def cell(key: str, rows=rows) -> str:
+            vals = [float(x[key]) for x in rows if isinstance(x.get(key), int | float)]
+            return _spread(vals) if vals else "–"
+
+        label = point["label"] + (" (baseline)" if point["label"] == "clearance 0.1 mm" else "")
+        out.append([label, str(len(rows)), cell("max_error_mm"), cell("static_tip_error_mm"), cell("grating0_dk"),
+                    cell("repeat_std_mm"), cell("true_repeat_std_mm"), cell("cycle_slide_max_mm")])
+    table = _table(["design point (mm; mean ± sample std over seeds)", "seeds", "static max error",
+                    "static tip (base)", "static: curvature added at the first grating (1/m)",
+                    "tip spread over cycles, sensed (std)", "the catheter's own tip spread (std)",
+                    "fibre's largest slide in the cycles"], out)
+    # the clearance's share: least-squares slope of the static max error over the clearance points
+    pts = [(float(x["clearance_mm"]), float(x["max_error_mm"])) for label, rows in by.items()
+           if label.startswith("clearance ") and "," not in label for x in rows]
+    if len({c for c, _ in pts}) < 2:
+        return table
+    mc, me = (sum(v) / len(pts) for v in zip(*pts, strict=True))
+    slope = sum((c - mc) * (e - me) for c, e in pts) / sum((c - mc) ** 2 for c, _ in pts)
+    return table + (f"\n\nStatic max error against clearance: {f(slope)} mm per mm (least squares over "
+                    f"{min(c for c, _ in pts):g}–{max(c for c, _ in pts):g} mm); {d['tasks']} tasks, "
+                    f"{d['failed']} failed.")
+
+
 #: table name → renderer (results by run name → markdown)
 TABLES: dict[str, Callable[[dict[str, dict]], str]] = {
     "static-shapes": static_shapes,
     "paper-ablation": paper_ablation,
     "dynamic": dynamic,
     "spun-twist": spun,
+    "integration-light": integration,
 }
 
 #: a marked table: the opening marker, the table (empty in a fresh README), the closing marker
@@ -243,7 +322,7 @@ def differences(text: str, tables: dict[str, str]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m scenarios.results_tables", description=__doc__.split("\n\n")[0])
     parser.add_argument("--rerun", action="store_true", help="rerun the scenarios first (minutes each)")
-    parser.add_argument("--only", nargs="+", choices=list(RUNS), help="rerun only these")
+    parser.add_argument("--only", nargs="+", choices=[*RUNS, *STUDIES], help="rerun only these")
     parser.add_argument("--results", type=Path, default=RESULTS, help=f"the runs' JSON (default {RESULTS})")
     what = parser.add_mutually_exclusive_group()
     what.add_argument("--write", type=Path, metavar="README", help="replace the marked tables in this file")
