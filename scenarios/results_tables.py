@@ -78,15 +78,18 @@ def _twin(argv: list[str], env: dict) -> str:
 
 
 def study_results(out: Path, summary: dict, name: str) -> dict:
-    """What the tables need of a finished study in ``out``: its task results (flat numbers and labels, task
-    order by label and seed), counts and wall time."""
+    """What the tables need of a finished study in ``out``: its design points in the study's order, its task
+    results (flat numbers and labels, by label and seed), counts and wall time."""
+    from scenarios.studies.definitions import get
+
+    order = list(dict.fromkeys(t["label"] for t in get(name).tasks))
     rows = []
     for path in sorted((out / "tasks").glob("*.json")):
         task = json.loads(path.read_text())
         if task.get("status") == "ok":
             rows.append({k: v for k, v in task["result"].items() if isinstance(v, int | float | str | bool)})
     rows.sort(key=lambda r: (str(r.get("label")), r.get("seed", 0)))
-    return {"command": "twin study " + " ".join(STUDIES[name]),
+    return {"command": "twin study " + " ".join(STUDIES[name]), "order": order,
             "tasks": summary["tasks"], "failed": len(summary["failed"]), "wall_s": summary["wall_s"], "rows": rows}
 
 
@@ -252,11 +255,9 @@ def integration(r: dict[str, dict]) -> str:
     by: dict[str, list[dict]] = {}
     for row in d["rows"]:
         by.setdefault(row["label"], []).append(row)
-    from scenarios.integration import design_points  # the study's order of its points
-
     out = []
-    for point in design_points("guidelines"):
-        rows = by.get(point["label"])
+    for name in d["order"]:
+        rows = by.get(name)
         if not rows:
             continue
 
@@ -264,7 +265,7 @@ def integration(r: dict[str, dict]) -> str:
             vals = [float(x[key]) for x in rows if isinstance(x.get(key), int | float)]
             return _spread(vals) if vals else "–"
 
-        label = point["label"] + (" (baseline)" if point["label"] == "clearance 0.1 mm" else "")
+        label = name + (" (baseline)" if name == "clearance 0.1 mm" else "")
         out.append([label, str(len(rows)), cell("max_error_mm"), cell("static_tip_error_mm"), cell("grating0_dk"),
                     cell("repeat_std_mm"), cell("true_repeat_std_mm"), cell("cycle_slide_max_mm")])
     table = _table(["design point (mm; mean ± sample std over seeds)", "seeds", "static max error",

@@ -2,8 +2,8 @@
 
 ``jig/SENSOR/``: a real jig table per sensor — ``poses.csv`` (the table), ``needle.toml`` (its fibre model),
 ``calibration.toml`` (its jig calibration) and ``SOURCE.md`` (provenance and licence). ``amiro`` is JHU AMIRo's
-needle_3CH_4AA_v2 (docs/jig.md). Every directory under ``jig/`` is installed (pyproject's package data takes
-``jig/*/*``), so another sensor is added by adding its directory.
+needle_3CH_4AA_v2, ``amiro-3aa`` its needle_3CH_3AA (docs/jig.md). Every directory under ``jig/`` is installed
+(pyproject's package data takes ``jig/*/*``), so another sensor is added by adding its directory.
 """
 
 from __future__ import annotations
