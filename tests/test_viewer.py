@@ -26,6 +26,7 @@ import urllib.request
 
 import numpy as np
 import pytest
+from conftest import require_tool
 
 from twin import Reconstructor
 from twin.frames import Frame, Shape, Truth
@@ -765,8 +766,12 @@ def distance_to_polyline(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return np.min(np.linalg.norm(points[:, None] - closest, axis=-1), axis=1)
 
 
-needs_chromium = pytest.mark.skipif(CHROMIUM is None,
-                                    reason="chromium is not installed (.ci/run installs Debian's chromium)")
+@pytest.fixture
+def chromium_present():
+    require_tool(CHROMIUM is not None, "chromium is not installed (.ci/run installs Debian's chromium)")
+
+
+needs_chromium = pytest.mark.usefixtures("chromium_present")
 
 
 @pytest.mark.timeout(300)
