@@ -139,7 +139,7 @@ def _warm_up(server: IllumisenseServer, fiber: FiberModel, cal) -> None:
     """Encode, decode and reconstruct one record before the clock starts: on a fresh install the compiled
     kernels of the wire format (the sensor blocks, the scanner) are built on first use, seconds that would
     otherwise be taken from the live run."""
-    from twin.io.illumisense_stream import StreamDecoder
+    from twin.io.illumisense.stream import StreamDecoder
 
     data = server.encode(Frame(fiber.lambda0.copy(), 0.0, 0))
     decoder = StreamDecoder()

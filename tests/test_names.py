@@ -20,8 +20,9 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("twin", "models", "sim_interrogator", "scenarios")
 #: file names that may repeat because they are the same role in parallel packages: a package's ``__init__`` and
 #: ``__main__``, and ``bench.py``, a package's part of `twin bench` (twin/bench.py: the runner and the
-#: ``reconstruct`` section; sim_interrogator/bench.py: the ``sim`` section)
-SHARED_ROLES = {"__init__.py", "__main__.py", "bench.py"}
+#: ``reconstruct`` section; sim_interrogator/bench.py: the ``sim`` section), and a protocol package's ``codec.py`` and
+#: ``driver.py`` (twin/io/illumisense/, hyperion/, fispec/)
+SHARED_ROLES = {"__init__.py", "__main__.py", "bench.py", "codec.py", "driver.py"}
 
 
 def _modules():

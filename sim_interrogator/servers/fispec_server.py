@@ -1,7 +1,7 @@
 """FiSpec-type serial interrogator on pseudo-terminals (docs/protocols.md §2): one pty per fibre core.
 
 A FiSpec device measures one channel, so the server opens one pseudo-terminal per served core and answers the
-commands the ``myfbgcommunication`` client (and :class:`twin.io.fispec_driver.FispecSource`) send, from the latest
+commands the ``myfbgcommunication`` client (and :class:`twin.io.fispec.driver.FispecSource`) send, from the latest
 frame of the Source:
 
 - ``?>`` identity ``FiSpec FBG X150``. It also discards replies still waiting in the pty from an earlier

@@ -6,7 +6,7 @@ one sensor block filled from a reconstruction of the frame's own wavelengths —
 :class:`~twin.reconstruct.Reconstructor` with the source's fibre model (for the twin, its datasheet fibre: no
 calibration, as a vendor box set up from the datasheet would be), curvature |κ| and bending angle at the
 gratings, shape points every 1 mm in the vendor frame (x along the fibre axis,
-:data:`twin.io.illumisense_vendor.VENDOR_FROM_BASE`). ``blocks="engineering"`` sends the older layout instead
+:data:`twin.io.illumisense.vendor.VENDOR_FROM_BASE`). ``blocks="engineering"`` sends the older layout instead
 (E = every grating's optical strain in µε), ``blocks="none"`` the channel blocks alone. The client sends
 nothing; clients may connect and disconnect at any time, and each one gets the records from the moment it
 connected (a client that falls ~4 s behind is dropped).
@@ -78,7 +78,7 @@ class IllumisenseServer:
             return illumisense.encode_record(frame, strain=eps, channels_as=self.channels_as)
         sensors = None
         if self._rec is not None and fits:
-            from twin.io.illumisense_vendor import vendor_sensors
+            from twin.io.illumisense.vendor import vendor_sensors
 
             shape = self._rec(frame.wavelengths[None])
             if np.isfinite(shape.positions).all():

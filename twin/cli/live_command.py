@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
             recorder = Recorder(args.record, fiber=fiber, calibration=calibration, source_url=args.url,
                                 rate=first.rate)
             sinks.append(recorder)
-        from twin.io.illumisense_vendor import VendorDistance
+        from twin.io.illumisense.vendor import VendorDistance
 
         vendor = VendorDistance()  # ILLumiSense sends its own shape: compare ours with it (a few frames/s)
         sinks.append(vendor)

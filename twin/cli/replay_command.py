@@ -5,13 +5,13 @@
     twin replay cut.h5 --salvage
 
 Reads a twin HDF5 recording (``twin live --record``; also one still being written or left by a killed
-process) or an ILLumiSense log file (:mod:`twin.io.illumisense_log`), reconstructs every frame in
+process) or an ILLumiSense log file (:mod:`twin.io.illumisense.log`), reconstructs every frame in
 batches, and reports frames, time span, lost samples, partial and unusable frames, invalid nodes and the
 reconstruction speed, counted as ``twin live`` counts them. When the recording holds the simulator's truth, it
 also reports the shape error against it (after ``--register``; on at most ``--max-compare`` frames spread evenly
 over the recording, in mm). When the recording (a twin HDF5 recording or an ILLumiSense log) carries the
 interrogator's own shape (sensor blocks), it reports the distance between that shape and ours after a rigid
-registration (``vendor_distance_*_mm``, :mod:`twin.io.illumisense_vendor`).
+registration (``vendor_distance_*_mm``, :mod:`twin.io.illumisense.vendor`).
 
 A damaged recording (cut short, or with chunks that fail their checksum) is an error (one line: how many frames
 are readable, what is damaged; exit status 2) unless ``--salvage`` is given: then the frames before the damage

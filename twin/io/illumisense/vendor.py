@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twin.frames import Frame, Shape
-from twin.io.illumisense import SHAPE_SPACING, VendorSensor
+from twin.io.illumisense.codec import SHAPE_SPACING, VendorSensor
 from twin.metrics import ErrorStats, kabsch, shape_error
 
 __all__ = ["VENDOR_FROM_BASE", "VendorArrays", "VendorDistance", "frame_vendor", "vendor_distance",

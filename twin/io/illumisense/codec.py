@@ -12,9 +12,9 @@ Wire format (ILLumiSense pushes one record per sample on TCP; the client sends n
 
 This one module holds both directions — :func:`encode_record` for the simulator's server, :func:`decode_record`,
 :func:`decode_many` and :class:`StreamDecoder` for the driver — because they share the layout and its
-decisions (the tokenizer lives in :mod:`twin.io.illumisense_scan`, the stream decoder in
-:mod:`twin.io.illumisense_stream`, the log reader in :mod:`twin.io.illumisense_log`, the comparison with the
-vendor's shape in :mod:`twin.io.illumisense_vendor`).
+decisions (the tokenizer lives in :mod:`twin.io.illumisense.scan`, the stream decoder in
+:mod:`twin.io.illumisense.stream`, the log reader in :mod:`twin.io.illumisense.log`, the comparison with the
+vendor's shape in :mod:`twin.io.illumisense.vendor`).
 
 Decoding (what is known and what is assumed: docs/protocols-illumisense.md):
 
@@ -42,9 +42,9 @@ Encoding (the simulator's choices): date ``YYYY/MM/DD``, time ``HH:MM:SS.ffffff`
 with a CHANNEL_ERROR peak, sensor blocks with curvature 6 decimals (1/cm), angle 5 decimals (rad), shape 5
 decimals (cm), line ending CR LF.
 
-Speed: payloads are tokenized in one compiled pass (:func:`twin.io.illumisense_scan.scan`); records whose
+Speed: payloads are tokenized in one compiled pass (:func:`twin.io.illumisense.scan.scan`); records whose
 layout matches a known layout (same token count, counts, labels) are checked and extracted as one batch
-(compiled: :func:`~twin.io.illumisense_scan.match_layout`, :func:`~twin.io.illumisense_scan.channels`); only
+(compiled: :func:`~twin.io.illumisense.scan.match_layout`, :func:`~twin.io.illumisense.scan.channels`); only
 the others are walked field by field, which also builds the layout for the next ones. The batch stays a set
 of arrays until a caller asks for Records (:func:`decode_many`) or frames; the stream decoder's
 ``feed_batch`` hands it over as one batch Frame.
@@ -73,8 +73,8 @@ from typing import Literal
 import numpy as np
 
 from twin.frames import Frame, PeakStatus
-from twin.io import illumisense_scan as _scan
 from twin.io.errors import FramingError, TruncatedFrameError
+from twin.io.illumisense import scan as _scan
 
 __all__ = [
     "ANGLE_LABEL",
@@ -766,11 +766,3 @@ def decode_payload(payload: bytes, **kw) -> Frame:
     """Decode one record payload to a :class:`~twin.frames.Frame` (keywords of :func:`decode_record`)."""
     return decode_record(payload, **kw).frame
 
-
-def __getattr__(name: str):
-    # the stream decoder lives in its own module, which imports this one: re-exported here lazily
-    if name in ("LayoutConsensus", "StreamDecoder"):
-        from twin.io import illumisense_stream
-
-        return getattr(illumisense_stream, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -24,8 +24,9 @@ import numpy as np
 
 from twin.frames import Frame
 from twin.io.errors import FramingError
-from twin.io.illumisense import LayoutConsensus, Record, decode_many, decode_record
-from twin.io.illumisense_vendor import VendorArrays
+from twin.io.illumisense.codec import Record, decode_many, decode_record
+from twin.io.illumisense.stream import LayoutConsensus
+from twin.io.illumisense.vendor import VendorArrays
 
 __all__ = ["LogContents", "VendorArrays", "read_log"]
 

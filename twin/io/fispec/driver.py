@@ -22,9 +22,9 @@ import numpy as np
 
 from twin.fiber import FiberModel
 from twin.frames import Frame
-from twin.io import fispec
 from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, int_list, split_common, url_options
 from twin.io.errors import FramingError
+from twin.io.fispec import codec as fispec
 from twin.io.source import parse_url
 from twin.io.transport import ConnectionLost, open_serial
 

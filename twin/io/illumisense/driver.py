@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import time
 
-from twin.io import illumisense
 from twin.io.drivers import COMMON_OPTIONS, Driver, split_common, url_options
+from twin.io.illumisense import codec
+from twin.io.illumisense.stream import StreamDecoder
 from twin.io.source import parse_url
 from twin.io.transport import ConnectionLost, TcpClient, parse_host_port
 
@@ -39,8 +40,8 @@ class IllumisenseSource(Driver):
         See :class:`Driver`.
     """
 
-    def __init__(self, host: str, port: int = illumisense.DEFAULT_PORT, *, channels_as: str = "cores",
-                 n_cores: int | None = None, max_payload: int = illumisense.DEFAULT_MAX_PAYLOAD,
+    def __init__(self, host: str, port: int = codec.DEFAULT_PORT, *, channels_as: str = "cores",
+                 n_cores: int | None = None, max_payload: int = codec.DEFAULT_MAX_PAYLOAD,
                  connect_timeout: float = 3.0, resync_timeout: float = 2.0, layout_wait: float = 0.25,
                  url: str = "", **kw):
         self.host, self.port = host, int(port)
@@ -48,7 +49,7 @@ class IllumisenseSource(Driver):
         self.resync_timeout = resync_timeout
         self.layout_wait = layout_wait
         self._held_since: float | None = None
-        self.decoder = illumisense.StreamDecoder(max_payload=max_payload, channels_as=channels_as, n_cores=n_cores)
+        self.decoder = StreamDecoder(max_payload=max_payload, channels_as=channels_as, n_cores=n_cores)
         self._client: TcpClient | None = None
         self._out_of_sync_since: float | None = None
         super().__init__(url or f"illumisense://{host}:{port}", **kw)
@@ -110,7 +111,7 @@ class IllumisenseSource(Driver):
 def open_illumisense(url: str, **options) -> IllumisenseSource:
     """``illumisense://HOST[:PORT]?channels=cores|single&cores=N&max_payload=B&wait=0|1&retry_for=S``."""
     _, rest, query = parse_url(url)
-    host, port = parse_host_port(rest, illumisense.DEFAULT_PORT, what=url)
+    host, port = parse_host_port(rest, codec.DEFAULT_PORT, what=url)
     opts = url_options(url, query, {**COMMON_OPTIONS, "channels": str, "cores": int, "max_payload": int,
                                  "resync_timeout": float, "layout_wait": float})
     if opts.get("channels", "cores") not in ("cores", "single"):

@@ -20,8 +20,8 @@ import numpy as np
 
 from twin.fiber import FiberModel
 from twin.frames import Frame
-from twin.io import hyperion
 from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, int_list, split_common, url_options
+from twin.io.hyperion import codec as hyperion
 from twin.io.sequence import SequenceCounter
 from twin.io.source import parse_url
 from twin.io.transport import TcpClient, parse_host_port

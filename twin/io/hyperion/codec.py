@@ -424,7 +424,7 @@ class ResponseDecoder(_Incremental):
 
     def feed_frames(self, data: bytes) -> list[Frame]:
         """Consume peak-stream bytes (port 51972); return the decoded frames. Their sequence numbers are the
-        driver's to count (:class:`twin.io.hyperion_driver.HyperionSource`, across reconnects)."""
+        driver's to count (:class:`twin.io.hyperion.driver.HyperionSource`, across reconnects)."""
         frames: list[Frame] = []
         for r in self.feed(data):
             if not r.ok:

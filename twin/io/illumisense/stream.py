@@ -11,9 +11,9 @@ from itertools import pairwise
 import numpy as np
 
 from twin.frames import Frame
-from twin.io import illumisense_scan as _scan
 from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
-from twin.io.illumisense import (
+from twin.io.illumisense import scan as _scan
+from twin.io.illumisense.codec import (
     _PREFIX_LIMIT,
     DEFAULT_MAX_PAYLOAD,
     MIN_PAYLOAD,
