@@ -15,7 +15,7 @@ from sim_interrogator.servers import IllumisenseServer
 from twin import FiberModel, strain
 from twin.frames import Frame
 from twin.io import illumisense
-from twin.io.illumisense_vendor import vendor_distance
+from twin.io.illumisense.vendor import vendor_distance
 from twin.io.synthetic import SyntheticSource
 
 FIBER = FiberModel.paper()
