@@ -114,6 +114,12 @@ class JigParams:
         Pose order within an orientation: "trial" passes through all grooves once per trial (a reference each
         pass); "groove" takes all trials of one groove before the next (the reference groove first).
     seed : int
+        Draws the as-built sensor and, unless ``session_seed`` is given, the session.
+    session_seed : int or None
+        Draws the session (jig errors, seating, interrogator noise, temperatures) apart from the sensor: two
+        values give two sessions of the same sensor (core angles, radii, twist) in the same jig. The optics' as-built
+        λ0 scatter and thermal mismatch are drawn with the session: each orientation's reference removes the
+        first, and the second acts only through the 1 K session temperatures.
     """
 
     curvatures: tuple[float, ...] = (0.0, 0.25, 0.8, 1.0, 1.25, 3.125)
@@ -145,6 +151,7 @@ class JigParams:
     pose_curvature: float = 0.0
     order: str = "trial"
     seed: int = 0
+    session_seed: int | None = None
 
 
 #: The AMIRo needle in its jig, as the real table of 2021-03-20 shows it (docs/jig.md, "A twin of the AMIRo needle";
@@ -202,6 +209,8 @@ def simulate(params: JigParams = JigParams(), fiber: FiberModel | None = None) -
     # random deviations scaled to the requested RMS, so every seed is "a few degrees and percent" off
     z = rng.standard_normal((2, bend.size))
     z /= np.sqrt(np.mean(z**2, axis=1, keepdims=True))
+    if params.session_seed is not None:  # the same sensor, another session
+        rng = np.random.default_rng([params.session_seed, 2])
     angles[bend] += np.deg2rad(params.angle_error_deg) * z[0]
     radii[bend] *= 1.0 + params.radius_error * z[1]
     true = nominal.replace(core_angles=angles, core_radii=radii, name=f"{nominal.name} (as built)")
@@ -277,7 +286,7 @@ def _seated_curvature(params: JigParams, n_gratings: int, bearing: np.ndarray, o
     effects (docs/jig.md, "A twin of the AMIRo needle") are drawn from a generator of their own, so that with all
     of them at 0 the session is the same as without them.
     """
-    rng = np.random.default_rng([params.seed, 1])
+    rng = np.random.default_rng([params.seed if params.session_seed is None else params.session_seed, 1])
     n_o, n_l, n_p = bearing.size, int(l_idx.max()) + 1, o_idx.size
     twist = np.deg2rad(params.seat_twist_deg) * rng.standard_normal((n_o, n_gratings))
     scale = _conformity(params, n_gratings) * (1.0 + params.conformity_std * rng.standard_normal((n_o, n_gratings)))

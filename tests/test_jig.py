@@ -424,7 +424,7 @@ def test_cli_calibrate_validate_and_cross_validate(twin_jig, tmp_path, capsys):
                  "--max-error", "0.02", "--max-direction-error-deg", "1", "--json"])
     report = json.loads(capsys.readouterr().out)
     assert code == 0 and report["passes"] is True
-    assert [r["model"] for r in report["results"]] == ["physical", "matrix"]
+    assert [r["model"] for r in report["results"]] == ["physical", "matrix", "linear", "nuisance"]
     assert report["results"][0]["fit"]["orientations_rad"] == pytest.approx([0.0, np.pi / 2])
 
     code = main(["jig-validate", str(csv_path), "--fiber", fiber, "--holdout-orientations", "3.14159,4.71239",

@@ -3,10 +3,11 @@
 Both commands live here; :mod:`twin.cli` registers this module for each and the command name (``args._command``,
 set by the router before ``add_arguments``) picks the one to build and run.
 
-* ``twin jig-calibrate POSES.csv --fiber FIBER.toml --out calibration.toml [--model physical|matrix]``
+* ``twin jig-calibrate POSES.csv --fiber FIBER.toml --out calibration.toml [--model physical|matrix|linear|nuisance]``
 * ``twin jig-validate POSES.csv --calibration calibration.toml`` — the calibration's errors on these poses;
-  ``twin jig-validate POSES.csv --fiber FIBER.toml --holdout-orientations 3.1416,4.7124`` — fit (both models by
-  default) on the other orientations and validate on these: how to judge a calibration.
+  ``twin jig-validate POSES.csv --fiber FIBER.toml --holdout-orientations 3.1416,4.7124`` — fit (every model by
+  default, the plain linear baseline among them) on the other orientations and validate on these: how to judge a
+  calibration. Every report ends with the one score (:mod:`twin.calibration.jig.score`) of each model.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from twin import jsonout
 from twin.calibration import Calibration, jig
+from twin.calibration.jig.score import ALL_LEVELS, CLINICAL
 from twin.fiber import FiberModel
 
 CALIBRATE, VALIDATE = "jig-calibrate", "jig-validate"
@@ -40,8 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--holdout-orientations", metavar="LIST",
                             help="cross-validation: fit on the other orientations and validate on these (rad, or "
                             "with a deg suffix: 180deg,270deg)")
-        parser.add_argument("--model", choices=(*jig.MODELS, "both"), default="both",
-                            help="with --holdout-orientations: the model(s) to fit (default both)")
+        parser.add_argument("--model", choices=(*jig.MODELS, "both", "all"), default="all",
+                            help="with --holdout-orientations or --leave-one-rotation-out: the model(s) to fit "
+                            "(default all; both = physical and matrix)")
         parser.add_argument("--leave-one-rotation-out", action="store_true",
                             help="hold out each orientation in turn (fit on the others): in-sample RMS strain "
                             "residual and the median curvature and direction errors (docs/jig.md)")
@@ -55,7 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--fiber", metavar="FIBER.toml", required=True, help="nominal fibre model")
         parser.add_argument("--out", metavar="CAL.toml", required=True, help="calibration file to write")
         parser.add_argument("--model", choices=jig.MODELS, default="physical",
-                            help="physical: core angles and gains g = r·S_ε; matrix: k = M e (default physical)")
+                            help="physical: core angles and gains g = r·S_ε; matrix: k = M e; linear: the plain "
+                            "baseline k = M e (least squares, unweighted, references as they are); nuisance: "
+                            "physical with the jig's errors estimated beside it (default physical)")
         parser.add_argument("--orientations", metavar="LIST",
                             help="fit only these orientations (rad, or with a deg suffix); default all")
     parser.add_argument("--trust-references", action="store_true",
@@ -103,6 +108,22 @@ def _angles(text: str | None, option: str) -> np.ndarray | None:
     return np.array(out)
 
 
+def _models(choice: str) -> tuple[str, ...]:
+    return {"all": jig.MODELS, "both": ("physical", "matrix")}.get(choice, (choice,))
+
+
+def _score_line(name: str, v) -> str:
+    """One line: the score in both bands and, when the model states intervals, their 95 % coverage."""
+    parts = []
+    for bands in (CLINICAL, ALL_LEVELS):
+        sc = v.score(bands)
+        d = None if sc.direction_error is None else np.rad2deg(sc.direction_error)
+        parts.append(f"{bands.name}: {_fmt(sc.magnitude_error, '.4f')} 1/m, {_fmt(d, '.2f')}°")
+    cover = v.coverage_95 if hasattr(v, "coverage_95") else v.coverage()[0]
+    tail = "" if cover is None else f"; 95 % coverage {cover:.1%}"
+    return f"{name:>9s}  " + "; ".join(parts) + tail
+
+
 def _deg_list(values) -> str:
     return ", ".join(f"{np.rad2deg(v):.4g}°" for v in values)
 
@@ -133,11 +154,12 @@ def _calibrate(args: argparse.Namespace) -> int:
     print(f"Jig calibration ({result.model} model) of {args.fiber} from {args.poses}", file=out)
     print(f"  {poses.n_poses} rows; fitted {result.n_poses} bent poses at {result.orientations.size} orientations "
           f"({_deg_list(result.orientations)}), grooves {levels.min():g}–{levels.max():g} 1/m", file=out)
-    roll_std = "" if result.roll_std is None else f" ± {np.rad2deg(result.roll_std):.3f}°"
+    roll_std = "" if not np.isfinite(result.roll_std) else f" ± {np.rad2deg(result.roll_std):.3f}°"
     print(f"  roll α = {np.rad2deg(result.roll):.3f}°{roll_std} (bend direction in the fibre frame at orientation 0)\n",
           file=out)
     s = fiber.grating_s
-    if result.model == "physical":
+    forward = result.matrix is None  # physical, nuisance: angles and gains; matrix, linear: the map
+    if forward:
         print(f"{'grating':>7s}{'s (mm)':>8s}{'core':>6s}{'angle (°)':>21s}{'g (µm)':>20s}{'R²':>10s}"
               f"{'rms e (ppm)':>12s}{'χ²/dof':>10s}", file=out)
     else:
@@ -147,7 +169,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         for c in range(fiber.n_cores):
             head = f"{n:7d}{s[n] * 1e3:8.1f}" if c == 0 else " " * 15
             ang, g = np.rad2deg(result.core_angles[i, c]), result.gains[i, c] * 1e6
-            if result.model == "physical":
+            if forward:
                 tail = ""
                 if c == 0:
                     chi = "" if result.chi2_reduced is None else f"{result.chi2_reduced[i]:10.4g}"
@@ -159,6 +181,13 @@ def _calibrate(args: argparse.Namespace) -> int:
                 tail = f"{result.explained[i]:10.6f}" if c == 0 else ""
                 print(f"{head}{c:6d}{m[0]:12.1f} ± {ms[0]:7.1f}{m[1]:12.1f} ± {ms[1]:7.1f}{ang:11.3f}{g:9.2f}{tail}",
                       file=out)
+    if result.nuisance is not None:
+        nz = result.nuisance
+        print(f"\nJig errors estimated ({', '.join(sorted(nz.terms))}): roll at each rotation "
+              f"{', '.join(f'{x:+.2f}°' for x in np.rad2deg(np.angle(nz.gain)))}; gain "
+              f"{', '.join(f'{x:.3f}' for x in np.abs(nz.gain))}; reference pose (jig frame, along/across the bend, "
+              f"mean over rotations) {', '.join(f'{a:+.3f}/{b:+.3f}' for a, b in nz.reference.mean(axis=0))} 1/m",
+              file=out)
     summ = check.summary()
     print(f"\nIn-sample (the fit's own poses), κ ≥ {args.min_curvature:g} 1/m: max |Δκ| = "
           f"{_fmt(summ['max_abs_magnitude_error_1_per_m'], '.4f')} 1/m, max |Δdir| = "
@@ -190,8 +219,7 @@ def _validate(args: argparse.Namespace) -> int:
             raise ValueError("--holdout-orientations fits its own calibrations; drop --calibration (or validate it "
                              "without --holdout-orientations)")
         holdout = _angles(args.holdout_orientations, "--holdout-orientations")
-        models = jig.MODELS if args.model == "both" else (args.model,)
-        for model in models:
+        for model in _models(args.model):
             result, check = jig.cross_validate(fiber, poses, holdout, model=model, gratings=gratings,
                                                trust_references=args.trust_references,
                                                min_curvature=args.min_curvature)
@@ -258,6 +286,10 @@ def _validate(args: argparse.Namespace) -> int:
         print(f"Comparison (κ ≥ {args.min_curvature:g} 1/m): " + "; ".join(
             f"{r['model']} {_fmt(r['validation'].summary()['max_abs_magnitude_error_1_per_m'], '.4f')} 1/m, "
             f"{_fmt(r['validation'].summary()['max_abs_direction_error_deg'], '.3f')}°" for r in results), file=out)
+    print("Score (median over rotation × grating × level of the per-level RMS |Δκ|, and of |mean Δdir|; "
+          "docs/jig.md):", file=out)
+    for r in results:
+        print(_score_line(r["model"], r["validation"]), file=out)
     return 0 if ok in (None, True) else 1
 
 
@@ -266,10 +298,9 @@ def _leave_one_rotation_out(args: argparse.Namespace, fiber: FiberModel | None, 
     if fiber is None or args.calibration or args.holdout_orientations is not None:
         raise ValueError("--leave-one-rotation-out fits its own calibrations: give --fiber FIBER.toml, without "
                          "--calibration or --holdout-orientations")
-    models = jig.MODELS if args.model == "both" else (args.model,)
     stats = {m: jig.leave_one_rotation_out(fiber, poses, model=m, gratings=gratings,
                                            trust_references=args.trust_references,
-                                           min_curvature=args.min_curvature) for m in models}
+                                           min_curvature=args.min_curvature) for m in _models(args.model)}
     if args.json:
         print(jsonout.dumps({"poses": args.poses, "results": {m: st.to_dict() for m, st in stats.items()}}, indent=2))
         return 0
@@ -283,5 +314,9 @@ def _leave_one_rotation_out(args: argparse.Namespace, fiber: FiberModel | None, 
             print(f"{np.rad2deg(psi):8.1f}°{np.nanmedian(st.kappa_rms[o]):24.4f}{d:19.2f}°")
         print(f"{'all':>9s}{st.kappa_error:24.4f}{np.rad2deg(st.direction_error):19.2f}°   "
               f"(direction: κ ≥ {st.min_curvature:g} 1/m)\n")
+    print("Score, leave one rotation out (median over rotation × grating × level of the per-level RMS |Δκ|, and of "
+          "|mean Δdir|; docs/jig.md):")
+    for model, st in stats.items():
+        print(_score_line(model, st))
     return 0
 
