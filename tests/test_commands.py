@@ -43,7 +43,7 @@ def test_twin_bench_quick_reconstruct_section_writes_json_and_compares(tmp_path)
     assert again.returncode == 0, again.stderr
     lines = {line.split()[0]: line for line in again.stdout.splitlines() if line.startswith("  ")}
     for key, value in figures.items():
-        assert key in lines and f"(was {value}, ×" in lines[key], lines.get(key)
+        assert key in lines and f"(was {value:g}, ×" in lines[key], lines.get(key)  # printed with :g
     assert "(was 171, ×1.00)" in lines["points_per_shape"]  # a set-up figure does not change between runs
 
 
