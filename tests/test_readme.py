@@ -20,6 +20,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from conftest import require_tool
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -81,8 +82,7 @@ def test_readme_examples_are_there_and_consistent(capsys):
 def test_readme_session_and_python_run_as_written(tmp_path):
     shell, python = session()
     venv = ROOT / ".venv"
-    if not (venv / "bin" / "activate").exists():
-        pytest.skip("no .venv in the checkout (make test creates it)")
+    require_tool((venv / "bin" / "activate").exists(), "no .venv in the checkout (make test creates it)")
     (tmp_path / ".venv").symlink_to(venv)
     env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
     env.update(MPLBACKEND="Agg", PYTHONUNBUFFERED="1")

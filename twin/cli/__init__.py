@@ -87,7 +87,9 @@ def missing_extra(exc: ImportError) -> MissingExtra | None:
     return MissingExtra(root, EXTRAS[root]) if isinstance(exc, ModuleNotFoundError) and root in EXTRAS else None
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(described: str | None = None) -> argparse.ArgumentParser:
+    """The router's parser. Each command's one-line help is read from its module's source (no import); with
+    ``described`` only that command's is read (the list of all of them shows only when no command is given)."""
     from twin import registry
 
     parser = argparse.ArgumentParser(
@@ -97,7 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in commands():
-        help_text = registry.summary("twin.commands", name)
+        help_text = registry.summary("twin.commands", name) if described in (None, name) else None
         p = sub.add_parser(name, help=help_text, description=help_text)
         p.set_defaults(_command=name)
     return parser
@@ -113,9 +115,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in argv if not a.startswith("-")), None)
     try:
-        parser = build_parser()
+        known = command in commands()
+        parser = build_parser(command if known else None)
         # Only the chosen command's module is imported and asked for its arguments.
-        if command in commands():
+        if known:
             sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
             _command_module(command).add_arguments(sub.choices[command])
         args = parser.parse_args(argv)
