@@ -52,7 +52,13 @@ def test_toml_without_central_core(tmp_path):
     ("change", "message"),
     [
         ({"core_radii": [0.0, 37.5e-6, -1e-6, 37.5e-6]}, "core_radii: expected radii >= 0 m, got -1e-06 for core 2"),
-        ({"core_radii": [0.0, 37.5e-6, 37.5e-6]}, "core_radii: expected shape (4,), got (3,)"),
+        ({"core_radii": [0.0, 37.5e-6, 37.5e-6]},
+         "FiberModel.core_radii: core_angles has 4 entries, core_radii 3: both need one per core (lambda0 has 4"),
+        # issue 23 A11: one entry removed from core_angles blamed core_radii
+        ({"core_angles": [0.0, 0.0, 1.0]},
+         "FiberModel.core_angles: core_angles has 3 entries, core_radii 4: both need one per core (lambda0 has 4"),
+        ({"core_angles": [0.0, 0.0, 1.0], "lambda0": np.full((18, 5), 1550.0)},
+         "FiberModel.core_angles, core_radii: core_angles has 3 entries, core_radii 4"),
         ({"core_radii": [0.0, 37.5, 37.5, 37.5]}, "radii are in metres"),
         ({"grating_s": [0.0, 0.02, 0.01] + [0.03 + 0.01 * i for i in range(15)]}, "strictly increasing"),
         ({"lambda0": np.full((18, 4), 1.55)}, "expected a Bragg wavelength in nm"),
@@ -71,6 +77,15 @@ def test_validation_names_field_and_expectation(change, message):
         FiberModel.paper().replace(**change)
     assert message in str(info.value)
     assert "FiberModel." in str(info.value)
+
+
+def test_a_fiber_toml_short_of_one_core_angle_blames_core_angles_naming_the_file(tmp_path):
+    path = tmp_path / "f.toml"
+    FiberModel.paper().save(path)
+    path.write_text(path.read_text().replace("    1.0471975511965976,\n", "", 1))
+    with pytest.raises(ValueError) as info:
+        FiberModel.load(path)
+    assert str(info.value).startswith(f"{path}: FiberModel.core_angles: core_angles has 3 entries, core_radii 4")
 
 
 def test_layout_needs_two_bending_cores():

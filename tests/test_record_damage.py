@@ -54,7 +54,9 @@ def test_a_file_cut_to_2_kB_fails_in_one_line_within_seconds(recording, tmp_path
     t0 = time.monotonic()
     with pytest.raises(ValueError, match=r"t\.h5: not a readable"):
         open_recording(cut)
-    assert time.monotonic() - t0 < 5  # HDF5's default SWMR retries would sleep for minutes
+    # a hang guard, not a speed limit: HDF5's default SWMR retries would sleep for minutes; the refusal itself
+    # takes milliseconds, so 60 s tells the two apart on any load
+    assert time.monotonic() - t0 < 60
     proc = _twin("replay", str(cut), timeout=30)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "t.h5" in proc.stderr, proc.stderr
 
@@ -129,9 +131,9 @@ def test_flipped_bytes_in_a_chunk_are_caught_by_its_checksum(recording, tmp_path
 def test_live_replay_of_a_damaged_recording_ends_with_an_error(recording, tmp_path):
     """Issue 11 item 3: 200 flipped bytes made `twin live replay://` reopen the file forever and exit 0."""
     bad = _flipped(recording[0], tmp_path / "flip.h5", 200, seed=7, start=4096)
-    t0 = time.monotonic()
-    proc = _twin("live", f"replay://{bad}?speed=max", "--duration", "30", "--json", timeout=60)
-    assert time.monotonic() - t0 < 25
+    # --duration is the hang guard: a loop that reopened the file forever would end there with reason
+    # "duration" and status 0, which the checks below refuse (no wall-clock limit: the load sets the time)
+    proc = _twin("live", f"replay://{bad}?speed=max", "--duration", "60", "--json", timeout=180)
     if proc.returncode == 2:  # found damaged when opened: one line
         assert proc.stderr.strip().count("\n") == 0 and "flip.h5" in proc.stderr
         return

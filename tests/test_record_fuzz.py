@@ -2,7 +2,9 @@
 blocks, issue 13) and ILLumiSense text logs, truncated at random points and with random bytes flipped. For
 every case:
 
-- nothing hangs: opening and reading all frames takes under 5 s (measured; the test's timeout also bounds it);
+- nothing hangs: opening and reading all frames ends within a hang guard (reading these small files takes a
+  fraction of a second; the faults guarded against — HDF5's SWMR retries, a reader that loops — take minutes or
+  forever; speed is `twin bench`'s, not this test's);
 - nothing is "complete" that is damaged: an HDF5 recording read back as complete must equal the original
   exactly, sensor blocks included (a flip can land in bytes HDF5 never reads, e.g. free space; then nothing was
   damaged), and a cut one is never complete; a log cut inside a line is never complete (a log has no checksum:
@@ -35,7 +37,9 @@ from twin.io.record import Recorder, open_recording
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg"}
-LIMIT_S = 5.0
+#: s, a hang guard, not a speed limit: HDF5's default SWMR retries on a damaged file sleep for minutes; a normal
+#: read of these files takes well under a second even on a loaded machine
+LIMIT_S = 60.0
 
 
 @pytest.fixture(scope="module")

@@ -89,7 +89,9 @@ class FiberModel:
         n_c = angles.size
         if n_c < 2:
             raise ValueError(f"{_OWNER}.core_angles: expected at least 2 cores, got {n_c}")
-        radii = real_array(self.core_radii, "core_radii", shape=(n_c,), unit="m", owner=_OWNER)
+        radii = real_array(self.core_radii, "core_radii", shape=(None,), unit="m", owner=_OWNER)
+        if radii.size != n_c:
+            raise ValueError(_core_count_mismatch(n_c, radii.size, self.lambda0))
         if np.any(radii < 0):
             i = int(np.argmax(radii < 0))
             raise ValueError(f"{_OWNER}.core_radii: expected radii >= 0 m, got {radii[i]} for core {i}")
@@ -313,6 +315,19 @@ class FiberModel:
         """Read a TOML fibre model, validating every field."""
         path = Path(path)
         return cls.from_dict(read_toml(path, "fibre model"), source=str(path))
+
+
+def _core_count_mismatch(n_angles: int, n_radii: int, lambda0) -> str:
+    """The error for ``core_angles`` and ``core_radii`` of different lengths: it names both, and blames the one
+    that disagrees with ``lambda0``'s cores per grating when that settles it."""
+    shape = np.shape(lambda0) if isinstance(lambda0, list | tuple | np.ndarray) else ()
+    n_lam = shape[1] if len(shape) == 2 else None
+    both = f"core_angles has {n_angles} entries, core_radii {n_radii}: both need one per core"
+    if n_lam == n_radii:
+        return f"{_OWNER}.core_angles: {both} (lambda0 has {n_lam} cores per grating)"
+    if n_lam == n_angles:
+        return f"{_OWNER}.core_radii: {both} (lambda0 has {n_lam} cores per grating)"
+    return f"{_OWNER}.core_angles, core_radii: {both}"
 
 
 def origin(obj, default: str = "") -> str:

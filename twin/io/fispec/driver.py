@@ -103,6 +103,8 @@ class FispecSource(Driver):
         See :class:`Driver`.
     """
 
+    START_WAIT = 0.0  #: a serial device that is not there is more likely a wrong path: fail at once by default
+
     def __init__(self, ports: Sequence[str], *, rate: float = 100.0, fiber: FiberModel | None = None,
                  cores: Sequence[int] | None = None, window: float = 3.0, baudrate: int = fispec.BAUDRATE,
                  reply_timeout: float = 0.5, url: str = "", **kw):
@@ -232,7 +234,7 @@ class FispecSource(Driver):
 
 
 def open_fispec(url: str, **options) -> FispecSource:
-    """``fispec://PORT[,PORT…]?rate=HZ&cores=0,1,2,3&window=NM&baudrate=N&wait=0|1&retry_for=S``."""
+    """``fispec://PORT[,PORT…]?rate=HZ&cores=0,1,2,3&window=NM&baudrate=N&wait=0|1&retry_for=S&start_wait=S``."""
     _, rest, query = parse_url(url)
     ports = [p for p in rest.split(",") if p]
     if not ports:

@@ -110,7 +110,7 @@ class IllumisenseSource(Driver):
 
 
 def open_illumisense(url: str, **options) -> IllumisenseSource:
-    """``illumisense://HOST[:PORT]?channels=cores|single&cores=N&max_payload=B&wait=0|1&retry_for=S``."""
+    """``illumisense://HOST[:PORT]?channels=cores|single&cores=N&max_payload=B&wait=0|1&retry_for=S&start_wait=S``."""
     _, rest, query = parse_url(url)
     host, port = parse_host_port(rest, codec.DEFAULT_PORT, what=url)
     opts = parse_options(url, query, {**COMMON_OPTIONS, "channels": Option("str", choices=("cores", "single")),
