@@ -134,7 +134,7 @@ def _figures(path: Path, capsys) -> list[str]:
     assert main(["replay", str(path)]) == 0
     lines = capsys.readouterr().out.splitlines()
     # the first line names the file and its kind; the speed line is the machine's, not the run's
-    return [lines[0].split(",", 1)[1]] + [x for x in lines[1:] if "reconstructed at" not in x]
+    return [lines[0].split(",", 1)[1]] + [x for x in lines[1:] if "reconstruction throughput" not in x]
 
 
 def test_twin_replay_prints_the_same_figures_for_mcap_and_hdf5(run, capsys):
