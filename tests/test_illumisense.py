@@ -578,3 +578,46 @@ def test_fuzz_stream_arbitrary_bytes_never_raise(data, cuts):
         pos += c
     dec.finish()
     assert dec.pending == 0
+
+
+# ------------------------------------------------------------------------------ issue 23: faults of the attack
+
+LONG_STREAM = [illumisense.encode_record(Frame(np.full((18, 4), 1550.0) + 1e-3 * k, 0.0, k)) for k in range(60)]
+
+
+def _flip_prefix(recs: list[bytes], i: int, byte: int, xor: int) -> bytes:
+    bad = bytearray(recs[i])
+    bad[byte] ^= xor
+    return b"".join(recs[:i]) + bytes(bad) + b"".join(recs[i + 1 :])
+
+
+def _feed_chunked(dec, data: bytes, cuts) -> list:
+    out, pos = [], 0
+    for c in [*cuts, len(data)]:
+        out += dec.feed(data[pos : pos + c])
+        pos += c
+    return out
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 9), st.integers(1, 3), st.integers(1, 255), st.lists(st.integers(1, 5000), max_size=8))
+@example(5, 1, 0x0F, [])  # length + 983040: still under 1 MiB, more than the rest of the stream
+@example(5, 2, 0x40, [100, 100])
+def test_fuzz_a_corrupted_length_prefix_never_stalls_the_stream(i, byte, xor, cuts):
+    """Issue 23 B1: in sync, a prefix still under the bound made the decoder wait for bytes that the NULs of the
+    later prefixes already proved wrong; every good record after the damaged one must be delivered."""
+    data = _flip_prefix(LONG_STREAM, i, byte, xor)
+    dec = illumisense.StreamDecoder()
+    got = {f.sequence for f in _feed_chunked(dec, data, cuts)}
+    assert set(range(len(LONG_STREAM))) - {i} <= got
+    assert dec.framing_errors >= 1 and dec.in_sync and dec.pending == 0
+
+
+def test_a_long_bogus_prefix_is_refused_by_the_line_end_inside_it():
+    """Issue 23 B1: the line ends inside a would-be payload prove it wrong too (a log of payloads with LF)."""
+    payload = LONG_STREAM[1][4:]
+    data = (200_000).to_bytes(4, "big") + payload + b"".join(LONG_STREAM[2:6])
+    dec = illumisense.StreamDecoder(layout_quorum=0)
+    assert dec.feed(data[: 4 + len(payload)]) == []
+    assert not dec.in_sync and dec.framing_errors == 1 and "NUL or LF" in str(dec.last_error)
+    assert [f.sequence for f in dec.feed(data[4 + len(payload) :])] == [2, 3, 4, 5]

@@ -357,9 +357,10 @@ class StreamDecoder:
             end = p + 4 + length
             start_scan = p + 4 + self._scanned
             hi = min(end - 1, len(buf))  # the last payload byte may be the LF
-            # in sync, the tokenizer finds a NUL or LF inside a complete payload; hunting, a candidate is
-            # rejected as soon as one arrives
-            if self._hunting and hi > start_scan:
+            # in sync, the tokenizer finds a NUL or LF inside a complete payload; hunting, or in sync waiting
+            # for the rest of a payload, the candidate is rejected as soon as one arrives (a corrupted prefix
+            # in sync would otherwise wait for bytes that the later prefixes' NULs already prove wrong)
+            if (self._hunting or len(buf) < end) and hi > start_scan:
                 bad = [i for i in (buf.find(b"\x00", start_scan, hi), buf.find(b"\n", start_scan, hi)) if i >= 0]
                 if bad:
                     if spans:
