@@ -621,3 +621,26 @@ def test_a_long_bogus_prefix_is_refused_by_the_line_end_inside_it():
     assert dec.feed(data[: 4 + len(payload)]) == []
     assert not dec.in_sync and dec.framing_errors == 1 and "NUL or LF" in str(dec.last_error)
     assert [f.sequence for f in dec.feed(data[4 + len(payload) :])] == [2, 3, 4, 5]
+
+
+def test_lost_samples_never_wrap_and_do_not_depend_on_chunking():
+    """Issue 23 B2: gaps of 2**63 - 2 samples each summed in int64 wrapped to a negative count."""
+    from twin.io.sequence import SequenceCounter
+
+    top = 2**63 - 1
+    seqs = [0, top, 0, top, 0, top, 5]
+    exact = 3 * (top - 1)  # three forward jumps; the returns to 0 and the 5 after top are resets
+    c = SequenceCounter()
+    c.count_many(seqs)
+    assert (c.lost_samples, c.sequence_gaps, c.sequence_resets) == (exact, 3, 3)
+    one = SequenceCounter()
+    for s in seqs:
+        one.count(s)
+    assert one.as_dict() == c.as_dict()
+    recs = [illumisense.encode_record(Frame(np.full((2, 2), 1550.0), 0.0, s)) for s in seqs]
+    totals = set()
+    for cuts in ([], [len(r) for r in recs], [7] * 200):
+        dec = illumisense.StreamDecoder(layout_quorum=0)
+        assert len(_feed_chunked(dec, b"".join(recs), cuts)) == len(seqs)
+        totals.add(dec.sequence.lost_samples)
+    assert totals == {exact}
