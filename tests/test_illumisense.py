@@ -644,3 +644,12 @@ def test_lost_samples_never_wrap_and_do_not_depend_on_chunking():
         assert len(_feed_chunked(dec, b"".join(recs), cuts)) == len(seqs)
         totals.add(dec.sequence.lost_samples)
     assert totals == {exact}
+
+
+def test_a_19_digit_time_fraction_reads_as_python_reads_it():
+    """Issue 23 B3: the compiled scanner read 19 digits ≥ 2**63 into an int64 before its length check: NaN."""
+    for frac in (b"9999999999999999999", b"9223372036854775808", b"99999999999999999999999"):
+        t = b"13:45:12." + frac
+        want = illumisense.parse_timestamp(b"2024/01/31", t)
+        assert want == EXAMPLE_EPOCH - 12 + float(b"12." + frac)
+        assert illumisense.decode_record(b"2024/01/31\t" + t + b"\t1\t0\n").frame.timestamp == want
