@@ -325,8 +325,10 @@ def test_round_trip_at_the_protocol_quantisation(frame, sensors, single, ending)
         assert math.isnan(f.timestamp)
     else:
         assert abs(f.timestamp - frame.timestamp) <= 2e-6
-    assert len(got.sensors) == len(sensors)
-    for a, b in zip(got.sensors, sensors, strict=True):
+    # a block without gratings or shape points is absent, and so are those after it (issue 23 B4)
+    usable = next((j for j, b in enumerate(sensors) if not (b.curvature.size and b.positions.size)), len(sensors))
+    assert len(got.sensors) == usable and got.absent_sensors == len(sensors) - usable
+    for a, b in zip(got.sensors, sensors[:usable], strict=True):
         np.testing.assert_allclose(a.curvature, b.curvature, rtol=0, atol=0.5e-4 + 1e-12)  # 1e-6 1/cm
         np.testing.assert_allclose(a.angle, b.angle, rtol=0, atol=0.5e-5 + 1e-12)
         np.testing.assert_allclose(a.positions, b.positions, rtol=0, atol=1e-7)
@@ -465,8 +467,12 @@ def assert_matches_reference(rec: illumisense.Record, ref: dict) -> None:
     np.testing.assert_array_equal(f.wavelengths, lam)
     np.testing.assert_array_equal(f.powers, pw)
     np.testing.assert_array_equal(f.status, st_)
-    assert len(rec.sensors) == len(ref["sensors"]) and rec.extra_fields == ref["extra"]
-    for a, (k, ang, p) in zip(rec.sensors, ref["sensors"], strict=True):
+    # the plain reading keeps every block; a block without gratings or shape points and those after it are
+    # absent from the record (issue 23 B4)
+    usable = next((j for j, (k, _, p) in enumerate(ref["sensors"]) if not (len(k) and len(p))), len(ref["sensors"]))
+    assert len(rec.sensors) == usable and rec.absent_sensors == len(ref["sensors"]) - usable
+    assert rec.extra_fields == ref["extra"]
+    for a, (k, ang, p) in zip(rec.sensors, ref["sensors"][:usable], strict=True):
         np.testing.assert_array_equal(a.curvature, k)
         np.testing.assert_array_equal(a.angle, ang)
         np.testing.assert_array_equal(a.positions, p.reshape(-1, 3))
@@ -653,3 +659,35 @@ def test_a_19_digit_time_fraction_reads_as_python_reads_it():
         want = illumisense.parse_timestamp(b"2024/01/31", t)
         assert want == EXAMPLE_EPOCH - 12 + float(b"12." + frac)
         assert illumisense.decode_record(b"2024/01/31\t" + t + b"\t1\t0\n").frame.timestamp == want
+
+
+def test_a_sensor_block_without_shape_points_is_absent_and_counted(tmp_path):
+    """Issue 23 B4: a block with 0 shape points raised IndexError in the vendor-distance sink (and could not be
+    recorded); such a block carries no shape, so the decoder leaves it (and the blocks after it) out."""
+    from io_helpers import synthetic_frames
+
+    from twin import FiberModel
+    from twin.io.illumisense_vendor import VendorDistance
+    from twin.io.record import Recorder
+    from twin.reconstruct import Reconstructor
+
+    fiber = FiberModel.paper()
+    frames = synthetic_frames(4)
+    empty = VendorSensor(np.zeros(0), np.zeros(0), np.zeros((0, 3)))
+    good = VendorSensor(np.full(3, 0.5), np.zeros(3), np.c_[np.arange(200) * 1e-3, np.zeros((200, 2))])
+    data = b"".join(illumisense.encode_record(f, sensors=[empty, good]) for f in frames[:2])
+    data += b"".join(illumisense.encode_record(f, sensors=[good, empty]) for f in frames[2:])
+    dec = illumisense.StreamDecoder(layout_quorum=0)
+    got = dec.feed_batch(data)
+    assert [f.vendor is None for f in got] == [True, True, False, False]
+    assert len(got[2].vendor) == 1 and got[2].vendor[0].positions.shape == (200, 3)
+    assert dec.sensor_blocks_absent == 2 * 2 + 2 * 1
+    rec = illumisense.decode_record(illumisense.encode_payload(frames[0], sensors=[empty]))
+    assert rec.sensors == () and rec.absent_sensors == 1 and rec.frame.vendor is None
+    shapes = Reconstructor(fiber)(np.stack([f.wavelengths for f in got]))
+    sink = VendorDistance(rate=None)
+    sink(got, shapes, None)  # raised IndexError
+    assert sink.frames_compared == 1
+    with Recorder(tmp_path / "r.h5", fiber=fiber) as recorder:  # raised on the empty block's chunk shape
+        recorder(got)
+    assert recorder.frames_written == 4

@@ -170,6 +170,9 @@ class Record:
         Fields after the last recognised block (ignored).
     layout : tuple
         The channel layout (channel numbers, grating counts): what :class:`LayoutConsensus` votes on.
+    absent_sensors : int
+        Sensor blocks left out of :attr:`sensors`: from the first block without gratings or shape points on
+        (such a block carries no shape; a sensor's index keeps its meaning, as in :attr:`Frame.vendor`).
     """
 
     frame: Frame
@@ -182,6 +185,7 @@ class Record:
     time: str
     extra_fields: int = 0
     layout: tuple = ()
+    absent_sensors: int = 0
 
 
 # --------------------------------------------------------------------------------------------------- encode
@@ -564,8 +568,15 @@ class _Group:
     data: bytes
     dt_bounds: np.ndarray  # (m, 4): date start, date end, time start, time end in data
 
+    @cached_property
+    def usable_sensors(self) -> int:
+        """Sensor blocks before the first without gratings or shape points (a block of the format, but no shape
+        to compare with: absent, issue 23 B4); the later ones are absent too, so that indices keep their meaning."""
+        return next((j for j, (k, _, p) in enumerate(self.sensors) if not (k.shape[1] and p.shape[1])),
+                    len(self.sensors))
+
     def vendor(self, i: int) -> tuple:
-        return tuple(VendorSensor(k[i], a[i], p[i]) for k, a, p in self.sensors)
+        return tuple(VendorSensor(k[i], a[i], p[i]) for k, a, p in self.sensors[: self.usable_sensors])
 
     def frame(self, i: int, vendor: tuple | None = None) -> Frame:
         """The single Frame of row i (no validation: the arrays are built with the dtypes and shapes it needs)."""
@@ -590,7 +601,8 @@ class _Group:
         d0, d1, t0, t1 = self.dt_bounds[i].tolist()
         eng = self.engineering[i] if self.engineering is not None else np.zeros(0)
         return Record(self.frame(i, v), *self._channels, self.status4[i], v, eng, self.data[d0:d1].decode("latin-1"),
-                      self.data[t0:t1].decode("latin-1"), lay.extra, lay.key)
+                      self.data[t0:t1].decode("latin-1"), lay.extra, lay.key,
+                      len(self.sensors) - self.usable_sensors)
 
 
 def _extract(lay: _Layout, V: np.ndarray, seq: np.ndarray, stamps: np.ndarray, data: bytes,
