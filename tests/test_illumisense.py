@@ -691,3 +691,16 @@ def test_a_sensor_block_without_shape_points_is_absent_and_counted(tmp_path):
     with Recorder(tmp_path / "r.h5", fiber=fiber) as recorder:  # raised on the empty block's chunk shape
         recorder(got)
     assert recorder.frames_written == 4
+
+
+@pytest.mark.timeout(120)  # a hang guard, not a speed limit (the decode takes about a second)
+def test_a_megabyte_of_minimal_sensor_blocks_decodes_in_one_pass():
+    """Issue 23, also seen: ~18,700 minimal sensor blocks in one 1 MiB record; the walk looked up the next label
+    among all the record's labels per block (quadratic). The record decodes, its blocks absent and counted."""
+    blk = b"\tCurvature\tCurvature angle\tShape x\t0\tShape y\t0\tShape z\t0"
+    n = (illumisense.DEFAULT_MAX_PAYLOAD - 40) // len(blk)
+    payload = b"2024/01/31\t13:45:12\t1\t0" + blk * n + b"\r\n"
+    assert n > 18_000 and len(payload) <= illumisense.DEFAULT_MAX_PAYLOAD
+    dec = illumisense.StreamDecoder(layout_quorum=0)
+    (got,) = dec.feed_records(record(payload) + EXAMPLE)[:1]
+    assert got.absent_sensors == n and got.sensors == () and dec.sensor_blocks_absent == n

@@ -481,8 +481,8 @@ def _walk(t: _Tokens, channels_as: str, n_cores: int | None, max_cells: int) -> 
             lab = _label(t.raw(pos))
             if lab is None or lab[0] != "curvature":
                 break
-            nxt = text[text > pos]
-            q = int(nxt[0]) if nxt.size else n
+            k_next = int(np.searchsorted(text, pos, side="right"))  # not text[text > pos]: quadratic in blocks
+            q = int(text[k_next]) if k_next < text.size else n
             g_s = q - pos - 1
             t.numbers(pos + 1, q)
             lab2 = _label(t.raw(q)) if q < n else None
