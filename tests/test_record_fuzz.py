@@ -57,12 +57,34 @@ def originals(tmp_path_factory):
             rec.append(with_blocks[i : i + 40])
     log = d / "r.txt"
     log.write_bytes(b"Date\tTime\tSample\tChannels\r\n" + b"".join(illumisense.encode_payload(f) for f in frames[:60]))
+    logv = d / "v.txt"  # with the interrogator's sensor blocks (issue 23: the fuzz extended to the log reader's)
+    logv.write_bytes(b"Date\tTime\tSample\tChannels\r\n" + b"".join(
+        illumisense.encode_payload(f, sensors=f.vendor or ()) for f in with_blocks[:60]))
     with open_recording(h5) as r:
         full = r.frames()
     with open_recording(h5v) as r:
         (vendor,) = r.vendor()
         assert vendor.present.sum() == 300 - 33
-    return {"h5": h5, "h5v": h5v, "log": log, "frames": full, "vendor": vendor}
+    clean = {}
+    for name, path in (("log", log), ("logv", logv)):
+        with open_recording(path) as r:
+            assert r.complete
+            clean[name] = (r.frames(), r.vendor())
+    return {"h5": h5, "h5v": h5v, "log": log, "logv": logv, "frames": full, "vendor": vendor, "clean": clean}
+
+
+def _assert_log_prefix(frames, vendor, clean, info) -> None:
+    """Every record read from a cut log is a record of the sound log, in order (issue 23 B5: the cut last record
+    was kept, its last number cut short)."""
+    want, want_vendor = clean
+    k = len(frames)
+    assert k <= len(want), info
+    for name in ("wavelengths", "sequence", "timestamp", "powers"):
+        np.testing.assert_array_equal(getattr(frames, name), getattr(want, name)[:k], err_msg=str(info))
+    assert len(vendor) == (len(want_vendor) if k else len(vendor)), info
+    for got, ref in zip(vendor, want_vendor, strict=False):
+        for name in ("present", "curvature", "angle", "positions"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(ref[:k], name), err_msg=str(info))
 
 
 def _damage(src: Path, dst: Path, rng: random.Random, how: str) -> tuple[Path, dict]:
@@ -128,10 +150,12 @@ def _case(originals, tmp_path: Path, kind: str, how: str, seed: int) -> None:
         if how == "cut" and not info["ends_in_newline"]:
             assert not r.complete and r.damaged, info
         assert len(frames) == len(r)
+        if how == "cut":
+            _assert_log_prefix(frames, vendor, originals["clean"][kind], info)
 
 
 FAST = [(kind, how, seed) for kind in ("h5", "log") for how in ("cut", "flip") for seed in range(8)] + [
-    ("h5v", how, seed) for how in ("cut", "flip") for seed in range(4)]
+    (kind, how, seed) for kind in ("h5v", "logv") for how in ("cut", "flip") for seed in range(4)]
 
 
 @pytest.mark.timeout(60)
@@ -142,7 +166,7 @@ def test_damaged_recordings_fail_fast_and_say_so(originals, tmp_path, kind, how,
 
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
-@pytest.mark.parametrize(("kind", "how"), [(k, h) for k in ("h5", "h5v", "log") for h in ("cut", "flip")])
+@pytest.mark.parametrize(("kind", "how"), [(k, h) for k in ("h5", "h5v", "log", "logv") for h in ("cut", "flip")])
 def test_damaged_recordings_many(originals, tmp_path, kind, how):
     for seed in range(100, 250):
         _case(originals, tmp_path, kind, how, seed)
@@ -163,3 +187,21 @@ def test_cli_on_damaged_files_one_line_or_salvage(originals, tmp_path, seed):
                 assert proc.returncode == 0, (info, proc.stderr)
                 if not extra:  # without --salvage only a sound file passes
                     assert '"damaged": false' in proc.stdout
+
+
+@pytest.mark.parametrize("kind", ["log", "logv"])
+def test_a_cut_log_never_keeps_its_cut_last_record(originals, tmp_path, kind):
+    """Issue 23 B5: a log cut inside its last line kept that record, its last number cut short (with sensor
+    blocks, the vendor distance moved from 0.0001 to 0.94 mm). Every cut point of the last two lines."""
+    data = originals[kind].read_bytes()
+    start = data.rindex(b"\n", 0, data.rindex(b"\n", 0, len(data) - 1)) + 1
+    n = len(originals["clean"][kind][0])
+    path = tmp_path / "cut.txt"
+    for cut in range(start, len(data), 7):
+        path.write_bytes(data[:cut])
+        with open_recording(path) as r:
+            frames, vendor = r.frames(), r.vendor()
+            assert r.damaged or data[cut - 1 : cut] in (b"\n", b"\r"), cut
+            assert len(frames) in (n - 2, n - 1), cut
+        _assert_log_prefix(frames, vendor, originals["clean"][kind], cut)
+

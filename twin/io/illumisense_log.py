@@ -4,6 +4,9 @@ Nobody publishes a log format; loggers write each record's payload (the text aft
 as one line, so a line is read exactly as a payload (docs/protocols-illumisense.md): date, time, sample
 number, channel blocks, optional sensor blocks, any line ending. All lines are tokenized in one pass.
 
+- A last line without a line end was cut (the writer was stopped mid-line): it is left out, since its last
+  number may be cut short (the reader reports the file as damaged).
+
 - Lines before the first record that decodes (column names, comments, settings) are a header and skipped
   silently (at most ``max_header_lines``); a later line that does not decode is skipped and reported with its
   line number. A line that fails and holds a decimal comma is retried with commas read as points.
@@ -63,6 +66,8 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
         ends.append(pos + len(line))
         pos += len(line) + 1
     keep = [i for i, (a, b) in enumerate(zip(starts, ends, strict=True)) if data[a:b].strip()]
+    if keep and data[-1:] not in (b"\n", b"\r"):
+        keep.pop()  # a last line without its line end was cut: its last number may be cut short (the reader says so)
     res = decode_many(data, [starts[i] for i in keep], [ends[i] for i in keep], channels_as=channels_as,
                       n_cores=n_cores)
     errors: list[str] = []

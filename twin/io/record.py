@@ -17,7 +17,7 @@ log alike, and on the single frames of ``replay://`` as :attr:`Frame.vendor <twi
 ILLumiSense log files (``*.txt``, one record per line as lab loggers save the stream) are read too:
 :func:`open_recording` detects them by content and :mod:`twin.io.illumisense_log` reads them (layout, header
 lines, skipped lines, the vendor's sensor blocks). A log whose last line has no
-line end was cut: it is reported as damaged (its last record may be incomplete).
+line end was cut: it is reported as damaged, and its last record, which may be incomplete, is left out.
 """
 
 from __future__ import annotations
@@ -110,8 +110,8 @@ class RecordingReader:
             self.rate = None
             self._n = self.frames_recorded = len(self._mem)
             if last not in (b"\n", b"\r"):
-                self.damage.append("the last line has no line end: the file was cut (its last record may be "
-                                   "incomplete)")
+                self.damage.append("the last line has no line end: the file was cut (its last record, which may "
+                                   "be incomplete, is left out)")
 
     @property
     def complete(self) -> bool:
