@@ -205,3 +205,24 @@ def test_a_cut_log_never_keeps_its_cut_last_record(originals, tmp_path, kind):
             assert len(frames) in (n - 2, n - 1), cut
         _assert_log_prefix(frames, vendor, originals["clean"][kind], cut)
 
+
+def test_a_log_with_a_bom_or_mixed_line_ends_reads_as_the_sound_one(originals, tmp_path):
+    """Issue 23 B6: a UTF-8 BOM gave the first record a NaN timestamp, no note; CR line ends after an LF-ended
+    header line refused the whole file."""
+    data = originals["logv"].read_bytes()
+    header, _, body = data.partition(b"\r\n")
+    lines = body.split(b"\r\n")[:-1]
+    variants = {
+        "bom": b"\xef\xbb\xbf" + data,
+        "bom-no-header": b"\xef\xbb\xbf" + body,
+        "cr-after-lf-header": header + b"\n" + b"".join(x + b"\r" for x in lines),
+        "mixed": header + b"\r" + b"".join(x + (b"\n", b"\r\n", b"\r")[i % 3] for i, x in enumerate(lines)),
+    }
+    want, want_vendor = originals["clean"]["logv"]
+    for name, content in variants.items():
+        path = tmp_path / f"{name}.txt"
+        path.write_bytes(content)
+        with open_recording(path) as r:
+            assert r.complete and not r.errors, (name, r.errors)
+            _assert_log_prefix(r.frames(), r.vendor(), (want, want_vendor), name)
+            assert len(r) == len(want) and np.isfinite(r.frames().timestamp).all(), name
