@@ -325,3 +325,17 @@ def test_damage_to_frame_datasets_names_the_dataset(with_vendor, tmp_path, name,
     proc = _twin("replay", str(bad), timeout=60)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and name in proc.stderr, proc.stderr
 
+
+@pytest.mark.parametrize("query", ["?speed=max", "?speed=max&salvage=1"])
+def test_live_replay_of_malformed_sensor_blocks_ends(with_vendor, tmp_path, query):
+    """Issue 23 B8: `vendor/sensor0/present` of the wrong shape raised per frame outside the permanent-error path
+    and `twin live replay://` reopened the file forever. Now it ends: refused at once, or (salvage) replayed
+    without the sensor blocks."""
+    bad = _edited(with_vendor[0], tmp_path / "bad.h5", "vendor/sensor0/present", "2-D")
+    proc = _twin("live", f"replay://{bad}{query}", "--json", timeout=60)  # the hang guard: it ran forever
+    if "salvage" in query:
+        assert proc.returncode == 0, proc.stderr
+        out = json.loads(proc.stdout)
+        assert out["frames"] == M and out["reconnects"] == 0
+    else:
+        assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "vendor/sensor0/present" in proc.stderr
