@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twin._validate import check_field_types, check_table, frozen, real_array
+from twin._validate import check_bragg_nm, check_field_types, check_table, frozen, real_array
 
 __all__ = ["FiberModel"]
 
@@ -112,12 +112,7 @@ class FiberModel:
                 f"at gratings {i}, {i + 1}"
             )
         lam = real_array(self.lambda0, "lambda0", shape=(n_g, n_c), unit="nm", owner=_OWNER)
-        if np.any((lam < 200) | (lam > 3000)):
-            bad = np.argwhere((lam < 200) | (lam > 3000))[0]
-            raise ValueError(
-                f"{_OWNER}.lambda0: grating {bad[0]} core {bad[1]} has {lam[tuple(bad)]} nm; expected a Bragg "
-                "wavelength in nm (200–3000)"
-            )
+        check_bragg_nm(lam, f"{_OWNER}.lambda0")
         central = self.central_core
         if central is not None:
             if isinstance(central, bool) or not isinstance(central, int | np.integer):

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twin._validate import check_field_types, check_table, frozen, real_array
+from twin._validate import check_bragg_nm, check_field_types, check_table, frozen, real_array
 from twin.fiber import FiberModel, origin, read_toml
 from twin.frames import Frame
 from twin.strain import CurvatureSolver, design_matrix, optical_strain
@@ -101,8 +101,7 @@ class Calibration:
     def __post_init__(self) -> None:
         if self.lambda0 is not None:
             lam = real_array(self.lambda0, "lambda0", shape=(None, None), unit="nm", owner=_OWNER)
-            if np.any(lam <= 0):
-                raise ValueError(f"{_OWNER}.lambda0: expected positive wavelengths in nm")
+            check_bragg_nm(lam, f"{_OWNER}.lambda0")  # the fibre model's range: a calibration in µm runs unusable
             object.__setattr__(self, "lambda0", frozen(lam))
         if self.twist is not None:
             object.__setattr__(
