@@ -25,6 +25,10 @@ __all__ = ["FiberModel"]
 
 _OWNER = "FiberModel"
 
+#: longest arc length a model may hold, m: a catheter's or an endoscope's sensor is a few metres long; this
+#: leaves room and refuses lengths in mm or µm before anything is sized by them (issue 23 B15)
+MAX_LENGTH = 20.0
+
 #: what each field of a fibre file holds (checked before anything is converted)
 FIELD_KINDS = {
     "core_angles": "numbers",
@@ -105,6 +109,9 @@ class FiberModel:
             raise ValueError(f"{_OWNER}.grating_s: expected at least one grating")
         if np.any(s < 0):
             raise ValueError(f"{_OWNER}.grating_s: expected arc lengths >= 0 m, got {s.min()}")
+        if s[-1] > MAX_LENGTH:
+            raise ValueError(f"{_OWNER}.grating_s: grating {n_g - 1} at {s[-1]} m from the base; expected arc lengths "
+                             f"in m up to {MAX_LENGTH:g} m (170 mm is 0.17)")
         if np.any(np.diff(s) <= 0):
             i = int(np.argmax(np.diff(s) <= 0))
             raise ValueError(
@@ -147,9 +154,10 @@ class FiberModel:
         length = self.length
         if length is not None:
             length = float(length)
-            if not (np.isfinite(length) and length >= s[-1] and length > 0):
+            if not (np.isfinite(length) and s[-1] <= length <= MAX_LENGTH and length > 0):
                 raise ValueError(
-                    f"{_OWNER}.length: expected a length in m at or beyond the last grating ({s[-1]} m), got {length}"
+                    f"{_OWNER}.length: expected a length in m at or beyond the last grating ({s[-1]} m) and up to "
+                    f"{MAX_LENGTH:g} m, got {length}"
                 )
         # Freeze: the model is shared by reconstructors, calibrations and the simulator.
         for name, value in (("core_angles", angles), ("core_radii", radii), ("grating_s", s), ("lambda0", lam)):
