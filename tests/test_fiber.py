@@ -64,10 +64,12 @@ def test_toml_without_central_core(tmp_path):
         ({"temperature_sensitivity": 6.6}, "expected S_T in 1/K"),
         ({"core_angles": [0.0, np.nan, 1.0, 2.0]}, "core_angles: expected finite numbers, got nan at index 1"),
         ({"length": 0.1}, "at or beyond the last grating"),
-        # issue 23 B15 and "also seen": lengths in the wrong unit
+        # issue 23 B15 and "also seen": lengths in the wrong unit, angles out of any unit
         ({"grating_s": 1e6 * 0.01 * np.arange(18)}, "grating_s: grating 17 at 170000.0 m from the base"),
         ({"grating_s": 1e3 * 0.01 * np.arange(18)}, "expected arc lengths in m up to 20 m"),
         ({"length": 1e4}, "length: expected a length in m at or beyond the last grating"),
+        ({"core_angles": [0.0, 0.0, 1e300, 2.0]}, "core_angles: core 2 at 1e+300 rad; expected angles in rad"),
+        ({"core_angles": [0.0, 0.0, 60.0, 120.0]}, "core_angles: core 2 at 60.0 rad"),
     ],
 )
 def test_validation_names_field_and_expectation(change, message):
@@ -167,6 +169,7 @@ def test_a_binary_fibre_file_is_one_line_naming_the_file(tmp_path):
 @pytest.mark.timeout(120)  # a hang guard: the model below made `twin replay` allocate 127 GiB
 @pytest.mark.parametrize(("field", "value", "message"), [
     ("grating_s", [1e4 * 0.01 * i for i in range(18)], "grating_s: grating 17 at 1700.0 m"),
+    ("core_angles", [0.0, 0.0, 1e300, 2.0], "core_angles: core 2 at 1e+300 rad"),
 ])
 def test_a_fibre_file_in_the_wrong_unit_fails_in_one_line_before_allocating(tmp_path, field, value, message):
     """Issue 23 B15: `grating_s` off by 1e6 passed validation and `twin replay` died allocating 127 GiB."""

@@ -93,6 +93,10 @@ class FiberModel:
         n_c = angles.size
         if n_c < 2:
             raise ValueError(f"{_OWNER}.core_angles: expected at least 2 cores, got {n_c}")
+        if np.any(np.abs(angles) > 2 * np.pi + 1e-9):
+            i = int(np.argmax(np.abs(angles) > 2 * np.pi + 1e-9))
+            raise ValueError(f"{_OWNER}.core_angles: core {i} at {angles[i]} rad; expected angles in rad within "
+                             "±2π (120° is 2.0944)")
         radii = real_array(self.core_radii, "core_radii", shape=(n_c,), unit="m", owner=_OWNER)
         if np.any(radii < 0):
             i = int(np.argmax(radii < 0))
