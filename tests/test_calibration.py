@@ -146,8 +146,8 @@ def test_a_wrong_type_in_a_calibration_file_names_file_and_field(tmp_path, line,
 def test_calibration_files_round_trip_exactly(tmp_path):
     awkward = np.array([0.1 + 0.2, 1 / 3, 1e-300, 5e-324, -0.0, 1510.1080899999997, 2.0**-30, 1e16 + 2])
     # lambda0 within the Bragg range (200–3000 nm, issue 23 B16), its digits still awkward
-    cal = Calibration(lambda0=np.abs(awkward[:, None]) % 1000 + 1500.0, twist=awkward, delta_theta=1 / 3, gain=2.9e-5 / 3,
-                      provenance={"note": "round trip"})
+    cal = Calibration(lambda0=np.abs(awkward[:, None]) % 1000 + 1500.0, twist=awkward, delta_theta=1 / 3,
+                      gain=2.9e-5 / 3, provenance={"note": "round trip"})
     cal.save(tmp_path / "cal.toml")
     back = Calibration.load(tmp_path / "cal.toml")
     for name in ("lambda0", "twist"):
@@ -180,11 +180,10 @@ def test_a_calibration_in_micrometres_fails_in_one_line(tmp_path):
     import subprocess
     import sys
 
+    import tomli_w
     from io_helpers import synthetic_frames
 
     from twin.io.record import Recorder
-
-    import tomli_w
 
     data = Calibration(lambda0=FIBRE.lambda0).to_dict()
     data["lambda0"] = (np.asarray(data["lambda0"]) * 1e-3).tolist()  # µm

@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 
 from twin.io import illumisense
-from twin.io.drivers import COMMON_OPTIONS, Driver, split_common, url_options
+from twin.io.drivers import COMMON_OPTIONS, Driver, positive, seconds, split_common, url_options
 from twin.io.source import parse_url
 from twin.io.transport import ConnectionLost, TcpClient, parse_host_port
 
@@ -113,7 +113,7 @@ def open_illumisense(url: str, **options) -> IllumisenseSource:
     _, rest, query = parse_url(url)
     host, port = parse_host_port(rest, illumisense.DEFAULT_PORT, what=url)
     opts = url_options(url, query, {**COMMON_OPTIONS, "channels": str, "cores": int, "max_payload": int,
-                                 "resync_timeout": float, "layout_wait": float})
+                                 "resync_timeout": positive, "layout_wait": seconds})
     if opts.get("channels", "cores") not in ("cores", "single"):
         raise ValueError(f"{url!r}: channels must be 'cores' or 'single'")
     kw = split_common(opts)
