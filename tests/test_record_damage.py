@@ -339,3 +339,12 @@ def test_live_replay_of_malformed_sensor_blocks_ends(with_vendor, tmp_path, quer
         assert out["frames"] == M and out["reconnects"] == 0
     else:
         assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "vendor/sensor0/present" in proc.stderr
+
+
+@pytest.mark.parametrize("command", ["replay", "live"])
+def test_a_device_is_refused_in_one_line(command):
+    """Issue 23, also seen: `twin replay /dev/zero` read forever (the log reader reads the whole file)."""
+    target = "/dev/zero" if command == "replay" else "replay:///dev/zero"
+    proc = _twin(command, target, timeout=60)  # the hang guard: it never ended
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert "/dev/zero: not a regular file" in proc.stderr

@@ -22,6 +22,8 @@ line end was cut: it is reported as damaged, and its last record, which may be i
 
 from __future__ import annotations
 
+import os
+import stat
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -80,6 +82,9 @@ class RecordingReader:
         self.path = Path(path)
         try:
             with open(self.path, "rb") as fh:
+                if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # /dev/zero, a pipe: would be read forever
+                    raise ValueError(f"{self.path}: not a regular file (a device or a pipe); expected a twin HDF5 "
+                                     "recording or an ILLumiSense log file")
                 head = fh.read(8)
                 fh.seek(0, 2)
                 size = fh.tell()
