@@ -197,3 +197,16 @@ def test_a_calibration_in_micrometres_fails_in_one_line(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "twin.cli", "replay", str(rec), "--calibration",
                            str(tmp_path / "um.toml")], capture_output=True, text=True, timeout=100)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "um.toml" in proc.stderr, proc.stderr
+
+
+def test_a_spun_fibre_of_one_grating_fails_naming_the_field(tmp_path):
+    """Issue 23, also seen: numpy's bare "Singular matrix" (the spin-rate fit of a one-grating spun fibre)."""
+    from twin.calibration import CalibrationError
+    from twin.io.synthetic import SyntheticSource
+
+    FIBRE.replace(grating_s=[0.05], lambda0=FIBRE.lambda0[:1], spin_rate=10.0).save(tmp_path / "one.toml")
+    one = FiberModel.load(tmp_path / "one.toml")
+    bend = np.stack([f.wavelengths for f in SyntheticSource(fiber=one, pace=False, frames=20, kappa_amp=0, spin=0)])
+    with pytest.raises(CalibrationError, match=rf"^{tmp_path / 'one.toml'}: FiberModel.grating_s: a spun fibre's "
+                                               "spin rate .* needs 2 or more; this one has 1"):
+        two_step(one, one.lambda0[None] + np.zeros((5, 1, 4)), bend)

@@ -406,6 +406,10 @@ def _fit_spin(fiber: FiberModel, base: Calibration, residual: np.ndarray, std: n
     Returns (twist rad (n_gratings,), spin rate turns/m, its 1σ turns/m).
     """
     s = fiber.grating_s
+    if s.size < 2:  # a phase and a rate from one grating: numpy's bare "Singular matrix" named nothing
+        fib = origin(fiber)
+        raise CalibrationError(f"{fib + ': ' if fib else ''}FiberModel.grating_s: a spun fibre's spin rate is fitted "
+                               f"along its gratings and needs 2 or more; this one has {s.size}")
     nominal = fiber.spin_rate if base.spin_rate is None else base.spin_rate
     w = 1.0 / np.maximum(std, 1e-6) ** 2  # a noise-free (simulated) step still weighs every grating
     a = np.stack([np.ones_like(s), s], axis=1)
