@@ -226,3 +226,53 @@ def test_a_log_with_a_bom_or_mixed_line_ends_reads_as_the_sound_one(originals, t
             assert r.complete and not r.errors, (name, r.errors)
             _assert_log_prefix(r.frames(), r.vendor(), (want, want_vendor), name)
             assert len(r) == len(want) and np.isfinite(r.frames().timestamp).all(), name
+
+
+def _chunks_of(path: Path, prefix: str) -> list[tuple[str, int, int, int]]:
+    """(dataset, first row, byte offset, size) of every stored chunk of the datasets under ``prefix``."""
+    import h5py
+
+    out = []
+    with h5py.File(path, "r") as f:
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset) and obj.chunks:
+                obj.id.chunk_iter(lambda c: out.append((name, c.chunk_offset[0], c.byte_offset, c.size)))
+        f[prefix].visititems(lambda n, o: visit(f"{prefix}/{n}", o))
+    return out
+
+
+@pytest.mark.parametrize("prefix", ["vendor", "truth"])
+@pytest.mark.parametrize("seed", range(6))
+def test_flips_confined_to_vendor_or_truth_chunks_keep_every_frame(originals, tmp_path, prefix, seed):
+    """Issue 23 B7, the fuzz extended to the /vendor groups: bytes flipped inside the chunks of /vendor (or
+    /truth) datasets only. Every frame stays readable and exact; the damaged part's rows are the original ones up
+    to the damage and absent after it; the damage names a dataset of that part."""
+    src = originals["h5v"] if prefix == "vendor" else originals["h5"]
+    rng = random.Random(seed)
+    name, row, off, size = rng.choice(_chunks_of(src, prefix))
+    data = bytearray(src.read_bytes())
+    for _ in range(rng.choice([1, 5, 50])):
+        data[off + rng.randrange(size)] ^= rng.randrange(1, 256)
+    path = tmp_path / "flip.h5"
+    path.write_bytes(bytes(data))
+    with open_recording(path) as r:
+        frames, vendor, truth = r.frames(), r.vendor(), r.truth()
+        assert len(frames) == len(originals["frames"]) == len(r)
+        np.testing.assert_array_equal(frames.wavelengths, originals["frames"].wavelengths)
+        np.testing.assert_array_equal(frames.sequence, originals["frames"].sequence)
+        if prefix == "vendor":
+            (got,), want = vendor, originals["vendor"]
+            keep = got.present
+            assert keep.sum() <= want.present.sum()
+            np.testing.assert_array_equal(got.positions[keep], want.positions[keep])
+            np.testing.assert_array_equal(got.curvature[keep], want.curvature[keep])
+        else:
+            want = originals["frames"].truth
+            assert truth is not None and len(truth.present) == len(frames)
+            keep = truth.present
+            assert keep.sum() <= want.present.sum()
+            np.testing.assert_array_equal(truth.positions[keep], want.positions[keep])
+        if r.damaged:  # a flip can leave a chunk's checksum valid only by missing the bytes read: never here
+            assert all(d.startswith(f"{prefix}/") for d in r.damage), r.damage
+        else:
+            pytest.fail(f"{name} chunk at row {row} flipped but nothing was found damaged")
