@@ -667,7 +667,7 @@ def test_a_sensor_block_without_shape_points_is_absent_and_counted(tmp_path):
     from io_helpers import synthetic_frames
 
     from twin import FiberModel
-    from twin.io.illumisense_vendor import VendorDistance
+    from twin.io.illumisense.vendor import VendorDistance
     from twin.io.record import Recorder
     from twin.reconstruct import Reconstructor
 
