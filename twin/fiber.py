@@ -52,11 +52,12 @@ class FiberModel:
     Parameters
     ----------
     core_angles : array_like, shape (n_cores,)
-        Angular position of each core in the cross-section, rad (see module docstring for the sense).
+        Angular position of each core in the cross-section, rad, within ±2π (see module docstring for the sense).
     core_radii : array_like, shape (n_cores,)
         Distance of each core from the fibre's neutral axis, m; 0 for a central core.
     grating_s : array_like, shape (n_gratings,)
-        Arc length of each grating from the base (the reconstruction's origin), m, strictly increasing.
+        Arc length of each grating from the base (the reconstruction's origin), m, strictly increasing, at most
+        :data:`MAX_LENGTH` (``length`` too).
     lambda0 : array_like, shape (n_gratings, n_cores)
         Nominal Bragg wavelength of each grating in each core, unstrained at the reference temperature, nm.
     central_core : int or None
