@@ -173,7 +173,7 @@ class RecordingReader:
         """
         f = self._file
 
-        def bad(name: str, want: str) -> str | None:
+        def bad(name: str, want: str) -> str:
             ds = f[name]
             if not hasattr(ds, "shape") or ds.dtype.kind not in "biuf":
                 return f"{name}: {getattr(ds, 'dtype', 'a group')} is not a numeric dataset"

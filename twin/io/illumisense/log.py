@@ -68,7 +68,7 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
         ends.append(pos + len(line.rstrip(b"\r\n")))
         pos += len(line)
     keep = [i for i, (a, b) in enumerate(zip(starts, ends, strict=True)) if data[a:b].strip()]
-    if keep and data[-1:] not in (b"\n", b"\r"):
+    if keep and keep[-1] == len(starts) - 1 and data[-1:] not in (b"\n", b"\r"):
         keep.pop()  # a last line without its line end was cut: its last number may be cut short (the reader says so)
     res = decode_many(data, [starts[i] for i in keep], [ends[i] for i in keep], channels_as=channels_as,
                       n_cores=n_cores)
