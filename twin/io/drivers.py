@@ -28,6 +28,7 @@ The protocols' drivers: :mod:`twin.io.illumisense.driver`, :mod:`twin.io.hyperio
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from collections import deque
@@ -40,7 +41,8 @@ from twin.io.errors import FramingError
 from twin.io.source import Source, SourceClosed
 from twin.io.transport import Backoff, ConnectionLost
 
-__all__ = ["COMMON_OPTIONS", "MISSING", "Driver", "flag", "int_list", "split_common", "url_options"]
+__all__ = ["COMMON_OPTIONS", "MISSING", "Driver", "flag", "int_list", "positive", "seconds", "split_common",
+           "url_options"]
 
 MISSING = np.uint8(PeakStatus.MISSING)
 
@@ -292,8 +294,26 @@ def url_options(url: str, query: dict[str, str], parsers: dict[str, Callable[[st
         try:
             out[key] = parsers[key](value)
         except ValueError:
-            raise ValueError(f"{url!r}: option {key}={value!r} is not valid") from None
+            want = _EXPECTED.get(parsers[key])
+            raise ValueError(f"{url!r}: option {key}={value!r} is not valid" + (f"; expected {want}" if want else "")
+                             ) from None
     return out
+
+
+def seconds(v: str) -> float:
+    """A duration option, s: a finite number >= 0 (``nan`` or ``-1`` would never elapse, or at once)."""
+    x = float(v)
+    if not (math.isfinite(x) and x >= 0):
+        raise ValueError(v)
+    return x
+
+
+def positive(v: str) -> float:
+    """A finite number > 0 (a timeout, a rate)."""
+    x = float(v)
+    if not (math.isfinite(x) and x > 0):
+        raise ValueError(v)
+    return x
 
 
 def flag(v: str) -> bool:
@@ -308,7 +328,9 @@ def int_list(v: str) -> list[int]:
     return [int(x) for x in v.split(",") if x.strip()]
 
 
-COMMON_OPTIONS = {"wait": flag, "retry_for": float, "connect_timeout": float, "start_wait": float}
+COMMON_OPTIONS = {"wait": flag, "retry_for": seconds, "connect_timeout": positive, "start_wait": seconds}
+_EXPECTED = {seconds: "a number of seconds >= 0", positive: "a number > 0", flag: "1 or 0", int: "an integer",
+             float: "a number"}
 
 
 def split_common(opts: dict) -> dict:

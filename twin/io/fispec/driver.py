@@ -22,7 +22,7 @@ import numpy as np
 
 from twin.fiber import FiberModel
 from twin.frames import Frame
-from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, int_list, split_common, url_options
+from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, int_list, positive, split_common, url_options
 from twin.io.errors import FramingError
 from twin.io.fispec import codec as fispec
 from twin.io.source import parse_url
@@ -238,8 +238,8 @@ def open_fispec(url: str, **options) -> FispecSource:
     ports = [p for p in rest.split(",") if p]
     if not ports:
         raise ValueError(f"{url!r}: expected fispec://PORT (a device, a pty path or a pyserial URL)")
-    opts = url_options(url, query, {**COMMON_OPTIONS, "rate": float, "cores": int_list, "window": float,
-                                    "baudrate": int, "reply_timeout": float})
+    opts = url_options(url, query, {**COMMON_OPTIONS, "rate": positive, "cores": int_list, "window": positive,
+                                    "baudrate": int, "reply_timeout": positive})
     opts.pop("connect_timeout", None)
     kw = split_common(opts)
     kw.update(opts)
