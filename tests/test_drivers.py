@@ -96,6 +96,15 @@ def test_synthetic_url_options_and_errors():
         open_source("synthetic://?speed=3")
     with pytest.raises(ValueError, match="cores"):
         open_source("synthetic://?cores=9")
+    # issue 23, also seen: sizes and durations bounded before use ("Maximum allowed size exceeded", a
+    # MemoryError traceback, an OverflowError)
+    for gratings in (10**19, 10**17, 2):
+        with pytest.raises(ValueError, match=f"option gratings='{gratings}': expected an integer in \\[3, 10000\\]"):
+            open_source(f"synthetic://?gratings={gratings}")
+    for duration in ("nan", "-1"):
+        with pytest.raises(ValueError, match=f"option duration='{duration}': expected a number in \\(0, inf\\)"):
+            open_source(f"synthetic://?duration={duration}")
+    assert open_source("synthetic://?duration=1e300&rate=1e300").limit is None
 
 
 # ------------------------------------------------------------------------------------------------ ILLumiSense

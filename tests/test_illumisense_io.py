@@ -18,6 +18,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 from io_helpers import ScriptedServer, singles, wait_until
 
 from sim_interrogator.servers import IllumisenseServer
@@ -177,3 +178,21 @@ def test_log_line_endings_header_and_decimal_comma(tmp_path):
             np.testing.assert_array_equal(r.frames().sequence, np.arange(1, 6))
             assert r.frames().wavelengths[2, 1, 1] == 1515.01  # grating 1 of channel 2, read with its comma
             assert len(r.errors) == 1 and r.errors[0].startswith("line 5:")
+
+
+@pytest.mark.parametrize(("url", "key"), [
+    ("illumisense://127.0.0.1:9?layout_wait=nan", "option layout_wait='nan': expected a number in [0, inf)"),
+    ("illumisense://127.0.0.1:9?layout_wait=-1", "option layout_wait='-1': expected a number in [0, inf)"),
+    ("illumisense://127.0.0.1:9?resync_timeout=-1", "option resync_timeout='-1': expected a number in (0, inf)"),
+    ("illumisense://127.0.0.1:9?resync_timeout=inf", "option resync_timeout='inf': expected a number"),
+    ("illumisense://127.0.0.1:9?retry_for=nan", "option retry_for='nan': expected a number in [0, inf)"),
+    ("illumisense://127.0.0.1:9?connect_timeout=0", "option connect_timeout='0': expected a number in (0, 3600]"),
+    ("illumisense://[::1:2055", "not a source URL (Invalid IPv6 URL"),
+])
+def test_url_options_out_of_range_name_the_url_and_key(url, key):
+    """Issue 23, also seen: `layout_wait=nan` and `resync_timeout=-1` were accepted (a timer that never or at
+    once elapses); "Invalid IPv6 URL" named neither the URL nor the place."""
+    with pytest.raises(ValueError) as info:
+        open_source(url)
+    msg = str(info.value)
+    assert msg.startswith(repr(url) + ":") and key in msg and "\n" not in msg, msg

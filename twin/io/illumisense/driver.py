@@ -100,6 +100,7 @@ class IllumisenseSource(Driver):
             bytes_discarded=d.bytes_discarded,
             odd_records=d.odd_records,
             layout_changes=d.layout_changes,
+            sensor_blocks_absent=d.sensor_blocks_absent,
         )
         if d.last_error is not None:
             out["last_framing_error"] = str(d.last_error)
