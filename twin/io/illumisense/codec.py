@@ -562,9 +562,10 @@ class _Group:
     def batch(self, i0: int, i1: int) -> Frame:
         """Rows i0:i1 as one batch Frame (views), the sensor blocks as :class:`VendorArrays` per sensor."""
         vendor = None
-        if self.sensors:
+        if self.usable_sensors:
             present = np.ones(i1 - i0, bool)
-            vendor = tuple(VendorArrays(k[i0:i1], a[i0:i1], p[i0:i1], present) for k, a, p in self.sensors)
+            vendor = tuple(VendorArrays(k[i0:i1], a[i0:i1], p[i0:i1], present)
+                           for k, a, p in self.sensors[: self.usable_sensors])
         return Frame._trusted(self.wavelengths[i0:i1], self.timestamp[i0:i1], self.sequence[i0:i1],
                               self.powers[i0:i1], self.status[i0:i1], vendor)
 

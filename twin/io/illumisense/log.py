@@ -140,16 +140,16 @@ def _arrays(kept: list[_Row], groups: list, errors: list[str], odd: int) -> LogC
         grp = groups[g]
         for name, arr in out.items():
             arr[at] = getattr(grp, name)[i_of[at]]
-        for k, (curv, _, xyz) in enumerate(grp.sensors):
+        for k, (curv, _, xyz) in enumerate(_usable(grp)):
             if k == len(sensor_layouts):
                 sensor_layouts.append((curv.shape[1], xyz.shape[1]))
     # sensor k in the layout of its first block in line order; rows of another layout or without it absent
     vendor = []
     for k in range(len(sensor_layouts)):
-        ref = next(groups[r.group].sensors[k] for r in kept if len(groups[r.group].sensors) > k)
+        ref = next(_usable(groups[r.group])[k] for r in kept if len(_usable(groups[r.group])) > k)
         arrays = VendorArrays.absent(n, (ref[0].shape[1], ref[2].shape[1], VENDOR_SHAPE_SPACING))
         for g in np.unique(g_of).tolist():
-            sens = groups[g].sensors
+            sens = _usable(groups[g])
             if len(sens) <= k or sens[k][0].shape[1] != ref[0].shape[1] or sens[k][2].shape[1] != ref[2].shape[1]:
                 continue
             at = np.flatnonzero(g_of == g)
@@ -160,6 +160,12 @@ def _arrays(kept: list[_Row], groups: list, errors: list[str], odd: int) -> LogC
     return LogContents(timestamps=out["timestamp"], sequences=out["sequence"], wavelengths=out["wavelengths"],
                        powers=out["powers"], status=out["status"], vendor=tuple(vendor), errors=errors,
                        odd_records=odd)
+
+
+def _usable(group) -> tuple:
+    """A group's sensor blocks that carry a shape (the decoder's rule: blocks from the first without gratings or
+    shape points on are absent)."""
+    return group.sensors[: group.usable_sensors]
 
 
 def _describe(layout: tuple) -> str:
