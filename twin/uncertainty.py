@@ -1,0 +1,513 @@
+"""Calibrated uncertainty of a reconstruction: curvature covariance at the gratings and position covariance along
+the centreline, linearised and batch-first (docs/math.md §8).
+
+Three sources are propagated:
+
+(a) **interrogator noise**: white wavelength noise σ_λ per peak (nm), through the per-grating least-squares
+    inversion: Σ_x = P diag(σ_λ²/λ0²) Pᵀ for x = (c, k_x, k_y), P the (masked) pseudo-inverse;
+(b) **the calibration's parameters**: the identified Δθ and g with their 1σ (:class:`~twin.Calibration`
+    ``delta_theta_std``, ``gain_std``, taken as uncorrelated), through ∂x/∂p = −P (∂D/∂p) x; one error shared by
+    every grating, so it enters the positions as a low-rank term with its correlation along the fibre;
+(c) **the model error** (:class:`ModelError`): what the reconstruction's model leaves — interpolating between
+    gratings, the grating's length, the catheter's twist, drift of the reference — as a white per-grating
+    curvature error of 1σ ``curvature`` + ``relative``·|k| per component, calibrated on shapes of known truth
+    with :func:`fit_model_error`.
+
+A curvature error δk(s) rotates everything beyond s about p(s) by R(s) δu(s) ds, δu = (−δk_y, δk_x, 0), so to
+first order δp(s_j) = ∫_0^{s_j} (R δu)(s) × (p(s_j) − p(s)) ds, with δk(s) the interpolation basis applied to
+the gratings' δk (the reconstructor's own basis). This is evaluated with cumulative trapezoid sums over the
+output points for every frame at once.
+
+:class:`Uncertainty` wraps a :class:`~twin.Reconstructor` (public API only) and returns a
+:class:`~twin.frames.Shape` carrying ``covariance`` and ``curvature_covariance``; :meth:`Shape.confidence` gives
+the radius of the level-% tube from the lateral (2-D) part of the covariance.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numba import njit
+
+from twin import curve
+from twin.calibration import Calibration, nominal_delta_theta, nominal_gain
+from twin.frames import Shape
+from twin.reconstruct import Reconstructor
+
+__all__ = ["TWIN_MODEL_ERROR", "ModelError", "Uncertainty", "fit_model_error", "lateral_errors", "tube_radius"]
+
+
+@dataclass(frozen=True)
+class ModelError:
+    """The reconstruction model's own error, as a white curvature error per grating (1σ per component).
+
+    Attributes
+    ----------
+    curvature : float
+        Absolute part, 1/m.
+    relative : float
+        Part proportional to the measured |k| (dimensionless): σ = ``curvature`` + ``relative``·|k|.
+    source : str
+        How the values were found (free text, for reports).
+    """
+
+    curvature: float = 0.0
+    relative: float = 0.0
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        for name in ("curvature", "relative"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"ModelError.{name}: expected a finite value >= 0, got {v}")
+            object.__setattr__(self, name, float(v))
+
+    def sigma(self, curvature: np.ndarray) -> np.ndarray:
+        """1σ per component at each grating, 1/m, shape (..., n_gratings), from curvature (..., n_gratings, 2)."""
+        return self.curvature + self.relative * np.hypot(curvature[..., 0], curvature[..., 1])
+
+    def replace(self, **changes) -> ModelError:
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        return {"curvature_1_per_m": self.curvature, "relative": self.relative, "source": self.source}
+
+
+#: The model error of the default pipeline in the twin with the lab calibration, fitted by
+#: ``scenarios/uncertainty_fit.py`` on the lab's identification shapes (LAB_SHAPES) against the catheter's own
+#: centreline — shapes and noise seeds that no scored run uses (docs/math.md §8.4).
+TWIN_MODEL_ERROR = ModelError(curvature=0.0, relative=0.0, source="placeholder")
+
+
+@lru_cache(maxsize=16)
+def _radius_table(level: float, n: int = 257) -> tuple[np.ndarray, np.ndarray]:
+    """Radius factors f(ρ) with P(X1² + ρ X2² ≤ f²) = level (X standard normal), on ρ = 0 … 1 (n values).
+
+    In polar coordinates the 2-D normal of variances (1, ρ) gives P(R ≤ r) = (1/2π√ρ) ∫_0^{2π} (1 − e^{−r² a/2})/a dφ
+    with a(φ) = cos²φ + sin²φ/ρ: a smooth periodic integrand, so the trapezoid rule on 1024 angles converges
+    geometrically (to ~1e-12 for ρ ≥ 1/256); ρ = 0 is erf(r/√2). Bisection on all ρ at once, 64 halvings."""
+    from scipy.special import erf
+
+    rho = np.linspace(0.0, 1.0, n)
+    phi = np.linspace(0.0, 2.0 * np.pi, 1024, endpoint=False)
+    a = np.cos(phi) ** 2 + np.sin(phi)[None, :] ** 2 / np.maximum(rho[1:, None], 1e-300)
+
+    def cdf(r: np.ndarray) -> np.ndarray:
+        out = np.empty(n)
+        out[0] = erf(r[0] / np.sqrt(2.0))
+        inner = (1.0 - np.exp(-0.5 * r[1:, None] ** 2 * a)) / a
+        out[1:] = inner.mean(axis=1) / np.sqrt(rho[1:])
+        return out
+
+    lo, hi = np.zeros(n), np.full(n, 40.0)
+    for _ in range(64):
+        mid = 0.5 * (lo + hi)
+        below = cdf(mid) < level
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    return rho, 0.5 * (lo + hi)
+
+
+def tube_radius(covariance: np.ndarray, tangents: np.ndarray, level: float) -> np.ndarray:
+    """Radius of the circle about each point, normal to the curve, that holds ``level`` of its lateral error.
+
+    The lateral error is the position error projected on the plane normal to the tangent: a 2-D Gaussian with
+    covariance Σ_⊥ = (I − t tᵀ) Σ (I − t tᵀ) and eigenvalues λ1 ≥ λ2. The radius r solves
+    P(λ1 X1² + λ2 X2² ≤ r²) = level, i.e. r = √λ1 f(λ2/λ1) with f tabulated once per level (0.5 s) on 257
+    ratios and interpolated linearly (within 1e-6 relative of a 2049-ratio table); for λ1 = λ2 it is
+    σ √(−2 ln(1 − level)) (a Rayleigh radius), for λ2 = 0 the two-sided normal quantile.
+
+    Parameters
+    ----------
+    covariance : ndarray, shape (..., 3, 3)
+        Position covariance, m².
+    tangents : ndarray, shape (..., 3)
+        Unit tangents.
+    level : float
+        Probability in (0, 1).
+
+    Returns
+    -------
+    ndarray, shape (...)
+        m.
+    """
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"confidence level must lie in (0, 1) (e.g. 0.95), got {level}")
+    lam = lateral_eigenvalues(covariance, tangents)
+    rho, f = _radius_table(round(float(level), 12))
+    l1 = lam[..., 1]
+    ratio = np.divide(lam[..., 0], l1, out=np.ones_like(l1), where=l1 > 0)
+    return np.sqrt(l1) * np.interp(np.clip(ratio, 0.0, 1.0), rho, f)
+
+
+def lateral_eigenvalues(covariance: np.ndarray, tangents: np.ndarray) -> np.ndarray:
+    """Eigenvalues (λ2, λ1), ascending, of the lateral covariance Σ_⊥ (..., 2), m² (clipped at 0)."""
+    t = np.asarray(tangents, dtype=np.float64)
+    c = np.asarray(covariance, dtype=np.float64)
+    proj = np.eye(3) - t[..., :, None] * t[..., None, :]
+    lat = proj @ c @ proj
+    # Σ_⊥ has the eigenvalue 0 along t; the other two are those of the 2x2 restriction: from trace and the
+    # sum of principal 2x2 minors (the determinant of the 2x2 block)
+    tr = np.trace(lat, axis1=-2, axis2=-1)
+    m2 = 0.5 * (tr**2 - np.einsum("...ij,...ji->...", lat, lat))
+    disc = np.sqrt(np.maximum(tr**2 / 4 - m2, 0.0))
+    return np.maximum(np.stack([tr / 2 - disc, tr / 2 + disc], axis=-1), 0.0)
+
+
+def lateral_errors(shape: Shape, truth: np.ndarray) -> np.ndarray:
+    """Truth minus reconstruction at each point, projected on the plane normal to the reconstruction's tangent.
+
+    ``truth`` (..., n_points, 3) is the true centreline at the shape's arc lengths in the shape's base frame, m.
+    Returns (..., n_points, 3), m."""
+    d = np.asarray(truth, dtype=np.float64) - shape.positions
+    t = shape.frames[..., :, 2]
+    return d - np.sum(d * t, axis=-1, keepdims=True) * t
+
+
+class Uncertainty:
+    """Reconstruction with its uncertainty (module docstring), for a :class:`~twin.Reconstructor`.
+
+    Parameters
+    ----------
+    reconstructor : Reconstructor
+        The material method with a linear interpolant (``spline``, ``linear``, ``knn``) and no twist
+        measurement; the uncertainty of the paper's Frenet pipeline (κ, θ_b) is not linear in the curvature.
+    wavelength_noise : float, optional
+        1σ white wavelength noise per peak, nm; default the reconstructor's ``wavelength_noise``.
+    model_error : ModelError, optional
+        Default :data:`TWIN_MODEL_ERROR`, the twin's fit; calibrate your own sensor's with
+        :func:`fit_model_error`.
+    parameters : bool
+        Include the calibration's parameter covariance (Δθ, g with their 1σ; a jig's design matrices carry none).
+
+    Calling it on wavelengths (..., n_gratings, n_cores), a Frame or frames returns the reconstructor's
+    :class:`~twin.frames.Shape` with ``covariance`` (..., n_points, 3, 3) m² and ``curvature_covariance``
+    (..., n_gratings, 2, 2) (1/m)²; :meth:`propagate` adds them to a shape already reconstructed.
+    """
+
+    def __init__(self, reconstructor: Reconstructor, *, wavelength_noise: float | None = None,
+                 model_error: ModelError | None = None, parameters: bool = True):
+        rec = reconstructor
+        if not isinstance(rec, Reconstructor):
+            raise TypeError(f"Uncertainty needs a Reconstructor, got {type(rec).__name__}")
+        if rec.method != "material" or rec.interpolation == "pchip" or rec.twist:
+            raise ValueError("Uncertainty: the linearised propagation covers the material method with a linear "
+                             f"interpolant and no twist measurement; got method={rec.method!r}, "
+                             f"interpolation={rec.interpolation!r}, twist={rec.twist}")
+        sigma = rec.wavelength_noise if wavelength_noise is None else float(wavelength_noise)
+        if not (np.isfinite(sigma) and sigma >= 0):
+            raise ValueError(f"wavelength_noise must be a number of nm >= 0, got {wavelength_noise}")
+        self.reconstructor = rec
+        self.wavelength_noise = sigma
+        self.model_error = TWIN_MODEL_ERROR if model_error is None else model_error
+        fiber, cal = rec.fiber, rec.calibration
+        self._design = cal.design_for(fiber)  # (n_g, n_c, 3)
+        self._var_e = (sigma / cal.reference_for(fiber)) ** 2  # (n_g, n_c): variance of the optical strain
+        p_full, cov_full = _masked_inverse(self._design, np.ones(self._design.shape[:2], bool), self._var_e)
+        self._p_full = p_full[:, 1:]  # (n_g, 2, n_c): the curvature rows
+        self._ck_full = np.ascontiguousarray(cov_full[:, 1:, 1:])
+        self._dd, self._par_sd = self._parameter_terms(cal) if parameters else (None, np.zeros(0))
+        # ∂k/∂p = −P (∂D/∂p) x, x = (c, k): Δθ and g move the bending columns only, so the common mode drops out
+        self._sens_full = (None if self._dd is None else
+                           -np.einsum("nic,pncj->nipj", self._p_full, self._dd))  # (n_g, 2, n_par, 2)
+        self._bases: dict[bytes, np.ndarray] = {}
+        self._quad = _quadrature(rec)
+        self._full_basis = self._basis(np.ones(fiber.n_gratings, bool))[None]
+
+    # ------------------------------------------------------------------ the call
+    def __call__(self, wavelengths) -> Shape:
+        w = _wavelengths(wavelengths)
+        return self.propagate(self.reconstructor(w), w)
+
+    def propagate(self, shape: Shape, wavelengths=None) -> Shape:
+        """``shape``, the reconstructor's result, with ``covariance`` and ``curvature_covariance`` added.
+
+        ``wavelengths`` (array, Frame or frames; the shape's input) tell which peaks were missing, which
+        changes the inversion's noise at those gratings; without them every peak of a valid grating counts as
+        present."""
+        k = np.nan_to_num(shape.curvature)
+        valid = shape.valid
+        batch, n_g = k.shape[:-2], k.shape[-2]
+        ck = self._ck_full
+        sens_op = self._sens_full
+        if wavelengths is not None:
+            w = _wavelengths(wavelengths)
+            missing = np.isnan(w)
+            outside = self.reconstructor.peaks_outside(w)
+            if missing.any() or outside.any():
+                ck, sens_op = self._masked(~(missing | outside))
+        ck = np.broadcast_to(ck, (*batch, n_g, 2, 2))
+        sig_m = self.model_error.sigma(k)
+        if self.model_error.curvature or self.model_error.relative:
+            ck = ck + (sig_m**2)[..., None, None] * np.eye(2)
+        sens = None
+        if sens_op is not None:
+            sens = np.einsum("...nipj,...nj->...nip", sens_op, k)  # (..., n_g, 2, n_par)
+        cov = self.position_covariance(shape, ck, sens, valid)
+        if sens is not None:
+            ck = ck + np.einsum("...nip,p,...njp->...nij", sens, self._par_sd**2, sens)
+        ck = np.where(valid[..., None, None], ck, np.nan)
+        return dataclasses.replace(shape, covariance=cov, curvature_covariance=ck)
+
+    # ------------------------------------------------------------------ curvature
+    def _parameter_terms(self, cal: Calibration):
+        """∂D/∂p of the bending columns for p = (Δθ, g) at the calibration (n_par, n_g, n_c, 2) and the
+        parameters' 1σ (n_par,), for those the calibration gives a 1σ of."""
+        if cal.design is not None:
+            return None, np.zeros(0)
+        fiber = self.reconstructor.fiber
+        cols, sd = [], []
+        dth = nominal_delta_theta(fiber) if cal.delta_theta is None else cal.delta_theta
+        g = nominal_gain(fiber) if cal.gain is None else cal.gain
+        for name, value, std in (("delta_theta", dth, cal.delta_theta_std), ("gain", g, cal.gain_std)):
+            if not std:
+                continue
+            # the design is linear in g and smooth in Δθ: central differences are exact to ~1e-10 relative
+            step = 1e-6 * (1.0 if name == "delta_theta" else value)
+            hi = cal.replace(**{name: value + step}).design_for(fiber)
+            lo = cal.replace(**{name: value - step}).design_for(fiber)
+            cols.append((hi - lo)[..., 1:] / (2 * step))
+            sd.append(std)
+        if not cols:
+            return None, np.zeros(0)
+        return np.stack(cols), np.array(sd)
+
+    def _masked(self, present: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Noise covariance of k (..., n_g, 2, 2) and the parameter operator (..., n_g, 2, n_par, 2) per frame
+        for peak masks ``present`` (..., n_g, n_c): the inversion without the missing peaks where some are."""
+        batch = present.shape[:-2]
+        ck = np.array(np.broadcast_to(self._ck_full, (*batch, *self._ck_full.shape)))
+        full = present.all(axis=-1)
+        idx = np.nonzero(~full)
+        g = idx[-1]
+        p, cov = _masked_inverse(self._design[g], present[idx], self._var_e[g])
+        ck[idx] = cov[:, 1:, 1:]
+        sens = None
+        if self._sens_full is not None:
+            sens = np.array(np.broadcast_to(self._sens_full, (*batch, *self._sens_full.shape)))
+            sens[idx] = -np.einsum("mic,pmcj->mipj", p[:, 1:], self._dd[:, g])
+        return ck, sens
+
+    def curvature_covariance(self, shape: Shape, wavelengths=None) -> np.ndarray:
+        """Per-grating curvature covariance (..., n_gratings, 2, 2), (1/m)²: :meth:`propagate`'s
+        ``curvature_covariance``."""
+        return self.propagate(shape, wavelengths).curvature_covariance
+
+    # ------------------------------------------------------------------ positions
+    def _basis(self, nodes: np.ndarray) -> np.ndarray:
+        """Interpolation basis (n_points, n_gratings) of the reconstructor for the valid gratings ``nodes``
+        (zero columns for the others), cached per pattern."""
+        key = nodes.tobytes()
+        b = self._bases.get(key)
+        if b is None:
+            rec = self.reconstructor
+            b = np.zeros((rec.s.size, nodes.size))
+            if nodes.any():
+                b[:, nodes] = curve.basis(rec.fiber.grating_s[nodes], rec.s, rec.interpolation)
+            self._bases[key] = b
+        return b
+
+    def position_covariance(self, shape: Shape, curvature_covariance: np.ndarray, sensitivity: np.ndarray | None,
+                            valid: np.ndarray) -> np.ndarray:
+        """Position covariance (..., n_points, 3, 3), m², from the per-grating curvature covariance of the
+        errors independent between gratings (noise, model error; (..., n_g, 2, 2)) and the curvature's
+        sensitivity to the shared parameters (..., n_g, 2, n_par) or None; invalid gratings (not interpolated
+        through) carry nothing. Frames without a usable grating get NaN.
+
+        Exact first-order sensitivities J_n(s) = ∫_0^s B_n(u) (R E)(u) × (p(s) − p(u)) du at the breakpoints of
+        the interpolant (the gratings and the ends), by the 3-point rule on each piece (Simpson's where the
+        middle point is central: the basis is a cubic and R, p vary over 1/κ ≥ 15 mm, so its error is
+        ~1e-4 relative), then the covariance C = Σ J V Jᵀ and its derivative C' (from J_n' = Φ_n × t, Φ_n the
+        integral of B_n R E) there, and cubic Hermite interpolation of C between them (docs/math.md §8.2)."""
+        n_p = shape.positions.shape[-2]
+        pos = np.ascontiguousarray(shape.positions.reshape(-1, n_p, 3))
+        frames = np.ascontiguousarray(shape.frames.reshape(-1, n_p, 3, 3))
+        n_f, n_g = pos.shape[0], valid.shape[-1]
+        vf = valid.reshape(n_f, n_g)
+        v = np.ascontiguousarray(np.broadcast_to(curvature_covariance, (*valid.shape, 2, 2)).reshape(n_f, n_g, 2, 2))
+        sens = (np.zeros((n_f, n_g, 2, 0)) if sensitivity is None
+                else np.ascontiguousarray(sensitivity.reshape(n_f, n_g, 2, -1)))
+        all_valid = bool(vf.all())
+        if all_valid:
+            bases, which = self._full_basis, np.zeros(n_f, np.int64)
+        else:
+            patterns, which = np.unique(vf, axis=0, return_inverse=True)
+            bases = np.stack([self._basis(p) for p in patterns])
+            which = which.ravel().astype(np.int64)
+            # an invalid grating is not interpolated through: its column of the basis is zero already
+        out = np.empty((n_f, n_p, 3, 3))
+        q = self._quad
+        _covariance_kernel(pos, frames, bases, which, v, sens, self._par_sd, q["points"], q["weights"],
+                           q["breaks"], q["interval"], q["t"], q["h"], out)
+        if not all_valid:
+            out[~vf.any(axis=-1)] = np.nan
+        return out.reshape((*shape.positions.shape[:-1], 3, 3))
+
+def _quadrature(rec: Reconstructor) -> dict:
+    """Where the propagation evaluates: breakpoints (output indices of 0, the gratings, the end; knn's jumps
+    between gratings), per piece a 3-point rule (start, the output point nearest the middle, end) exact for
+    quadratics, and per output point its piece, local coordinate t ∈ [0, 1] and the piece's length."""
+    s = rec.s
+    marks = [0.0, *rec.fiber.grating_s, s[-1]]
+    if rec.interpolation == "knn":
+        g = rec.fiber.grating_s
+        marks += list(0.5 * (g[1:] + g[:-1]))
+    breaks = np.unique(np.clip(np.searchsorted(s, np.clip(marks, s[0], s[-1]) - 1e-12), 0, s.size - 1))
+    breaks = np.unique(np.concatenate([[0], breaks, [s.size - 1]]))
+    n_int = breaks.size - 1
+    points = np.empty((n_int, 3), np.int64)
+    weights = np.zeros((n_int, 3))
+    for k in range(n_int):  # once per reconstructor: a handful of pieces
+        a, b = breaks[k], breaks[k + 1]
+        m = int(np.clip(np.rint(0.5 * (a + b)), a, b))
+        points[k] = (a, m, b)
+        x0, xm, x1 = s[a], s[m], s[b]
+        if m in (a, b):  # a one-step piece: the trapezoid rule
+            weights[k] = (0.5 * (x1 - x0), 0.0, 0.5 * (x1 - x0))
+        else:  # ∫ of the quadratic through the three points (Simpson's rule when m is central)
+            vander = np.vander(np.array([x0, xm, x1]) - x0, 3, increasing=True).T
+            moments = np.array([(x1 - x0), (x1 - x0) ** 2 / 2, (x1 - x0) ** 3 / 3])
+            weights[k] = np.linalg.solve(vander, moments)
+    interval = np.clip(np.searchsorted(breaks, np.arange(s.size), side="right") - 1, 0, n_int - 1)
+    h = s[breaks[1:]] - s[breaks[:-1]]
+    t = (s - s[breaks[interval]]) / h[interval]
+    return {"points": points, "weights": weights, "breaks": breaks.astype(np.int64), "interval": interval,
+            "t": t, "h": h[interval]}
+
+
+@njit(cache=True, nogil=True)
+def _add_point(pos, frames, basis, f, i, w, ia, ic):  # pragma: no cover (compiled)
+    """Add w · B_n(s_i) (R E, (R E) × p)(s_i) to the running integrals of every grating n."""
+    p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
+    # δk_x turns about d2, δk_y about −d1 (u = (−k_y, k_x, 0) in the body frame)
+    for c in range(2):
+        if c == 0:
+            a0, a1, a2 = frames[f, i, 0, 1], frames[f, i, 1, 1], frames[f, i, 2, 1]
+        else:
+            a0, a1, a2 = -frames[f, i, 0, 0], -frames[f, i, 1, 0], -frames[f, i, 2, 0]
+        x0 = a1 * p2 - a2 * p1
+        x1 = a2 * p0 - a0 * p2
+        x2 = a0 * p1 - a1 * p0
+        for n in range(basis.shape[1]):
+            b = w * basis[i, n]
+            if b != 0.0:
+                ia[n, c, 0] += b * a0
+                ia[n, c, 1] += b * a1
+                ia[n, c, 2] += b * a2
+                ic[n, c, 0] += b * x0
+                ic[n, c, 1] += b * x1
+                ic[n, c, 2] += b * x2
+
+
+@njit(cache=True, nogil=True)
+def _covariance_kernel(pos, frames, bases, which, var, sens, par_sd, points, weights, breaks, interval, tt, hh,
+                       out):  # pragma: no cover (compiled)
+    """Position covariance of every frame (see :meth:`Uncertainty.position_covariance`): ``var`` (F, n_g, 2, 2)
+    the independent curvature covariance, ``sens`` (F, n_g, 2, n_par) ∂k/∂p, ``par_sd`` the parameters' 1σ."""
+    n_f, n_p = pos.shape[0], pos.shape[1]
+    n_g, n_par = var.shape[1], sens.shape[3]
+    n_b = breaks.shape[0]
+    cb = np.zeros((n_b, 6))  # C at the breakpoints, upper triangle xx xy xz yy yz zz
+    db = np.zeros((n_b, 6))  # and C'
+    ia = np.zeros((n_g, 2, 3))
+    ic = np.zeros((n_g, 2, 3))
+    m = np.zeros(3)
+    md = np.zeros(3)
+    jm = np.zeros((2, 3))
+    jd = np.zeros((2, 3))
+    g = np.zeros((n_par, 3))
+    gd = np.zeros((n_par, 3))
+    lc = np.zeros((2, 2))
+    ur = (0, 0, 0, 1, 1, 2)
+    uc = (0, 1, 2, 1, 2, 2)
+    for f in range(n_f):
+        basis = bases[which[f]]
+        ia[:] = 0.0
+        ic[:] = 0.0
+        for k in range(n_b):
+            if k > 0:
+                _add_point(pos, frames, basis, f, points[k - 1, 1], weights[k - 1, 1], ia, ic)
+                _add_point(pos, frames, basis, f, points[k - 1, 2], weights[k - 1, 2], ia, ic)
+            i = breaks[k]
+            p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
+            t0, t1, t2 = frames[f, i, 0, 2], frames[f, i, 1, 2], frames[f, i, 2, 2]
+            cb[k] = 0.0
+            db[k] = 0.0
+            g[:] = 0.0
+            gd[:] = 0.0
+            for n in range(n_g):
+                # V = L Lᵀ (2 × 2 Cholesky; a zero block gives L = 0)
+                v00, v10, v11 = var[f, n, 0, 0], var[f, n, 1, 0], var[f, n, 1, 1]
+                l00 = np.sqrt(v00) if v00 > 0.0 else 0.0
+                l10 = v10 / l00 if l00 > 0.0 else 0.0
+                r11 = v11 - l10 * l10
+                lc[0, 0], lc[1, 0], lc[0, 1], lc[1, 1] = l00, l10, 0.0, np.sqrt(r11) if r11 > 0.0 else 0.0
+                for c in range(2):
+                    # J = Φ × p − Ψ and J' = Φ × t
+                    jm[c, 0] = ia[n, c, 1] * p2 - ia[n, c, 2] * p1 - ic[n, c, 0]
+                    jm[c, 1] = ia[n, c, 2] * p0 - ia[n, c, 0] * p2 - ic[n, c, 1]
+                    jm[c, 2] = ia[n, c, 0] * p1 - ia[n, c, 1] * p0 - ic[n, c, 2]
+                    jd[c, 0] = ia[n, c, 1] * t2 - ia[n, c, 2] * t1
+                    jd[c, 1] = ia[n, c, 2] * t0 - ia[n, c, 0] * t2
+                    jd[c, 2] = ia[n, c, 0] * t1 - ia[n, c, 1] * t0
+                for d in range(2):
+                    la, lb = lc[0, d], lc[1, d]
+                    if la == 0.0 and lb == 0.0:
+                        continue
+                    for r in range(3):
+                        m[r] = jm[0, r] * la + jm[1, r] * lb
+                        md[r] = jd[0, r] * la + jd[1, r] * lb
+                    for e in range(6):
+                        a, b = ur[e], uc[e]
+                        cb[k, e] += m[a] * m[b]
+                        db[k, e] += md[a] * m[b] + m[a] * md[b]
+                for q in range(n_par):
+                    sa, sb = sens[f, n, 0, q] * par_sd[q], sens[f, n, 1, q] * par_sd[q]
+                    for r in range(3):
+                        g[q, r] += jm[0, r] * sa + jm[1, r] * sb
+                        gd[q, r] += jd[0, r] * sa + jd[1, r] * sb
+            for q in range(n_par):
+                for e in range(6):
+                    a, b = ur[e], uc[e]
+                    cb[k, e] += g[q, a] * g[q, b]
+                    db[k, e] += gd[q, a] * g[q, b] + g[q, a] * gd[q, b]
+            if k < n_b - 1:
+                _add_point(pos, frames, basis, f, points[k, 0], weights[k, 0], ia, ic)
+        # cubic Hermite between breakpoints: C and C' at both ends of each piece
+        for j in range(n_p):
+            q = interval[j]
+            t = tt[j]
+            h = hh[j]
+            t2_ = t * t
+            t3 = t2_ * t
+            h00 = 2 * t3 - 3 * t2_ + 1
+            h10 = (t3 - 2 * t2_ + t) * h
+            h01 = -2 * t3 + 3 * t2_
+            h11 = (t3 - t2_) * h
+            for e in range(6):
+                a, b = ur[e], uc[e]
+                x = h00 * cb[q, e] + h10 * db[q, e] + h01 * cb[q + 1, e] + h11 * db[q + 1, e]
+                out[f, j, a, b] = x
+                out[f, j, b, a] = x
+
+
+def _masked_inverse(design: np.ndarray, present: np.ndarray, var_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares inverse P = (Dᵀ M D)⁺ Dᵀ M (..., 3, n_c) for peak masks M (..., n_c) and the covariance
+    P diag(var_e) Pᵀ (..., 3, 3) of x = (c, k_x, k_y); equal weights, as :class:`~twin.strain.CurvatureSolver`."""
+    dm = design * present[..., None]
+    dt = np.swapaxes(dm, -1, -2)
+    p = np.linalg.pinv(dt @ dm) @ dt
+    return p, (p * var_e[..., None, :]) @ np.swapaxes(p, -1, -2)
+
+
+def _wavelengths(data) -> np.ndarray:
+    """Wavelengths (..., n_gratings, n_cores) nm from an array, a Frame or a sequence of Frames."""
+    from twin.frames import Frame
+
+    if isinstance(data, Frame):
+        return data.wavelengths
+    if isinstance(data, list | tuple) and data and isinstance(data[0], Frame):
+        return Frame.stack(data).wavelengths
+    return np.asarray(data, dtype=np.float64)
