@@ -25,6 +25,7 @@ the radius of the level-% tube from the lateral (2-D) part of the covariance.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from dataclasses import dataclass
 from functools import lru_cache
@@ -37,7 +38,8 @@ from twin.calibration import Calibration, nominal_delta_theta, nominal_gain
 from twin.frames import Shape
 from twin.reconstruct import Reconstructor
 
-__all__ = ["TWIN_MODEL_ERROR", "ModelError", "Uncertainty", "fit_model_error", "lateral_errors", "tube_radius"]
+__all__ = ["TWIN_MODEL_ERROR", "ModelError", "Uncertainty", "coverage", "fit_model_error", "inside", "lateral_errors",
+           "tube_radius"]
 
 
 @dataclass(frozen=True)
@@ -50,16 +52,21 @@ class ModelError:
         Absolute part, 1/m.
     relative : float
         Part proportional to the measured |k| (dimensionless): σ = ``curvature`` + ``relative``·|k|.
+    base_angle : float
+        1σ of the base frame's orientation about each of its axes, rad: the reconstruction starts from the base
+        frame as given (a clamp, a tracked hub), which sits off the fibre's true first tangent and roll by this
+        much; it moves every point by δφ × p.
     source : str
         How the values were found (free text, for reports).
     """
 
     curvature: float = 0.0
     relative: float = 0.0
+    base_angle: float = 0.0
     source: str = ""
 
     def __post_init__(self) -> None:
-        for name in ("curvature", "relative"):
+        for name in ("curvature", "relative", "base_angle"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"ModelError.{name}: expected a finite value >= 0, got {v}")
@@ -73,7 +80,8 @@ class ModelError:
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict:
-        return {"curvature_1_per_m": self.curvature, "relative": self.relative, "source": self.source}
+        return {"curvature_1_per_m": self.curvature, "relative": self.relative, "base_angle_rad": self.base_angle,
+                "source": self.source}
 
 
 #: The model error of the default pipeline in the twin with the lab calibration, fitted by
@@ -216,6 +224,12 @@ class Uncertainty:
         self._quad = _quadrature(rec)
         self._full_basis = self._basis(np.ones(fiber.n_gratings, bool))[None]
 
+    def with_model_error(self, model_error: ModelError) -> Uncertainty:
+        """The same propagation with another model error (cheap: everything else is shared)."""
+        other = copy.copy(self)
+        other.model_error = model_error
+        return other
+
     # ------------------------------------------------------------------ the call
     def __call__(self, wavelengths) -> Shape:
         w = _wavelengths(wavelengths)
@@ -339,8 +353,8 @@ class Uncertainty:
             # an invalid grating is not interpolated through: its column of the basis is zero already
         out = np.empty((n_f, n_p, 3, 3))
         q = self._quad
-        _covariance_kernel(pos, frames, bases, which, v, sens, self._par_sd, q["points"], q["weights"],
-                           q["breaks"], q["interval"], q["t"], q["h"], out)
+        _covariance_kernel(pos, frames, bases, which, v, sens, self._par_sd, self.model_error.base_angle**2,
+                           q["points"], q["weights"], q["breaks"], q["interval"], q["t"], q["h"], out)
         if not all_valid:
             out[~vf.any(axis=-1)] = np.nan
         return out.reshape((*shape.positions.shape[:-1], 3, 3))
@@ -402,10 +416,11 @@ def _add_point(pos, frames, basis, f, i, w, ia, ic):  # pragma: no cover (compil
 
 
 @njit(cache=True, nogil=True)
-def _covariance_kernel(pos, frames, bases, which, var, sens, par_sd, points, weights, breaks, interval, tt, hh,
-                       out):  # pragma: no cover (compiled)
+def _covariance_kernel(pos, frames, bases, which, var, sens, par_sd, base_var, points, weights, breaks, interval,
+                       tt, hh, out):  # pragma: no cover (compiled)
     """Position covariance of every frame (see :meth:`Uncertainty.position_covariance`): ``var`` (F, n_g, 2, 2)
-    the independent curvature covariance, ``sens`` (F, n_g, 2, n_par) ∂k/∂p, ``par_sd`` the parameters' 1σ."""
+    the independent curvature covariance, ``sens`` (F, n_g, 2, n_par) ∂k/∂p, ``par_sd`` the parameters' 1σ,
+    ``base_var`` the variance of the base frame's angle about each axis (δp = δφ × p: σ²(|p|² I − p pᵀ))."""
     n_f, n_p = pos.shape[0], pos.shape[1]
     n_g, n_par = var.shape[1], sens.shape[3]
     n_b = breaks.shape[0]
@@ -486,9 +501,11 @@ def _covariance_kernel(pos, frames, bases, which, var, sens, par_sd, points, wei
             h10 = (t3 - 2 * t2_ + t) * h
             h01 = -2 * t3 + 3 * t2_
             h11 = (t3 - t2_) * h
+            pp = pos[f, j, 0] ** 2 + pos[f, j, 1] ** 2 + pos[f, j, 2] ** 2
             for e in range(6):
                 a, b = ur[e], uc[e]
                 x = h00 * cb[q, e] + h10 * db[q, e] + h01 * cb[q + 1, e] + h11 * db[q + 1, e]
+                x += base_var * ((pp if a == b else 0.0) - pos[f, j, a] * pos[f, j, b])
                 out[f, j, a, b] = x
                 out[f, j, b, a] = x
 
@@ -511,3 +528,72 @@ def _wavelengths(data) -> np.ndarray:
     if isinstance(data, list | tuple) and data and isinstance(data[0], Frame):
         return Frame.stack(data).wavelengths
     return np.asarray(data, dtype=np.float64)
+
+
+def inside(shape: Shape, truth: np.ndarray, level: float = 0.95) -> np.ndarray:
+    """Whether each true point lies in the shape's level-% tube, bool (..., n_points).
+
+    ``truth`` (..., n_points, 3): the true centreline at the shape's arc lengths in the shape's base frame, m.
+    A point is inside when its lateral error (:func:`lateral_errors`) is within :meth:`Shape.confidence`."""
+    d = np.linalg.norm(lateral_errors(shape, truth), axis=-1)
+    return d <= shape.confidence(level)
+
+
+def coverage(shape: Shape, truth: np.ndarray, level: float = 0.95, where: np.ndarray | None = None) -> float:
+    """Fraction of the true points inside the level-% tube (:func:`inside`), over the points with s > 0 (the
+    base point is exact by construction) whose reconstruction and truth are finite; ``where`` (n_points,) bool
+    restricts the points further. NaN when none is left."""
+    ok = inside(shape, truth, level)
+    use = np.isfinite(shape.positions).all(axis=-1) & np.isfinite(truth).all(axis=-1) & (shape.s > 0)
+    if where is not None:
+        use = use & where
+    return float(ok[use].mean()) if use.any() else float("nan")
+
+
+def fit_model_error(uncertainty: Uncertainty, shape: Shape, wavelengths, truth: np.ndarray, *,
+                    level: float = 0.95, template: ModelError | None = None, source: str = "") -> ModelError:
+    """The model error that makes the level-% tube hold ``level`` of the true points of shapes of known truth
+    (never the ones to be scored).
+
+    One number is fitted: the scale of ``template`` (default a white curvature error of 1 1/m per component),
+    by bisection on the pooled coverage of all points with s > 0 (:func:`coverage`), which rises monotonically
+    with it. Zero when the noise and parameter terms alone already reach ``level``. A single scale is what a
+    handful of shapes can pin down: their errors are mostly systematic per shape, so the points of one shape
+    are not independent draws.
+
+    Parameters
+    ----------
+    uncertainty : Uncertainty
+        With the calibration to be used (its noise and parameter terms stay as they are).
+    shape : Shape
+        The reconstructions of ``wavelengths`` (a batch).
+    wavelengths : ndarray (..., n_gratings, n_cores)
+    truth : ndarray (..., n_points, 3)
+        The true centreline at the shape's arc lengths in its base frame, m.
+    level : float
+    template : ModelError, optional
+        The model error's form; its ``curvature``, ``relative`` and ``base_angle`` are scaled together.
+    source : str
+        A note for the result.
+    """
+    t = template or ModelError(curvature=1.0)
+
+    def scaled(k: float) -> ModelError:
+        return ModelError(curvature=k * t.curvature, relative=k * t.relative, base_angle=k * t.base_angle,
+                          source=source)
+
+    def cover(k: float) -> float:
+        return coverage(uncertainty.with_model_error(scaled(k)).propagate(shape, wavelengths), truth, level)
+
+    if cover(0.0) >= level:
+        return scaled(0.0)
+    hi = 1.0
+    while cover(hi) < level:  # the tube widens without bound as k grows, so this ends
+        hi *= 4.0
+        if hi > 1e6:
+            raise ValueError("fit_model_error: no model error reaches the coverage (truth not in the base frame?)")
+    lo = 0.0
+    for _ in range(40):  # to 1e-12 of hi
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if cover(mid) < level else (lo, mid)
+    return scaled(hi)
