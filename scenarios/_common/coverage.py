@@ -105,3 +105,17 @@ def lab_model_error(fiber: FiberModel, optics: OpticsConfig, cal: Calibration, *
         tmp.replace(path)
     say(f"model error: {me.curvature:.3g} 1/m per component, base angle {me.base_angle:.3g} rad ({me.source})")
     return me
+
+
+def run_coverage(fiber: FiberModel, optics: OpticsConfig, cal: Calibration | None, shape: Shape, wavelengths,
+                 truth: np.ndarray, progress: Say | None = None, averaged: int = 1) -> dict:
+    """The 95 % tube of the default pipeline's ``shape`` (a batch, reconstructed with ``cal``) against ``truth``
+    (base frame, at the shape's arc lengths): :func:`summary` with the model error fitted on the lab's
+    identification shapes (:func:`lab_model_error`), which it names. ``averaged``: frames averaged into each of
+    ``wavelengths`` (the white noise shrinks by its square root)."""
+    cal = cal or Calibration()
+    me = lab_model_error(fiber, optics, cal, progress=progress)
+    rec = Reconstructor(fiber, cal)
+    unc = Uncertainty(rec, model_error=me, wavelength_noise=rec.wavelength_noise / np.sqrt(averaged))
+    out = unc.propagate(shape, wavelengths)
+    return {**summary(out, truth), "model_error": me.to_dict()}
