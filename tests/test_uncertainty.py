@@ -12,7 +12,8 @@ N_MC = 2000
 #: a sample covariance element S_ab of n draws has standard error √((C_aa C_bb + C_ab²)/(n − 1)); 4 of them
 #: over the ~30 elements compared keeps a false alarm below 1e-3 while a 10 % error in σ² (0.45 SE per %) fails
 N_SE = 4.0
-POINTS = (40, 85, 130, 170)
+#: points compared: on the first piece from the base (where C ~ s⁴), between gratings and at gratings
+POINTS = (3, 7, 15, 40, 85, 130, 170)
 
 
 def wavelengths(name: str, fiber=FIBRE) -> np.ndarray:
@@ -20,9 +21,13 @@ def wavelengths(name: str, fiber=FIBRE) -> np.ndarray:
 
 
 def assert_covariance_matches(sample: np.ndarray, predicted: np.ndarray, n: int) -> None:
-    """Every element of the sample covariances (k, 3, 3) within N_SE standard errors of the prediction."""
-    d = np.sqrt(np.einsum("kaa->ka", predicted))
-    se = np.sqrt((d[:, :, None] ** 2 * d[:, None, :] ** 2 + predicted**2) / (n - 1))
+    """Every element of the sample covariances (k, 3, 3) within N_SE standard errors of the prediction. The
+    standard error has a floor of 1e-3 of the point's trace: on the first 10 mm the variance along the tangent
+    starts as s⁶ with s⁷, s⁸ terms of its size, which the first piece's t⁴(a + bt + ct²) follows only roughly —
+    a component below 0.3 % of the trace there (the lateral ones, which the tube uses, are exact to s⁶)."""
+    d2 = np.maximum(np.einsum("kaa->ka", predicted), 0.0)
+    se = np.sqrt((d2[:, :, None] * d2[:, None, :] + predicted**2) / (n - 1))
+    se = np.maximum(se, 1e-3 * d2.sum(axis=1)[:, None, None])
     z = np.abs(sample - predicted) / se
     assert z.max() < N_SE, f"largest deviation {z.max():.2f} standard errors"
 
@@ -34,7 +39,7 @@ def sample_covariance(positions: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("name", ["helix", "s-curve"])
 def test_linearised_covariance_equals_monte_carlo_of_wavelength_noise(name):
-    """(i) 2000 reconstructions under 1 pm Gaussian wavelength noise: their position covariance at four points
+    """(i) 2000 reconstructions under 1 pm Gaussian wavelength noise: their position covariance at seven points
     equals the linearised one within the Monte-Carlo sampling error (N_SE standard errors per element)."""
     rec = Reconstructor(FIBRE)
     unc = Uncertainty(rec, wavelength_noise=1e-3, model_error=ModelError(), parameters=False)
@@ -131,13 +136,16 @@ def test_zero_noise_gives_zero_radius():
 
 
 def test_batch_equals_single_frames():
-    """One call on a batch gives what single calls give (batch-first, no per-frame state)."""
+    """One call on a batch gives what single calls give (batch-first, no per-frame state), to rounding: numpy's
+    einsum sums in another order for a batch than for one frame, so elements near zero differ by ~1e-12 of the
+    largest."""
     unc = Uncertainty(Reconstructor(FIBRE), model_error=ModelError(0.02, 0.01))
     w = np.stack([wavelengths(n) for n in ("arc", "helix", "mixed")])
     batch = unc(w)
     for i in range(3):
         one = unc(w[i])
-        np.testing.assert_allclose(batch.covariance[i], one.covariance, rtol=1e-12, atol=1e-24)
+        scale = np.abs(one.covariance).max()
+        np.testing.assert_allclose(batch.covariance[i], one.covariance, rtol=1e-10, atol=1e-12 * scale)
         np.testing.assert_allclose(batch[i].confidence(0.9), one.confidence(0.9), rtol=1e-12)
 
 
@@ -175,3 +183,46 @@ def test_shape_without_uncertainty_says_so():
 def test_the_paper_pipeline_is_refused():
     with pytest.raises(ValueError, match="material method"):
         Uncertainty(Reconstructor.paper(FIBRE))
+
+
+def perturbed(names, sigma_k: float, n: int, seed: int, fiber=FIBRE):
+    """``n`` frames of each library shape with a white curvature error σ_k per component and grating (the model
+    error's form) and 1 pm wavelength noise, and the exact truth at the reconstruction's arc lengths."""
+    rng = np.random.default_rng(seed)
+    s = Reconstructor(fiber).s
+    w, truth = [], []
+    for name in names:
+        c = shapes.get(name)
+        k = c.curvature(fiber.grating_s) + sigma_k * rng.standard_normal((n, fiber.n_gratings, 2))
+        w.append(strain.forward(fiber, k) + 1e-3 * rng.standard_normal((n, fiber.n_gratings, fiber.n_cores)))
+        truth.append(np.broadcast_to(c.positions(s), (n, s.size, 3)))
+    return np.concatenate(w), np.concatenate(truth)
+
+
+def test_fit_recovers_an_injected_curvature_error_and_covers_held_out_shapes():
+    """The model-error fit finds a white curvature error of 0.2 1/m injected into six shapes (to 10 %: the
+    95 % coverage of 600 frames pins the scale to a few per cent; the spline's own error, ≤ 0.05 mm, is 1/16 of
+    the resulting σ at the tip), and its tube holds 93–97 % of six other shapes' points."""
+    from twin.uncertainty import coverage, fit_model_error
+
+    rec = Reconstructor(FIBRE)
+    unc = Uncertainty(rec, parameters=False)
+    w, truth = perturbed(["arc", "s-curve", "hook", "helix", "rotating-bend", "two-plane"], 0.2, 100, 11)
+    me = fit_model_error(unc, rec(w), w, truth)
+    assert me.curvature == pytest.approx(0.2, rel=0.1) and me.parameter_scale == 1.0
+    w2, truth2 = perturbed(["tightening", "wave", "clothoid", "through-zero", "mixed", "widening-helix"], 0.2, 100, 12)
+    assert 0.93 <= coverage(unc.with_model_error(me)(w2), truth2) <= 0.97
+
+
+def test_fit_lowers_an_overstated_parameter_error():
+    """A calibration that states a 3 % gain error it does not have: noise and parameters alone over-cover, so
+    the fit leaves the model error at 0 and scales the stated 1σ down until 95 % of the points are inside."""
+    from twin.uncertainty import coverage, fit_model_error
+
+    g = nominal_gain(FIBRE)
+    rec = Reconstructor(FIBRE, Calibration(gain=g, gain_std=0.03 * g))
+    unc = Uncertainty(rec)
+    w, truth = perturbed(["arc", "helix", "s-curve"], 0.0, 100, 13)
+    me = fit_model_error(unc, rec(w), w, truth)
+    assert me.curvature == 0.0 and 0.0 < me.parameter_scale < 0.5
+    assert coverage(unc.with_model_error(me)(w), truth) == pytest.approx(0.95, abs=0.01)

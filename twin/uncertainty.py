@@ -56,6 +56,10 @@ class ModelError:
         1σ of the base frame's orientation about each of its axes, rad: the reconstruction starts from the base
         frame as given (a clamp, a tracked hub), which sits off the fibre's true first tangent and roll by this
         much; it moves every point by δφ × p.
+    parameter_scale : float
+        Factor on the calibration's stated 1σ of Δθ and g (1: as identified). :func:`fit_model_error` lowers it
+        only when noise and the parameters alone already hold more than the level on the fitting shapes: an
+        identification's jackknife can overstate its error (docs/math.md §8.4).
     source : str
         How the values were found (free text, for reports).
     """
@@ -63,10 +67,11 @@ class ModelError:
     curvature: float = 0.0
     relative: float = 0.0
     base_angle: float = 0.0
+    parameter_scale: float = 1.0
     source: str = ""
 
     def __post_init__(self) -> None:
-        for name in ("curvature", "relative", "base_angle"):
+        for name in ("curvature", "relative", "base_angle", "parameter_scale"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"ModelError.{name}: expected a finite value >= 0, got {v}")
@@ -81,7 +86,7 @@ class ModelError:
 
     def to_dict(self) -> dict:
         return {"curvature_1_per_m": self.curvature, "relative": self.relative, "base_angle_rad": self.base_angle,
-                "source": self.source}
+                "parameter_scale": self.parameter_scale, "source": self.source}
 
 
 #: The model error of the default pipeline in the twin with the lab calibration, fitted by
@@ -261,7 +266,8 @@ class Uncertainty:
             sens = np.einsum("...nipj,...nj->...nip", sens_op, k)  # (..., n_g, 2, n_par)
         cov = self.position_covariance(shape, ck, sens, valid)
         if sens is not None:
-            ck = ck + np.einsum("...nip,p,...njp->...nij", sens, self._par_sd**2, sens)
+            sd = self._par_sd * self.model_error.parameter_scale
+            ck = ck + np.einsum("...nip,p,...njp->...nij", sens, sd**2, sens)
         ck = np.where(valid[..., None, None], ck, np.nan)
         return dataclasses.replace(shape, covariance=cov, curvature_covariance=ck)
 
@@ -334,7 +340,9 @@ class Uncertainty:
         the interpolant (the gratings and the ends), by the 3-point rule on each piece (Simpson's where the
         middle point is central: the basis is a cubic and R, p vary over 1/κ ≥ 15 mm, so its error is
         ~1e-4 relative), then the covariance C = Σ J V Jᵀ and its derivative C' (from J_n' = Φ_n × t, Φ_n the
-        integral of B_n R E) there, and cubic Hermite interpolation of C between them (docs/math.md §8.2)."""
+        integral of B_n R E) there, and cubic Hermite interpolation of C between them (docs/math.md §8.2); on the
+        first piece, where C grows as s⁴ from the base (s⁶ along the tangent), t⁴ (a + b t + c t²) through C
+        and C' at its end and C at its middle point instead."""
         n_p = shape.positions.shape[-2]
         pos = np.ascontiguousarray(shape.positions.reshape(-1, n_p, 3))
         frames = np.ascontiguousarray(shape.frames.reshape(-1, n_p, 3, 3))
@@ -353,8 +361,10 @@ class Uncertainty:
             # an invalid grating is not interpolated through: its column of the basis is zero already
         out = np.empty((n_f, n_p, 3, 3))
         q = self._quad
-        _covariance_kernel(pos, frames, bases, which, v, sens, self._par_sd, self.model_error.base_angle**2,
-                           q["points"], q["weights"], q["breaks"], q["interval"], q["t"], q["h"], out)
+        _covariance_kernel(pos, frames, bases, which, v, sens, self._par_sd * self.model_error.parameter_scale,
+                           self.model_error.base_angle**2,
+                           q["points"], q["weights"], q["breaks"], q["interval"], q["t"], q["h"], q["first"],
+                           q["half_points"], q["half_weights"], out)
         if not all_valid:
             out[~vf.any(axis=-1)] = np.nan
         return out.reshape((*shape.positions.shape[:-1], 3, 3))
@@ -384,14 +394,30 @@ def _quadrature(rec: Reconstructor) -> dict:
             vander = np.vander(np.array([x0, xm, x1]) - x0, 3, increasing=True).T
             moments = np.array([(x1 - x0), (x1 - x0) ** 2 / 2, (x1 - x0) ** 3 / 3])
             weights[k] = np.linalg.solve(vander, moments)
+    # the integral from the base to the first piece's middle point, by the same kind of rule (for C there)
+    half_points = np.array([0, int(np.rint(0.5 * points[0, 1])), points[0, 1]], np.int64)
+    x0, xm, x1 = s[half_points]
+    if half_points[1] in (half_points[0], half_points[2]):
+        half_weights = np.array([0.5 * (x1 - x0), 0.0, 0.5 * (x1 - x0)])
+    else:
+        vander = np.vander(np.array([x0, xm, x1]) - x0, 3, increasing=True).T
+        half_weights = np.linalg.solve(vander, [(x1 - x0), (x1 - x0) ** 2 / 2, (x1 - x0) ** 3 / 3])
     interval = np.clip(np.searchsorted(breaks, np.arange(s.size), side="right") - 1, 0, n_int - 1)
     h = s[breaks[1:]] - s[breaks[:-1]]
     t = (s - s[breaks[interval]]) / h[interval]
+    # the first piece's C = t⁴ (a + b t + c t²) from C(1), h C'(1) and C at the middle point t_m (exact for s⁴,
+    # s⁵, s⁶); a one-step piece has no middle point: then c = 0 and C(t_m) is not used
+    tm = (s[points[0, 1]] - s[0]) / h[0]
+    if 0.0 < tm < 1.0:
+        first = np.linalg.inv(np.array([[1.0, 1.0, 1.0], [4.0, 5.0, 6.0], [tm**4, tm**5, tm**6]]))
+    else:
+        first = np.zeros((3, 3))
+        first[:2, :2] = np.linalg.inv(np.array([[1.0, 1.0], [4.0, 5.0]]))
     return {"points": points, "weights": weights, "breaks": breaks.astype(np.int64), "interval": interval,
-            "t": t, "h": h[interval]}
+            "t": t, "h": h[interval], "first": first, "half_points": half_points, "half_weights": half_weights}
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=True)
 def _add_point(pos, frames, basis, f, i, w, ia, ic):  # pragma: no cover (compiled)
     """Add w · B_n(s_i) (R E, (R E) × p)(s_i) to the running integrals of every grating n."""
     p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
@@ -406,37 +432,113 @@ def _add_point(pos, frames, basis, f, i, w, ia, ic):  # pragma: no cover (compil
         x2 = a0 * p1 - a1 * p0
         for n in range(basis.shape[1]):
             b = w * basis[i, n]
-            if b != 0.0:
-                ia[n, c, 0] += b * a0
-                ia[n, c, 1] += b * a1
-                ia[n, c, 2] += b * a2
-                ic[n, c, 0] += b * x0
-                ic[n, c, 1] += b * x1
-                ic[n, c, 2] += b * x2
+            ia[n, c, 0] += b * a0
+            ia[n, c, 1] += b * a1
+            ia[n, c, 2] += b * a2
+            ic[n, c, 0] += b * x0
+            ic[n, c, 1] += b * x1
+            ic[n, c, 2] += b * x2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=True)
+def _moments(pos, frames, var, sens, par_sd, f, i, ia, ic, x, y, z, am, ad, ay, dy, c_out, d_out):
+    """C and C' (3 × 3 each) at output point i from the running integrals (see :func:`_covariance_kernel`)."""
+    n_g, n_par = var.shape[1], sens.shape[3]
+    y[:] = 0.0
+    z[:] = 0.0
+    for n in range(n_g):
+        v00, v01, v11 = var[f, n, 0, 0], var[f, n, 0, 1], var[f, n, 1, 1]
+        for r in range(3):
+            x[r, 0], x[r, 1] = ia[n, 0, r], ia[n, 1, r]
+            x[r + 3, 0], x[r + 3, 1] = ic[n, 0, r], ic[n, 1, r]
+        for r in range(6):
+            xv0 = x[r, 0] * v00 + x[r, 1] * v01
+            xv1 = x[r, 0] * v01 + x[r, 1] * v11
+            for c in range(r, 6):
+                y[r, c] += xv0 * x[c, 0] + xv1 * x[c, 1]
+        for q in range(n_par):
+            sa, sb = sens[f, n, 0, q] * par_sd[q], sens[f, n, 1, q] * par_sd[q]
+            for r in range(6):
+                z[r, q] += x[r, 0] * sa + x[r, 1] * sb
+    for r in range(6):
+        for c in range(r):
+            y[r, c] = y[c, r]
+    p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
+    t0, t1, t2 = frames[f, i, 0, 2], frames[f, i, 1, 2], frames[f, i, 2, 2]
+    # A = (−[p]×, −I), A' = (−[t]×, 0)
+    am[:] = 0.0
+    ad[:] = 0.0
+    am[0, 1], am[0, 2], am[1, 0], am[1, 2], am[2, 0], am[2, 1] = p2, -p1, -p2, p0, p1, -p0
+    ad[0, 1], ad[0, 2], ad[1, 0], ad[1, 2], ad[2, 0], ad[2, 1] = t2, -t1, -t2, t0, t1, -t0
+    am[0, 3], am[1, 4], am[2, 5] = -1.0, -1.0, -1.0
+    for r in range(3):
+        for c in range(6):
+            sa = 0.0
+            sb = 0.0
+            for e in range(6):
+                sa += am[r, e] * y[e, c]
+                sb += ad[r, e] * y[e, c]
+            ay[r, c] = sa
+            dy[r, c] = sb
+    for r in range(3):
+        for c in range(3):
+            sa = 0.0
+            sb = 0.0
+            for e in range(6):
+                sa += ay[r, e] * am[c, e]
+                sb += dy[r, e] * am[c, e] + ay[r, e] * ad[c, e]
+            c_out[r, c] = sa
+            d_out[r, c] = sb
+    for q in range(n_par):
+        for r in range(3):
+            gr = 0.0
+            gdr = 0.0
+            for e in range(6):
+                gr += am[r, e] * z[e, q]
+                gdr += ad[r, e] * z[e, q]
+            for c in range(3):
+                gc = 0.0
+                gdc = 0.0
+                for e in range(6):
+                    gc += am[c, e] * z[e, q]
+                    gdc += ad[c, e] * z[e, q]
+                c_out[r, c] += gr * gc
+                d_out[r, c] += gdr * gc + gr * gdc
+
+
+@njit(cache=True, nogil=True, fastmath=True)
 def _covariance_kernel(pos, frames, bases, which, var, sens, par_sd, base_var, points, weights, breaks, interval,
-                       tt, hh, out):  # pragma: no cover (compiled)
+                       tt, hh, first, half_points, half_weights, out):  # pragma: no cover (compiled)
     """Position covariance of every frame (see :meth:`Uncertainty.position_covariance`): ``var`` (F, n_g, 2, 2)
     the independent curvature covariance, ``sens`` (F, n_g, 2, n_par) ∂k/∂p, ``par_sd`` the parameters' 1σ,
-    ``base_var`` the variance of the base frame's angle about each axis (δp = δφ × p: σ²(|p|² I − p pᵀ))."""
+    ``base_var`` the variance of the base frame's angle about each axis (δp = δφ × p: σ²(|p|² I − p pᵀ)),
+    ``first`` (3, 3) the inverse of the first piece's interpolation conditions, ``half_points``,
+    ``half_weights`` the rule integrating from the base to the first piece's middle point (see
+    :func:`_quadrature`).
+
+    With X_n = (Φ_n, Ψ_n) (6 × 2: the integrals of B_n R E and B_n (R E) × p), J_n = A X_n with
+    A = (−[p]×, −I) and J_n' = A' X_n with A' = (−[t]×, 0), so C = A Y Aᵀ and C' = A' Y Aᵀ + A Y A'ᵀ with
+    Y = Σ_n X_n V_n X_nᵀ (6 × 6) — per grating only the 6 × 6 update — plus the same with the parameters'
+    columns Z = Σ_n X_n S_n σ_p."""
     n_f, n_p = pos.shape[0], pos.shape[1]
     n_g, n_par = var.shape[1], sens.shape[3]
     n_b = breaks.shape[0]
-    cb = np.zeros((n_b, 6))  # C at the breakpoints, upper triangle xx xy xz yy yz zz
-    db = np.zeros((n_b, 6))  # and C'
+    cb = np.zeros((n_b, 3, 3))  # C at the breakpoints
+    db = np.zeros((n_b, 3, 3))  # and C'
+    cm = np.zeros((3, 3))  # C at the first piece's middle point
+    dm = np.zeros((3, 3))
     ia = np.zeros((n_g, 2, 3))
     ic = np.zeros((n_g, 2, 3))
-    m = np.zeros(3)
-    md = np.zeros(3)
-    jm = np.zeros((2, 3))
-    jd = np.zeros((2, 3))
-    g = np.zeros((n_par, 3))
-    gd = np.zeros((n_par, 3))
-    lc = np.zeros((2, 2))
-    ur = (0, 0, 0, 1, 1, 2)
-    uc = (0, 1, 2, 1, 2, 2)
+    ih = np.zeros((n_g, 2, 3))  # the integrals to the first piece's middle point
+    jh = np.zeros((n_g, 2, 3))
+    x = np.zeros((6, 2))
+    y = np.zeros((6, 6))
+    z = np.zeros((6, n_par))
+    am = np.zeros((3, 6))
+    ad = np.zeros((3, 6))
+    ay = np.zeros((3, 6))
+    dy = np.zeros((3, 6))
+    coef = np.zeros((3, 3, 3))  # the first piece's C = t⁴ (a + b t + c t²), a b c per element
     for f in range(n_f):
         basis = bases[which[f]]
         ia[:] = 0.0
@@ -445,49 +547,20 @@ def _covariance_kernel(pos, frames, bases, which, var, sens, par_sd, base_var, p
             if k > 0:
                 _add_point(pos, frames, basis, f, points[k - 1, 1], weights[k - 1, 1], ia, ic)
                 _add_point(pos, frames, basis, f, points[k - 1, 2], weights[k - 1, 2], ia, ic)
-            i = breaks[k]
-            p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
-            t0, t1, t2 = frames[f, i, 0, 2], frames[f, i, 1, 2], frames[f, i, 2, 2]
-            cb[k] = 0.0
-            db[k] = 0.0
-            g[:] = 0.0
-            gd[:] = 0.0
-            for n in range(n_g):
-                # V = L Lᵀ (2 × 2 Cholesky; a zero block gives L = 0)
-                v00, v10, v11 = var[f, n, 0, 0], var[f, n, 1, 0], var[f, n, 1, 1]
-                l00 = np.sqrt(v00) if v00 > 0.0 else 0.0
-                l10 = v10 / l00 if l00 > 0.0 else 0.0
-                r11 = v11 - l10 * l10
-                lc[0, 0], lc[1, 0], lc[0, 1], lc[1, 1] = l00, l10, 0.0, np.sqrt(r11) if r11 > 0.0 else 0.0
-                for c in range(2):
-                    # J = Φ × p − Ψ and J' = Φ × t
-                    jm[c, 0] = ia[n, c, 1] * p2 - ia[n, c, 2] * p1 - ic[n, c, 0]
-                    jm[c, 1] = ia[n, c, 2] * p0 - ia[n, c, 0] * p2 - ic[n, c, 1]
-                    jm[c, 2] = ia[n, c, 0] * p1 - ia[n, c, 1] * p0 - ic[n, c, 2]
-                    jd[c, 0] = ia[n, c, 1] * t2 - ia[n, c, 2] * t1
-                    jd[c, 1] = ia[n, c, 2] * t0 - ia[n, c, 0] * t2
-                    jd[c, 2] = ia[n, c, 0] * t1 - ia[n, c, 1] * t0
-                for d in range(2):
-                    la, lb = lc[0, d], lc[1, d]
-                    if la == 0.0 and lb == 0.0:
-                        continue
-                    for r in range(3):
-                        m[r] = jm[0, r] * la + jm[1, r] * lb
-                        md[r] = jd[0, r] * la + jd[1, r] * lb
-                    for e in range(6):
-                        a, b = ur[e], uc[e]
-                        cb[k, e] += m[a] * m[b]
-                        db[k, e] += md[a] * m[b] + m[a] * md[b]
-                for q in range(n_par):
-                    sa, sb = sens[f, n, 0, q] * par_sd[q], sens[f, n, 1, q] * par_sd[q]
-                    for r in range(3):
-                        g[q, r] += jm[0, r] * sa + jm[1, r] * sb
-                        gd[q, r] += jd[0, r] * sa + jd[1, r] * sb
-            for q in range(n_par):
-                for e in range(6):
-                    a, b = ur[e], uc[e]
-                    cb[k, e] += g[q, a] * g[q, b]
-                    db[k, e] += gd[q, a] * g[q, b] + g[q, a] * gd[q, b]
+            if k == 1:
+                ih[:] = 0.0
+                jh[:] = 0.0
+                for e in range(3):
+                    _add_point(pos, frames, basis, f, half_points[e], half_weights[e], ih, jh)
+                _moments(pos, frames, var, sens, par_sd, f, half_points[2], ih, jh, x, y, z, am, ad, ay, dy, cm, dm)
+            _moments(pos, frames, var, sens, par_sd, f, breaks[k], ia, ic, x, y, z, am, ad, ay, dy, cb[k], db[k])
+            if k == 1:
+                # conditions C(1), h C'(1), C(t_m) on t⁴ (a + b t + c t²): solved with the precomputed inverse
+                for r in range(3):
+                    for c in range(3):
+                        rhs0, rhs1, rhs2 = cb[1, r, c], hh[0] * db[1, r, c], cm[r, c]
+                        for e in range(3):
+                            coef[e, r, c] = first[e, 0] * rhs0 + first[e, 1] * rhs1 + first[e, 2] * rhs2
             if k < n_b - 1:
                 _add_point(pos, frames, basis, f, points[k, 0], weights[k, 0], ia, ic)
         # cubic Hermite between breakpoints: C and C' at both ends of each piece
@@ -497,17 +570,24 @@ def _covariance_kernel(pos, frames, bases, which, var, sens, par_sd, base_var, p
             h = hh[j]
             t2_ = t * t
             t3 = t2_ * t
+            t4 = t2_ * t2_
             h00 = 2 * t3 - 3 * t2_ + 1
             h10 = (t3 - 2 * t2_ + t) * h
             h01 = -2 * t3 + 3 * t2_
             h11 = (t3 - t2_) * h
-            pp = pos[f, j, 0] ** 2 + pos[f, j, 1] ** 2 + pos[f, j, 2] ** 2
-            for e in range(6):
-                a, b = ur[e], uc[e]
-                x = h00 * cb[q, e] + h10 * db[q, e] + h01 * cb[q + 1, e] + h11 * db[q + 1, e]
-                x += base_var * ((pp if a == b else 0.0) - pos[f, j, a] * pos[f, j, b])
-                out[f, j, a, b] = x
-                out[f, j, b, a] = x
+            q0, q1, q2 = pos[f, j, 0], pos[f, j, 1], pos[f, j, 2]
+            pp = q0 * q0 + q1 * q1 + q2 * q2
+            for r in range(3):
+                for c in range(r, 3):
+                    if q == 0:
+                        # the first piece: C ~ s⁴ from the base (an angle error times an arm, both ∝ s; s⁶ along
+                        # the tangent), which a cubic cannot follow
+                        v = t4 * (coef[0, r, c] + t * coef[1, r, c] + t2_ * coef[2, r, c])
+                    else:
+                        v = h00 * cb[q, r, c] + h10 * db[q, r, c] + h01 * cb[q + 1, r, c] + h11 * db[q + 1, r, c]
+                    v += base_var * ((pp if r == c else 0.0) - pos[f, j, r] * pos[f, j, c])
+                    out[f, j, r, c] = v
+                    out[f, j, c, r] = v
 
 
 def _masked_inverse(design: np.ndarray, present: np.ndarray, var_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -555,16 +635,17 @@ def fit_model_error(uncertainty: Uncertainty, shape: Shape, wavelengths, truth: 
     """The model error that makes the level-% tube hold ``level`` of the true points of shapes of known truth
     (never the ones to be scored).
 
-    One number is fitted: the scale of ``template`` (default a white curvature error of 1 1/m per component),
-    by bisection on the pooled coverage of all points with s > 0 (:func:`coverage`), which rises monotonically
-    with it. Zero when the noise and parameter terms alone already reach ``level``. A single scale is what a
-    handful of shapes can pin down: their errors are mostly systematic per shape, so the points of one shape
-    are not independent draws.
+    One number is fitted, by bisection on the pooled coverage of all points with s > 0 (:func:`coverage`), which
+    rises monotonically with it: the scale of ``template`` (default a white curvature error of 1 1/m per
+    component); or, when noise and the calibration's parameters alone already hold more than ``level``, the
+    ``parameter_scale`` (< 1) that brings the coverage down to it. A single number is what a handful of shapes
+    can pin down: their errors are mostly systematic per shape, so the points of one shape are not independent
+    draws.
 
     Parameters
     ----------
     uncertainty : Uncertainty
-        With the calibration to be used (its noise and parameter terms stay as they are).
+        With the calibration to be used (its noise term stays as it is).
     shape : Shape
         The reconstructions of ``wavelengths`` (a batch).
     wavelengths : ndarray (..., n_gratings, n_cores)
@@ -578,22 +659,27 @@ def fit_model_error(uncertainty: Uncertainty, shape: Shape, wavelengths, truth: 
     """
     t = template or ModelError(curvature=1.0)
 
-    def scaled(k: float) -> ModelError:
+    def scaled(k: float, p: float = 1.0) -> ModelError:
         return ModelError(curvature=k * t.curvature, relative=k * t.relative, base_angle=k * t.base_angle,
-                          source=source)
+                          parameter_scale=p, source=source)
 
-    def cover(k: float) -> float:
-        return coverage(uncertainty.with_model_error(scaled(k)).propagate(shape, wavelengths), truth, level)
+    def cover(me: ModelError) -> float:
+        return coverage(uncertainty.with_model_error(me).propagate(shape, wavelengths), truth, level)
 
-    if cover(0.0) >= level:
-        return scaled(0.0)
+    def bisect(make, lo: float, hi: float, rising: bool) -> float:
+        for _ in range(40):  # to 1e-12 of the bracket
+            mid = 0.5 * (lo + hi)
+            low = cover(make(mid)) < level
+            lo, hi = (mid, hi) if low == rising else (lo, mid)
+        return hi if rising else lo
+
+    if cover(scaled(0.0)) >= level:  # the parameters alone over-cover: trust their stated 1σ less
+        if cover(scaled(0.0, 0.0)) >= level:
+            return scaled(0.0, 0.0)
+        return scaled(0.0, bisect(lambda p: scaled(0.0, p), 0.0, 1.0, rising=True))
     hi = 1.0
-    while cover(hi) < level:  # the tube widens without bound as k grows, so this ends
+    while cover(scaled(hi)) < level:  # the tube widens without bound as the scale grows, so this ends
         hi *= 4.0
         if hi > 1e6:
             raise ValueError("fit_model_error: no model error reaches the coverage (truth not in the base frame?)")
-    lo = 0.0
-    for _ in range(40):  # to 1e-12 of hi
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if cover(mid) < level else (lo, mid)
-    return scaled(hi)
+    return scaled(bisect(scaled, 0.0, hi, rising=True))

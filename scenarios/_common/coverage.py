@@ -16,6 +16,7 @@ as it identifies the calibration.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import os
 from collections.abc import Callable, Sequence
@@ -35,7 +36,7 @@ __all__ = ["LEVEL", "fit_on_frames", "lab_model_error", "summary", "truth_in_bas
 
 #: The tube every report checks, and its acceptance band (issue 21): 92–98 % of the truth points inside.
 LEVEL = 0.95
-_CACHE_VERSION = 1
+_CACHE_VERSION = 4  # 4: the first piece's covariance exact to s⁶; one scale fitted to the pooled coverage
 
 Say = Callable[[str], None]
 
@@ -59,13 +60,21 @@ def truth_of_frames(frames, s: np.ndarray) -> np.ndarray:
 
 def summary(shape: Shape, truth: np.ndarray) -> dict:
     """``coverage_95`` (fraction of true points in the 95 % tube, s > 0), ``mean_sigma_mm`` (mean 1σ lateral
-    radius over points with s > 0 and frames) and the coverage per quarter of the length."""
+    radius over points with s > 0 and frames), the coverage per quarter of the length and, for a batch with some
+    frames that lost a grating, the coverage of the intact frames and of the others apart (a lost grating is
+    interpolated over, and the tube does not widen for it)."""
     s = shape.s
-    quarters = [coverage(shape, truth, LEVEL, where=(s > lo) & (s <= hi))
-                for lo, hi in zip(np.linspace(0, s[-1], 5)[:-1], np.linspace(0, s[-1], 5)[1:], strict=True)]
+    edges = np.linspace(0, s[-1], 5)
+    quarters = [coverage(shape, truth, LEVEL, where=(s > lo) & (s <= hi)) for lo, hi in itertools.pairwise(edges)]
     sig = shape.sigma[..., s > 0]
-    return {"coverage_95": coverage(shape, truth, LEVEL), "mean_sigma_mm": float(np.nanmean(sig) * 1e3),
-            "coverage_95_by_quarter": quarters}
+    out = {"coverage_95": coverage(shape, truth, LEVEL), "mean_sigma_mm": float(np.nanmean(sig) * 1e3),
+           "coverage_95_by_quarter": quarters}
+    lost = ~shape.valid.all(axis=-1)
+    if shape.batch_shape and lost.any() and not lost.all():
+        out["coverage_95_intact_frames"] = coverage(shape[~lost], truth[~lost], LEVEL)
+        out["coverage_95_frames_with_a_lost_grating"] = coverage(shape[lost], truth[lost], LEVEL)
+        out["frames_with_a_lost_grating"] = int(lost.sum())
+    return out
 
 
 def fit_on_frames(fiber: FiberModel, cal: Calibration, frame_sets: Sequence, source: str) -> ModelError:
@@ -100,10 +109,11 @@ def lab_model_error(fiber: FiberModel, optics: OpticsConfig, cal: Calibration, *
     if cache:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps({"curvature": me.curvature, "relative": me.relative,
-                                   "base_angle": me.base_angle, "source": me.source}))
+        tmp.write_text(json.dumps({"curvature": me.curvature, "relative": me.relative, "base_angle": me.base_angle,
+                                   "parameter_scale": me.parameter_scale, "source": me.source}))
         tmp.replace(path)
-    say(f"model error: {me.curvature:.3g} 1/m per component, base angle {me.base_angle:.3g} rad ({me.source})")
+    say(f"model error: {me.curvature:.3g} 1/m per component, the calibration's parameter 1σ × "
+        f"{me.parameter_scale:.3g} ({me.source})")
     return me
 
 
