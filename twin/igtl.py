@@ -336,10 +336,11 @@ class IgtlSink:
     """
 
     def __init__(self, server: IgtlServer, rate: float = 30.0, *, close_server: bool = True,
-                 stream: TextIO | None = None):
+                 stream: TextIO | None = None, uncertainty=None):
         if not rate > 0:
             raise ValueError(f"IgtlSink: rate must be positive, got {rate}")
         self.server, self.period, self.close_server, self.stream = server, 1.0 / rate, close_server, stream
+        self.uncertainty = uncertainty  # a twin.uncertainty.Uncertainty: the sent shape gets its tube
         self.frames_sent = 0
         self.errors = 0
         self.last_error: str | None = None
@@ -353,7 +354,10 @@ class IgtlSink:
             if frames and shapes is not None:
                 i = latest_usable(shapes, status.flags, len(frames))
                 if i is not None:
-                    self._pending = (shapes[i], frames[i].truth)
+                    shape = shapes[i]
+                    if self.uncertainty is not None and shape.covariance is None:
+                        shape = self.uncertainty.propagate(shape, frames[i])
+                    self._pending = (shape, frames[i].truth)
             now = time.monotonic()
             if self._pending is not None and now >= self._due:
                 shape, truth = self._pending

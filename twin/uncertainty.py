@@ -10,17 +10,19 @@ Three sources are propagated:
     every grating, so it enters the positions as a low-rank term with its correlation along the fibre;
 (c) **the model error** (:class:`ModelError`): what the reconstruction's model leaves — interpolating between
     gratings, the grating's length, the catheter's twist, drift of the reference — as a white per-grating
-    curvature error of 1σ ``curvature`` + ``relative``·|k| per component, calibrated on shapes of known truth
-    with :func:`fit_model_error`.
+    curvature error of 1σ ``curvature`` + ``relative``·|k| per component (and optionally an error of the base
+    frame's angle, and a factor on the stated parameter errors), calibrated on shapes of known truth with
+    :func:`fit_model_error`.
 
 A curvature error δk(s) rotates everything beyond s about p(s) by R(s) δu(s) ds, δu = (−δk_y, δk_x, 0), so to
 first order δp(s_j) = ∫_0^{s_j} (R δu)(s) × (p(s_j) − p(s)) ds, with δk(s) the interpolation basis applied to
-the gratings' δk (the reconstructor's own basis). This is evaluated with cumulative trapezoid sums over the
-output points for every frame at once.
+the gratings' δk (the reconstructor's own basis). A compiled pass per batch integrates it piece by piece
+between gratings and interpolates the covariance between them (docs/math.md §8.2).
 
 :class:`Uncertainty` wraps a :class:`~twin.Reconstructor` (public API only) and returns a
 :class:`~twin.frames.Shape` carrying ``covariance`` and ``curvature_covariance``; :meth:`Shape.confidence` gives
-the radius of the level-% tube from the lateral (2-D) part of the covariance.
+the radius of the level-% tube from the lateral (2-D) part of the covariance. docs/math.md §8 has the equations
+and the checks.
 """
 
 from __future__ import annotations

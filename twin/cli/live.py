@@ -108,6 +108,11 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
         calibration = Calibration.load(args.calibration) if args.calibration else getattr(first, "calibration", None)
         rec = Reconstructor(fiber, calibration, method=args.method)
+        uncertainty = None  # the confidence tube for the viewer and OpenIGTLink (the default pipeline's)
+        if rec.method == "material" and not rec.twist:
+            from twin.uncertainty import Uncertainty
+
+            uncertainty = Uncertainty(rec)
         if not args.quiet:
             sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate))
         recorder = None
@@ -126,13 +131,14 @@ def run(args: argparse.Namespace) -> int:
 
             viewer = Viewer(ViewerConfig(max_fps=args.viewer_rate),
                             calibration=args.calibration.name if args.calibration else None)
-            viewer_sink = ViewerSink(viewer, rate=args.viewer_rate, close_viewer=not args.keep_open)
+            viewer_sink = ViewerSink(viewer, rate=args.viewer_rate, close_viewer=not args.keep_open,
+                                     uncertainty=uncertainty)
             sinks.append(viewer_sink)
         if args.igtl is not None:
             from twin.igtl import IgtlServer, IgtlSink, parse_address
 
             server = IgtlServer(*parse_address(args.igtl))
-            igtl_sink = IgtlSink(server, rate=args.igtl_rate)
+            igtl_sink = IgtlSink(server, rate=args.igtl_rate, uncertainty=uncertainty)
             sinks.append(igtl_sink)
             print(f"twin live: OpenIGTLink on {server.address[0]}:{server.address[1]}", file=sys.stderr, flush=True)
     except BaseException:
