@@ -1,4 +1,4 @@
-"""Compiled lumen forces of :class:`models.fibre.LumenCoupler` (numba): they run before every physics step.
+"""Compiled lumen forces of :class:`models.lumen_fiber.LumenCoupler` (numba): they run before every physics step.
 
 The arithmetic is the one :meth:`LumenCoupler.apply` documents (wall spring and cross-section damper beyond the
 clearance, regularised Coulomb friction along the lumen, the lumen's end on the tip, the tension read-out), in
@@ -38,7 +38,7 @@ def lumen_forces(x_c, frames, cs0, l, offset, x_f, v_f, sigma, free, prev_p, dt,
     free : (nf,) bool, vertices not held by glue.
     prev_p : (nf, 3) lumen points of the previous step; dt : s since then (0: keep ``v_l``).
     v_l : (nf, 3) in/out: lumen velocity at the fibre's vertices, m/s.
-    drag, clearance, wall_stiffness, wall_damping, friction, slip_speed, visc_cap : the FibreSpec's values
+    drag, clearance, wall_stiffness, wall_damping, friction, slip_speed, visc_cap : the FiberSpec's values
         (visc_cap = 0.5 · vertex_mass / timestep, N·s/m).
     lumen_end : catheter arc length of the lumen's end, m.
     p : (nf, 3) out: lumen points at the updated coordinates. force : (nf, 3) out, N. normal : (nf,) out, N.

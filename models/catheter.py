@@ -185,7 +185,7 @@ class CatheterSpec:
         The simulation uses ``mass * mass_scale``.
     n_segments : int
         Number of rod edges over the whole modelled length.
-    fibre_offset : float
+    fiber_offset : float
         Distance of the sensing fibre's axis from the catheter's neutral axis, m (used by the optics model;
         the mechanics ignore it).
     damping : float
@@ -223,7 +223,7 @@ class CatheterSpec:
     torsional_stiffness: float = 1.5e-4
     mass: float = 1.3e-3
     n_segments: int = 100
-    fibre_offset: float = 0.0
+    fiber_offset: float = 0.0
     damping: float = 2.0e-3
     friction: float = 0.1
     mass_scale: float = 100.0
@@ -252,7 +252,7 @@ class CatheterSpec:
         for name in (
             "base_length",
             "tip_length",
-            "fibre_offset",
+            "fiber_offset",
             "damping",
             "friction",
             "gravity_scale",
@@ -273,9 +273,9 @@ class CatheterSpec:
             v = getattr(self, name)
             if len(v) != 3 or not all(0 < d < 1 for d in v[:2]):
                 raise ValueError(f"{owner}.{name}: expected (d0, dwidth, width) with 0 < d < 1, got {v!r}")
-        if self.fibre_offset >= self.radius:
+        if self.fiber_offset >= self.radius:
             raise ValueError(
-                f"{owner}.fibre_offset: {self.fibre_offset} m puts the fibre outside the catheter "
+                f"{owner}.fiber_offset: {self.fiber_offset} m puts the fibre outside the catheter "
                 f"(radius {self.radius} m)"
             )
 
@@ -551,7 +551,7 @@ class Scene:
         self.add_numeric(f"{spec.name}_s0", -spec.base_length)
         self.add_numeric(f"{spec.name}_sensed_length", spec.sensed_length)
         self.add_numeric(f"{spec.name}_vertex_damping", spec.dof_damping)
-        self.add_numeric(f"{spec.name}_fibre_offset", spec.fibre_offset)
+        self.add_numeric(f"{spec.name}_fiber_offset", spec.fiber_offset)
         return rod
 
     # -- output --

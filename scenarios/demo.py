@@ -24,11 +24,14 @@ import numpy as np
 from models.catheter import collect_warnings
 from scenarios._common.calibration import calibration_for
 from sim_interrogator.optics import Optics, OpticsConfig
-from sim_interrogator.servers.illumisense import IllumisenseServer
-from sim_interrogator.source import open_sim
+from sim_interrogator.servers.illumisense_server import IllumisenseServer
+from sim_interrogator.sim_source import open_sim
 from twin import FiberModel, Frame, Reconstructor, jsonout, metrics
 from twin.io.source import open_source
 from twin.live import LiveLoop
+
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "the main job: reconstruct shapes from (simulated) interrogator data and compare"
 
 DEFAULT_SCENARIO = "sim://sheath-cycle?cycles=3&segments=60&rate=50&realtime=1"
 FALLBACK_SCENARIO = "sim://static?shape=mixed&fixture=tube&realtime=1&rate=100"
@@ -136,7 +139,7 @@ def _warm_up(server: IllumisenseServer, fiber: FiberModel, cal) -> None:
     """Encode, decode and reconstruct one record before the clock starts: on a fresh install the compiled
     kernels of the wire format (the sensor blocks, the scanner) are built on first use, seconds that would
     otherwise be taken from the live run."""
-    from twin.io.illumisense_stream import StreamDecoder
+    from twin.io.illumisense.stream import StreamDecoder
 
     data = server.encode(Frame(fiber.lambda0.copy(), 0.0, 0))
     decoder = StreamDecoder()

@@ -5,14 +5,14 @@ The reference paper's first contribution is a set of guidelines for integrating 
 clearance between fibre and lumen, preferably with a low-friction lining; (b) one, preferably two fixations at
 the fibre's base, the first grating Δx_prox ≥ 15 mm beyond the most distal one; (c) the tip free, Δx_dist
 1–2 mm short of the lumen's end (tip contact disrupts the wavelengths); a constant offset of the fibre from the
-catheter's axis is allowed. Here the fibre is its own body in the catheter's lumen (:mod:`models.fibre`) and
+catheter's axis is allowed. Here the fibre is its own body in the catheter's lumen (:mod:`models.lumen_fiber`) and
 each guideline is a design parameter:
 
-* **static shapes** (``sim://fibre-static``: library shapes held exactly by connect constraints): max and mean
+* **static shapes** (``sim://fiber-static``: library shapes held exactly by connect constraints): max and mean
   distance of the reconstruction (default pipeline, the twin's true calibration) from the catheter's own
   centreline, Kabsch-registered, over shapes and frames — the catheter is where the shape is, the fibre is what
   reads it;
-* **repeatability** (``sim://fibre-sheath-cycle``: in and out of the pre-bent sheath): the spread of the
+* **repeatability** (``sim://fiber-sheath-cycle``: in and out of the pre-bent sheath): the spread of the
   reconstructed tip over the returns to the reference (RMS distance from the mean, and the largest);
 * peaks lost or disturbed by tip contact, the fibre's largest slide along the lumen, and its tip gap.
 
@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from sim_interrogator.fibre_setups import FibreSheathCycle, FibreStatic
+from sim_interrogator.fiber_setups import FiberSheathCycle, FiberStatic
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.sim import SimInterrogator
 from twin import FiberModel, Reconstructor, metrics, shapes
@@ -111,7 +111,7 @@ def design_points(kind: str = "guidelines") -> list[dict]:
     return pts
 
 
-def _fibre_kw(point: dict) -> dict:
+def _fiber_kw(point: dict) -> dict:
     return {k: point[k] for k in ("clearance", "friction", "dx_prox", "dx_dist", "offset", "glued")} | {
         "fixations": int(point["fixations"]),
         "lead_tension": float(point.get("lead_tension", BASELINE["lead_tension"]))}
@@ -121,7 +121,7 @@ def static_part(point: dict, params: Params, fiber: FiberModel) -> dict:
     """Max/mean error over the static shapes (m), lost peaks, tip contacts and the largest slide."""
     maxima, means, tips, dk_base, lost, contact, slide, unsettled = [], [], [], [], 0, 0, 0.0, 0
     for i, name in enumerate(params.shapes):
-        setup = FibreStatic(name, "connect", segments=params.segments, seed=params.seed + i, **_fibre_kw(point))
+        setup = FiberStatic(name, "connect", segments=params.segments, seed=params.seed + i, **_fiber_kw(point))
         sim = SimInterrogator(setup, fiber, OpticsConfig(seed=params.seed + i))
         frames = [sim.read() for _ in range(params.repeats)]
         rec = Reconstructor(fiber, sim.optics.true_calibration())
@@ -149,8 +149,8 @@ def static_part(point: dict, params: Params, fiber: FiberModel) -> dict:
 def cycle_part(point: dict, params: Params, fiber: FiberModel) -> dict:
     """Spread of the reconstructed tip over the returns to the reference (m), peaks lost in the run."""
     mu = 0.2 * max(0.5, 1.0 + SHEATH_FRICTION_SPREAD * np.random.default_rng([params.seed, 2]).standard_normal())
-    setup = FibreSheathCycle(cycles=params.cycles, segments=params.cycle_segments, seed=params.seed,
-                             sheath_friction=mu, **_fibre_kw(point))
+    setup = FiberSheathCycle(cycles=params.cycles, segments=params.cycle_segments, seed=params.seed,
+                             sheath_friction=mu, **_fiber_kw(point))
     sim = SimInterrogator(setup, fiber, OpticsConfig(seed=params.seed), rate=params.rate)
     n = round(setup.duration * params.rate) + 1
     frames = [sim.read() for _ in range(n)]

@@ -1,6 +1,6 @@
 """`twin run jig`: the jig calibration of a 3-fibre needle on the twin, both fit models cross-validated.
 
-The simulated needle (docs/needle-fibre.toml: three single-core fibres at 120°, 4 gratings at uneven positions
+The simulated needle (docs/needle-fiber.toml: three single-core fibres at 120°, 4 gratings at uneven positions
 from 20 mm) is pressed into constant-curvature grooves at 4 orientations, several trials each, with a flat-groove
 reference in every trial. The true sensor is not the nominal one: core angles a few degrees and radii a few
 percent off, a slight spiral of the glued fibres, as-built reference wavelengths and per-core thermal response
@@ -27,7 +27,7 @@ from dataclasses import asdict, replace
 
 import numpy as np
 
-from sim_interrogator.jig import (
+from sim_interrogator.needle_jig import (
     MIN_CURVATURE,
     SENSORS,
     JigParams,
@@ -113,7 +113,7 @@ def _recovery(nominal: FiberModel, truth: dict, jig_fit) -> dict:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sensor", choices=sorted(SENSORS), default="needle",
-                        help="needle: the 3-fibre needle of docs/needle-fibre.toml in an ideal jig (with an acceptance "
+                        help="needle: the 3-fibre needle of docs/needle-fiber.toml in an ideal jig (with an acceptance "
                         "verdict); amiro: JHU AMIRo's needle_3CH_4AA_v2 in its jig as the real data shows it "
                         "(docs/jig.md; compare with twin run real-jig)")
     parser.add_argument("--out", metavar="POSES.csv", help="also write the simulated poses as a jig CSV")

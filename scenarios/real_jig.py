@@ -2,7 +2,7 @@
 
 The real table (tests/data/amiro/poses.csv, SOURCE.md beside it) is JHU AMIRo's needle_3CH_4AA_v2 in its
 calibration jig: 4 rotations, 7 grooves (0–4 1/m), 3 trials each. The twin (``twin run jig --sensor amiro``,
-:data:`sim_interrogator.jig.AMIRO`) simulates that needle in that jig. Both tables are judged the same way
+:data:`sim_interrogator.needle_jig.AMIRO`) simulates that needle in that jig. Both tables are judged the same way
 (:func:`twin.calibration.jig.leave_one_rotation_out`, physical model, the gratings in the groove):
 
 * ``rms_strain_residual`` — RMS strain residual of the fit on all rotations (in-sample);
@@ -13,6 +13,12 @@ calibration jig: 4 rotations, 7 grooves (0–4 1/m), 3 trials each. The twin (``
 The twin's figures are medians over ``--seeds`` simulated sessions (one session scatters by a factor ~2, as one
 real session would). ``ratio`` is twin / real; the twin reproduces the table when every ratio is within a factor
 1.5 (exit status 1 otherwise). ``--budget`` turns each modelled effect off in turn: what each one explains.
+
+``--models`` compares the calibration models (the plain ``linear`` baseline, ``physical``, ``matrix`` and the
+error-model ``nuisance`` fit, with each of its jig terms dropped in turn) by the one score
+(:mod:`twin.calibration.jig.score`): on both real tables leave one rotation out, and on the twin over the sessions,
+three ways — held-out rotations (leave one out), a second session of the same sensor in the same jig (one global
+roll fitted) and the truth (exact bends of the true sensor, no jig at all: the calibration's own error).
 """
 
 from __future__ import annotations
@@ -22,14 +28,29 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from sim_interrogator.jig import AMIRO, MIN_CURVATURE, JigParams, amiro_fiber, loro
-from twin import FiberModel, jsonout
-from twin.calibration.jig import leave_one_rotation_out, read_poses
+import numpy as np
 
-__all__ = ["DATA", "EFFECTS", "FACTOR", "KEYS", "budget", "compare", "real_statistics"]
+from sim_interrogator.needle_jig import AMIRO, MIN_CURVATURE, JigParams, amiro_fiber, loro, simulate
+from twin import FiberModel, jsonout
+from twin.calibration.jig import fit, leave_one_rotation_out, read_poses, validate
+from twin.calibration.jig.nuisance import DEFAULT_TERMS, TERMS
+from twin.calibration.jig.score import ALL_LEVELS, CLINICAL
+
+__all__ = ["DATA", "EFFECTS", "FACTOR", "KEYS", "REAL_TABLES", "VARIANTS", "budget", "compare", "model_scores",
+           "model_study", "real_statistics"]
 
 #: The real table and its fibre model.
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "amiro"
+#: Both real jig tables: (poses, fibre model, gratings in the groove); SOURCE.md beside each.
+REAL_TABLES = {
+    "needle_3CH_4AA_v2": (DATA / "poses.csv", DATA / "needle.toml", (0, 1, 2)),
+    "needle_3CH_3AA": (DATA.parent / "amiro-3aa" / "poses.csv", DATA.parent / "amiro-3aa" / "needle.toml", (0, 1)),
+}
+#: The calibrations compared by ``--models``: (name, model, nuisance terms or None).
+VARIANTS = (("linear", "linear", None), ("physical", "physical", None), ("matrix", "matrix", None),
+            ("nuisance", "nuisance", DEFAULT_TERMS), ("nuisance with gain", "nuisance", TERMS),
+            *((f"nuisance without {t}", "nuisance", DEFAULT_TERMS - {t}) for t in sorted(DEFAULT_TERMS)),
+            ("nuisance, no terms", "nuisance", frozenset()))
 #: The twin reproduces a figure when twin / real is within [1/FACTOR, FACTOR].
 FACTOR = 1.5
 KEYS = ("rms_strain_residual", "loro_kappa_error_1_per_m", "loro_direction_error_deg")
@@ -77,6 +98,65 @@ def budget(params: JigParams, fiber: FiberModel, seeds: int, twin: dict | None =
     return rows
 
 
+def _score(st, key: str) -> dict:
+    """The score of a validation or LORO in both bands, flat (1/m, deg), and its coverage."""
+    out = {}
+    for bands, tag in ((ALL_LEVELS, "all"), (CLINICAL, "clinical")):
+        sc = st.score(bands)
+        out[f"{key}_{tag}_kappa_1_per_m"] = sc.magnitude_error
+        out[f"{key}_{tag}_direction_deg"] = None if sc.direction_error is None else float(
+            np.rad2deg(sc.direction_error))
+    out[f"{key}_coverage_95"] = st.coverage_95 if hasattr(st, "coverage_95") else st.coverage()[0]
+    return out
+
+
+def model_scores(poses_path: str | Path, fiber_path: str | Path, gratings, variants=VARIANTS) -> list[dict]:
+    """Leave-one-rotation-out score of each calibration variant on a real table."""
+    fiber = FiberModel.load(fiber_path)
+    poses = read_poses(poses_path, fiber=fiber)
+    rows = []
+    for name, model, terms in variants:
+        extra = {} if terms is None else {"terms": terms}
+        st = leave_one_rotation_out(fiber, poses, model=model, gratings=list(gratings),
+                                    min_curvature=MIN_CURVATURE, **extra)
+        rows.append({"variant": name, **_score(st, "loro")})
+    return rows
+
+
+def model_study(params: JigParams, fiber: FiberModel, seeds: int, variants=VARIANTS) -> dict:
+    """The calibration variants on ``seeds`` simulated sessions: per session (seed s) a second session of the same
+    sensor (``session_seed`` 1000 + s) and a truth session (2000 + s: no jig effects and no noise, bends of
+    0.5–2 1/m every 30°). Returns per variant the medians over the sessions and, against the first variant (the
+    linear baseline), the fraction of sessions where it is better.
+    """
+    off = {k: v for effect in EFFECTS.values() for k, v in effect.items()}
+    per: dict[str, list[dict]] = {name: [] for name, _, _ in variants}
+    for i in range(seeds):
+        s = params.seed + i
+        first, truth = simulate(replace(params, seed=s), fiber)
+        second, _ = simulate(replace(params, seed=s, session_seed=1000 + s), fiber)
+        exact, _ = simulate(replace(params, seed=s, session_seed=2000 + s, **off,
+                                    orientations_deg=tuple(range(0, 360, 30)), curvatures=(0.0, 0.5, 1.0, 2.0),
+                                    trials=1), fiber)
+        g = truth["gratings_in_groove"]
+        for name, model, terms in variants:
+            extra = {} if terms is None else {"terms": terms}
+            st = leave_one_rotation_out(fiber, first, model=model, gratings=g, min_curvature=MIN_CURVATURE, **extra)
+            cal = fit(fiber, first, model=model, gratings=g, **extra).calibration
+            per[name].append({**_score(st, "loro"),
+                              **_score(validate(cal, second, fiber=fiber, fit_roll=True), "second"),
+                              **_score(validate(cal, exact, fiber=fiber, fit_roll=True), "truth")})
+    base = per[variants[0][0]]
+    out = {}
+    for name, runs in per.items():
+        keys = [k for k in runs[0] if runs[0][k] is not None]
+        med = {k: float(np.median([r[k] for r in runs])) for k in keys}
+        wins = {k: float(np.mean([r[k] < b[k] for r, b in zip(runs, base, strict=True)]))
+                for k in keys if not k.endswith("coverage_95")}
+        out[name] = {"median": med, "better_than_linear": wins}
+    return {"seeds": seeds, "variants": out}
+
+
 def _figures(d: dict) -> dict:
     return {k: d[k] for k in KEYS}
 
@@ -93,6 +173,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     parser.add_argument("--budget", action="store_true",
                         help="also turn each modelled effect off in turn (the error budget)")
+    parser.add_argument("--models", action="store_true",
+                        help="also compare the calibration models by the one score: both real tables (leave one "
+                        "rotation out) and the twin (held-out rotations, a second session, the truth), with the "
+                        "nuisance model's terms dropped in turn")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -110,6 +194,9 @@ def run(args: argparse.Namespace) -> int:
     result["twin_sessions"] = twin["sessions"]
     if args.budget:
         result["budget"] = budget(params, amiro_fiber(), args.seeds, twin)
+    if args.models:
+        result["models"] = {"real": {name: model_scores(*table) for name, table in REAL_TABLES.items()},
+                            "twin": model_study(params, amiro_fiber(), args.seeds)}
     status = 0 if result["passes"] else 1
     if args.json:
         print(jsonout.dumps(result, indent=2))
@@ -133,4 +220,38 @@ def run(args: argparse.Namespace) -> int:
         for row in result["budget"]:
             print(f"{row['effect']:48s}{row['rms_strain_residual'] * 1e6:8.2f}{row['loro_kappa_error_1_per_m']:9.4f}"
                   f"{row['loro_direction_error_deg']:8.2f}°", file=out)
+    if args.models:
+        _print_models(result["models"], out)
     return status
+
+
+def _f(x, spec: str) -> str:
+    return "—" if x is None else format(x, spec)
+
+
+def _print_models(models: dict, out) -> None:
+    print("\nScore (docs/jig.md): median per-level RMS |Δκ| (1/m) / median |mean Δdir| (deg), all levels "
+          "(direction κ ≥ 0.8 1/m); clinical: |Δκ| at 0.25–1.25 1/m; 95 % coverage of the stated intervals", file=out)
+    for table, rows in models["real"].items():
+        print(f"\nReal table {table}, leave one rotation out:", file=out)
+        print(f"{'':28s}{'|Δκ|':>8s}{'|Δdir|':>8s}{'clinical':>10s}{'cover':>8s}", file=out)
+        for r in rows:
+            print(f"{r['variant']:28s}{_f(r['loro_all_kappa_1_per_m'], '8.4f')}"
+                  f"{_f(r['loro_all_direction_deg'], '7.2f')}°"
+                  f"{_f(r['loro_clinical_kappa_1_per_m'], '10.4f')}"
+                  f"{_f(None if r['loro_coverage_95'] is None else 100 * r['loro_coverage_95'], '7.1f')}"
+                  f"{'' if r['loro_coverage_95'] is None else '%'}", file=out)
+    tw = models["twin"]
+    print(f"\nTwin of needle_3CH_4AA_v2, median of {tw['seeds']} sessions (in brackets: fraction of sessions better "
+          "than linear):", file=out)
+    print(f"{'':28s}{'held-out rotations':>26s}{'second session':>26s}{'truth (exact bends)':>26s}"
+          f"{'coverage':>18s}", file=out)
+    for name, v in tw["variants"].items():
+        cells = []
+        for key in ("loro", "second", "truth"):
+            m, w = v["median"], v["better_than_linear"]
+            k, d = f"{key}_all_kappa_1_per_m", f"{key}_all_direction_deg"
+            cells.append(f"{m[k]:7.4f} ({w[k]:.0%}) {m[d]:5.2f}° ({w[d]:.0%})")
+        cover = [v["median"].get(f"{key}_coverage_95") for key in ("loro", "second")]
+        cover_txt = " / ".join("—" if c is None else f"{100 * c:.0f}%" for c in cover)
+        print(f"{name:28s}" + "".join(f"{c:>26s}" for c in cells) + f"{cover_txt:>18s}", file=out)

@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from scenarios._common import entry
-from scenarios._common import sheath as common
+from scenarios._common import sheath_experiments as common
 from scenarios._common.calibration import calibration_for
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import DEG, option
@@ -45,7 +45,7 @@ from scenarios.report import (
     stamp,
     tip_trajectories,
 )
-from sim_interrogator.sheath import SheathCycle
+from sim_interrogator.sheath_setups import SheathCycle
 
 PAPER_STD_MM = 0.82
 PAPER_MAX_MM = 2.84
@@ -150,7 +150,7 @@ class Result:
 
     def spreads(self) -> dict:
         t = self.tips
-        out = {f"fibre_{m}": spread(t["fibre"][m]) for m in common.MODES}
+        out = {f"fiber_{m}": spread(t["fiber"][m]) for m in common.MODES}
         out |= {f"world_{m}": spread(t["world"][m]) for m in common.MODES}
         out |= {"true": spread(t["true"]), "true_world": spread(t["true_world"]), "em": spread(t["em"])}
         return out
@@ -160,12 +160,12 @@ class Result:
         return {
             "paper_std_mm": PAPER_STD_MM,
             "paper_max_mm": PAPER_MAX_MM,
-            "std_mm": sp["fibre_default"]["std"] * 1e3,
-            "max_mm": sp["fibre_default"]["max"] * 1e3,
-            "paper_pipeline_std_mm": sp["fibre_paper"]["std"] * 1e3,
-            "paper_pipeline_max_mm": sp["fibre_paper"]["max"] * 1e3,
-            "paper_literal_std_mm": sp["fibre_paper-literal"]["std"] * 1e3,
-            "paper_literal_max_mm": sp["fibre_paper-literal"]["max"] * 1e3,
+            "std_mm": sp["fiber_default"]["std"] * 1e3,
+            "max_mm": sp["fiber_default"]["max"] * 1e3,
+            "paper_pipeline_std_mm": sp["fiber_paper"]["std"] * 1e3,
+            "paper_pipeline_max_mm": sp["fiber_paper"]["max"] * 1e3,
+            "paper_literal_std_mm": sp["fiber_paper-literal"]["std"] * 1e3,
+            "paper_literal_max_mm": sp["fiber_paper-literal"]["max"] * 1e3,
             "true_std_mm": sp["true"]["std"] * 1e3,
             "true_max_mm": sp["true"]["max"] * 1e3,
             "world_std_mm": sp["world_default"]["std"] * 1e3,
@@ -183,7 +183,7 @@ class Result:
         spreads = {k: {"std_mm": v["std"] * 1e3, "max_mm": v["max"] * 1e3,
                        "axis_std_mm": (np.asarray(v["axis_std"]) * 1e3).tolist()} for k, v in sp.items()}
         cycles = [{"cycle": k + 1,
-                   "fibre_tip_mm": (self.tips["fibre"]["default"][k] * 1e3).tolist(),
+                   "fiber_tip_mm": (self.tips["fiber"]["default"][k] * 1e3).tolist(),
                    "true_tip_mm": (self.tips["true"][k] * 1e3).tolist(),
                    "tip_error_mm": float(self.tip_error["default"][k] * 1e3),
                    "paper_tip_error_mm": float(self.tip_error["paper"][k] * 1e3)}
@@ -220,9 +220,9 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
         return np.stack([x[w].mean(axis=0) for w in win])
 
     rel = ser.tip - ser.base_positions
-    true_fibre = np.einsum("nji,nj->ni", ser.base_frames, rel)  # true tip in the true base frame
+    true_fiber = np.einsum("nji,nj->ni", ser.base_frames, rel)  # true tip in the true base frame
     em = common.em_readings(ser.tip, params.em_noise, params.seed + common.EM_STREAM)
-    tips = {"fibre": {}, "world": {}, "true": avg(true_fibre), "true_world": avg(ser.tip), "em": avg(em)}
+    tips = {"fiber": {}, "world": {}, "true": avg(true_fiber), "true_world": avg(ser.tip), "em": avg(em)}
     tip_error, frame_error = {}, {}
     trajectories = {"truth": ser.tip}
     curvature = {"grating_s": sim.fiber.grating_s, "truth": ser.truth_curvature[last]}
@@ -235,10 +235,10 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
         if mode == "default":
             common.show_frames(viewer, shape, ser)
         world = np.einsum("nij,nj->ni", ser.base_frames, shape.tip) + ser.base_positions
-        tips["fibre"][mode] = avg(shape.tip)
+        tips["fiber"][mode] = avg(shape.tip)
         tips["world"][mode] = avg(world)
-        tip_error[mode] = np.linalg.norm(tips["fibre"][mode] - tips["true"], axis=1)
-        frame_error[mode] = np.linalg.norm(shape.tip - true_fibre, axis=1)
+        tip_error[mode] = np.linalg.norm(tips["fiber"][mode] - tips["true"], axis=1)
+        frame_error[mode] = np.linalg.norm(shape.tip - true_fiber, axis=1)
         trajectories[mode] = world
         curvature[mode] = shape.curvature[last]
     result = Result(params, sim.describe(), tips, tip_error, t, frame_error, at_ref, trajectories, curvature,
@@ -264,8 +264,8 @@ def text_report(result: Result) -> str:
         f"{'':34s}{'std':>8s}{'max':>8s}",
         f"{'paper':34s}{PAPER_STD_MM:8.2f}{PAPER_MAX_MM:8.2f}",
     ]
-    for key, label in (("fibre_default", "reconstructed, fibre frame"), ("fibre_paper", "  paper's pipeline (guarded)"),
-                       ("fibre_paper-literal", "  paper's pipeline, literal"),
+    for key, label in (("fiber_default", "reconstructed, fibre frame"), ("fiber_paper", "  paper's pipeline (guarded)"),
+                       ("fiber_paper-literal", "  paper's pipeline, literal"),
                        ("true", "true catheter, its base frame"), ("world_default", "reconstructed, world"),
                        ("true_world", "true catheter, world"), ("em", "EM sensor")):
         lines.append(f"{label:34s}{sp[key]['std'] * 1e3:8.3f}{sp[key]['max'] * 1e3:8.3f}")
@@ -291,8 +291,8 @@ def write_report(result: Result, directory: str) -> str:
     rep.text(f"Calibration: {result.calibration.get('name')} — {result.calibration.get('description', '')}.")
     sp = result.spreads()
     rep.table(*common.paper_table([
-        ("tip spread, std", f"±{PAPER_STD_MM} mm", *(f"{sp['fibre_' + m]['std'] * 1e3:.2f} mm" for m in common.MODES)),
-        ("tip spread, max", f"{PAPER_MAX_MM} mm", *(f"{sp['fibre_' + m]['max'] * 1e3:.2f} mm" for m in common.MODES)),
+        ("tip spread, std", f"±{PAPER_STD_MM} mm", *(f"{sp['fiber_' + m]['std'] * 1e3:.2f} mm" for m in common.MODES)),
+        ("tip spread, max", f"{PAPER_MAX_MM} mm", *(f"{sp['fiber_' + m]['max'] * 1e3:.2f} mm" for m in common.MODES)),
         ("true catheter tip spread, std / max", "–", f"{s['true_std_mm']:.2f} / {s['true_max_mm']:.2f} mm", "–", "–"),
         ("tip error at the reference (max)", "–", *(f"{result.tip_error[m].max() * 1e3:.2f} mm"
                                                     for m in common.MODES)),
@@ -304,7 +304,7 @@ def write_report(result: Result, directory: str) -> str:
     )
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(5, 5))
-    true, recon = result.tips["true"], result.tips["fibre"]["default"]
+    true, recon = result.tips["true"], result.tips["fiber"]["default"]
     _, _, vt = np.linalg.svd(np.concatenate([recon - recon.mean(axis=0), true - true.mean(axis=0)]))
     for label, pts, style in (("true tip", true, "ko"), ("reconstructed (default)", recon, "C0x")):
         q = (pts - pts.mean(axis=0)) @ vt[:2].T * 1e3
@@ -331,7 +331,7 @@ def write_report(result: Result, directory: str) -> str:
     stamp(fig, cal)
     rep.figure("error_over_time", fig, "Reconstructed tip error over the cycles")
     names = [f"cycle {k + 1}" for k in range(len(result.tips["true"]))]
-    dist = {m: np.linalg.norm(result.tips["fibre"][m] - result.tips["fibre"][m].mean(axis=0), axis=1) * 1e3
+    dist = {m: np.linalg.norm(result.tips["fiber"][m] - result.tips["fiber"][m].mean(axis=0), axis=1) * 1e3
             for m in common.MODES}
     fig = per_shape_errors(names, dist, None, "Distance of the tip from its mean tip at each return (fibre frame)",
                            cal, paper_max_mm=PAPER_MAX_MM, xlabel="return", ylabel="distance from the mean tip (mm)")

@@ -14,7 +14,7 @@ What is measured, per step (the paper's "tip deviation after registration vs ang
    sheath's centreline at the commanded insertion, rolled by the commanded hub angle (what an experimenter knows
    from the handle);
 2. a static measurement is the mean over the last ``window`` (0.5 s) of each dwell, of the reconstructed tip and of
-   the EM reading (true tip + 0.2 mm per-axis Gaussian noise, see :mod:`scenarios._common.sheath`);
+   the EM reading (true tip + 0.2 mm per-axis Gaussian noise, see :mod:`scenarios._common.sheath_experiments`);
 3. registration: one translation maps the reconstructed tips onto the EM readings over all angles (the unknown
    offset between the FBG and EM frames; the tips move by < 1 mm, too little to fix a rotation), and the tip
    deviation at each angle is the distance left. ``max_deviation_mm`` is the largest over the angles;
@@ -47,7 +47,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from scenarios._common import entry
-from scenarios._common import sheath as common
+from scenarios._common import sheath_experiments as common
 from scenarios._common.calibration import calibration_for
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import DEG, option
@@ -64,7 +64,7 @@ from scenarios.report import (
     stamp,
     tip_trajectories,
 )
-from sim_interrogator.sheath import SheathRotate
+from sim_interrogator.sheath_setups import SheathRotate
 from twin import metrics
 
 PAPER_MAX_DEVIATION_MM = 0.36

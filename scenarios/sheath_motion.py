@@ -4,7 +4,8 @@ docs/simulation.md §7).
 The paper moved its catheter by hand through a 510 mm rigid printed sheath (bore 3 mm, rough), recorded at 40 Hz
 and analysed at 2 Hz: the max error of a frame was ≈ 2.5 mm on average, and up to 21.2 mm at sharp bends and
 under compression, where neighbouring gratings' peaks overlapped and were lost. In the twin
-(``sim://sheath-path``) the sheath is a vascular-like spatial path (:func:`sim_interrogator.sheath.vascular_sheath`:
+(``sim://sheath-path``) the sheath is a vascular-like spatial path
+(:func:`sim_interrogator.sheath_setups.vascular_sheath`:
 250 mm straight, a 45° bend, a sharp 70° kink of 8 mm radius, a 150° arch, a sharp 80° take-off of 8 mm radius and a
 60° turn), μ 0.3; the hub pushes the catheter 185 mm in at 20 mm/s, holds, and pulls it back. Frames at 40 Hz,
 realistic optics (peaks of neighbouring gratings closer than 1 nm merge and are lost).
@@ -36,7 +37,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from scenarios._common import coverage, entry
-from scenarios._common import sheath as common
+from scenarios._common import sheath_experiments as common
 from scenarios._common.calibration import calibration_for
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
@@ -52,7 +53,7 @@ from scenarios.report import (
     stamp,
     tip_trajectories,
 )
-from sim_interrogator.sheath import SheathPath
+from sim_interrogator.sheath_setups import SheathPath
 from twin import metrics
 
 PAPER_MEAN_MAX_MM = 2.5

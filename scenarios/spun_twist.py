@@ -1,4 +1,4 @@
-"""spun-twist: a spun multi-core fibre in the twin — twist measured against twist ignored (docs/spun-fibres.md).
+"""spun-twist: a spun multi-core fibre in the twin — twist measured against twist ignored (docs/spun-fibers.md).
 
 Friction twists the catheter in grooves and sheaths, and straight cores cannot see it. Here the same motions are
 read by a spun fibre (``FiberModel.spun``: centre + 3 outer cores at 120°, r = 35 µm, ``--spin`` turns/m) and by
@@ -27,7 +27,7 @@ Reported (``--json``; ``summary``):
 * per part the same, the true tip twist's range, and for the groove the errors of the frames' mean wavelengths
   (a held reading: the noise falls by √repeats);
 * ``resolution`` — the twist resolution against wavelength noise and spin rate: per-grating 1σ of τ (linear error
-  propagation, docs/spun-fibres.md §3) and the tip twist's 1σ per frame (400 noisy frames of a straight fibre);
+  propagation, docs/spun-fibers.md §3) and the tip twist's 1σ per frame (400 noisy frames of a straight fibre);
   and the twist read from a 10 K temperature change with the per-core S_T mismatch;
 * ``payoff`` — the recorded rod states read again through spun fibres of every spin rate and noise level of the
   resolution table (optics and reconstruction only, no physics): the largest error with the twist measured, and
@@ -48,7 +48,7 @@ import numpy as np
 
 from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.setups import StaticShape
-from sim_interrogator.sheath import SheathRotate
+from sim_interrogator.sheath_setups import SheathRotate
 from sim_interrogator.sim import SimInterrogator
 from twin import FiberModel, Reconstructor, jsonout, metrics, shapes
 from twin.calibration import nominal_delta_theta

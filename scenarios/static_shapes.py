@@ -54,7 +54,7 @@ from scenarios._common.calibration import (
 )
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
-from scenarios._common.optics import optics_config, optics_field
+from scenarios._common.optics_presets import optics_config, optics_field
 from scenarios._common.pipelines import MODES, reconstructors
 from scenarios._common.static import fixture_for, measure
 from sim_interrogator.optics import OpticsConfig

@@ -3,7 +3,7 @@
 The paper put its shaped catheter in a 60 °C water bath and let it cool to 30 °C: the reconstructed tip varied by
 at most **0.29 mm** over the 30 K. Here the catheter is held in a library shape (``sim://bath``: connect
 constraints by default, or a 3 mm tube) while the bath follows a Newton cooling curve toward a 22 °C room
-(:mod:`sim_interrogator.thermal`; λ0 is referenced to room temperature, so the fibre sees ΔT = T − 22 °C, from
+(:mod:`sim_interrogator.thermal_setup`; λ0 is referenced to room temperature, so the fibre sees ΔT = T − 22 °C, from
 38 K down to 8 K). The temperature affects only the optics: each core shifts by S_T,i·ΔT·λ0 (≈ 0.3 nm over the
 30 K at 1550 nm), a common mode that the central core removes; what leaks into the curvature comes from the per-core
 S_T mismatch (``OpticsConfig.thermal_mismatch``, default 0.3 %, docs/math.md §6). The experiment therefore runs the
@@ -52,11 +52,11 @@ from scenarios._common import coverage, entry
 from scenarios._common.calibration import calibration_field, calibration_for, check_calibration
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
-from scenarios._common.optics import optics_config, optics_field
+from scenarios._common.optics_presets import optics_config, optics_field
 from scenarios._common.pipelines import MODES, reconstructors
 from scenarios._common.series import Series, collect
 from sim_interrogator.sim import SimInterrogator
-from sim_interrogator.thermal import PROFILES, Bath
+from sim_interrogator.thermal_setup import PROFILES, Bath
 from twin import FiberModel, Reconstructor, Shape, metrics, shapes
 from twin.frames import Truth
 

@@ -2,7 +2,7 @@
 
 The paper steered its catheter's tip back and forth with the handle and compared the reconstructed tip with an
 electromagnetic (EM) sensor at the tip: **max deviation 2.1 mm**. Here (``sim://tendon``,
-:mod:`sim_interrogator.tendon`) a bidirectional catheter hangs from a clamped base; its 60 mm deflectable section
+:mod:`sim_interrogator.tendon_setup`) a bidirectional catheter hangs from a clamped base; its 60 mm deflectable section
 is bent by the pull-wires' equivalent load (the internal moment T·r_t·d2(s) along the section, following its
 material frame: in the plane, T·r_t at the tip and −T·r_t at the compression coil's end) with the tension
 T(t) = ±10 N sweeping sinusoidally (10 s period, 2 cycles): the section reaches 0.45 1/cm and the end of the
@@ -53,11 +53,11 @@ from scenarios._common import entry
 from scenarios._common.calibration import calibration_field, calibration_for, check_calibration
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
-from scenarios._common.optics import optics_config, optics_field
+from scenarios._common.optics_presets import optics_config, optics_field
 from scenarios._common.pipelines import MODES, reconstructors
 from scenarios._common.series import Series, collect, em_readings, show_frames, to_world
 from sim_interrogator.sim import SimInterrogator
-from sim_interrogator.tendon import Tendon
+from sim_interrogator.tendon_setup import Tendon
 from twin import FiberModel, metrics
 
 PAPER_MAX_DEVIATION_MM = 2.1  #: Al-Ahmad et al.: max deviation of the reconstructed tip from the EM sensor

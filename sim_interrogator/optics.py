@@ -23,7 +23,7 @@ Effects, each a field of :class:`OpticsConfig` (``OpticsConfig.ideal()`` turns a
   Lost peaks are NaN with :attr:`twin.PeakStatus.OUT_OF_SLOT`. (Peaks that cross would be swapped by a real
   interrogator; the model reports them lost.)
 
-A spun fibre (``FiberModel.spin_rate`` ≠ 0, docs/spun-fibres.md) takes the mechanical twist rate too: its strains
+A spun fibre (``FiberModel.spin_rate`` ≠ 0, docs/spun-fibers.md) takes the mechanical twist rate too: its strains
 are the exact path lengths of the helical cores (:func:`twin.spun.exact_strain`), evaluated at the grating's
 sample points where the cores' angle advances by Ω along the grating, with the same noise, drift, quantisation,
 temperature and peak loss; ``spin_error`` makes the as-drawn spin rate differ from the datasheet's.
@@ -238,7 +238,7 @@ class Optics:
         return w.reshape(*batch, n_g, n_c), status.reshape(*batch, n_g, n_c)
 
     def spun_wavelengths(self, curvature, twist_rate, axial_strain=0.0, delta_T=None, t: float | None = None):
-        """A spun fibre's peak wavelengths and status from the exact helical path lengths (docs/spun-fibres.md §2).
+        """A spun fibre's peak wavelengths and status from the exact helical path lengths (docs/spun-fibers.md §2).
 
         Parameters as :meth:`wavelengths`; ``twist_rate`` (rad/m) has the curvature's leading shape without its
         last axis. Curvature and twist given per grating are held over the grating's length; the strain is
@@ -311,7 +311,7 @@ class Optics:
         gain = d["gain_m"]
         if spin:
             # the cores turn by Ω l within a grating of length l, which averages the bending strain by
-            # sinc(Ω l/2) (docs/spun-fibres.md §6); a gain calibration absorbs it
+            # sinc(Ω l/2) (docs/spun-fibers.md §6); a gain calibration absorbs it
             half = 0.5 * 2 * np.pi * spin * self.config.grating_length
             gain *= np.sin(half) / half if half else 1.0
         return Calibration(lambda0=self.true_fiber.lambda0, twist=np.asarray(d["twist_rad"]),

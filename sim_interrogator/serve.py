@@ -29,6 +29,9 @@ from urllib.parse import parse_qsl, urlencode, urlsplit
 
 from twin.io.source import open_source
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "serve a simulated interrogator over illumisense, fispec or hyperion"
+
 __all__ = ["add_arguments", "run", "source_url"]
 
 PROTOCOLS = ("illumisense", "fispec", "hyperion")
@@ -129,20 +132,20 @@ def run(args: argparse.Namespace) -> int:
 def _start(args: argparse.Namespace, source):
     log = not args.quiet
     if args.protocol == "illumisense":
-        from sim_interrogator.servers.illumisense import IllumisenseServer
+        from sim_interrogator.servers.illumisense_server import IllumisenseServer
 
         port = 2055 if args.port is None else args.port
         server = IllumisenseServer(source, args.host, port, channels_as=args.channels, log=log).start()
         host, p = server.address
         return server, [f"twin serve: illumisense on tcp://{host}:{p}"]
     if args.protocol == "hyperion":
-        from sim_interrogator.servers.hyperion import HyperionServer
+        from sim_interrogator.servers.hyperion_server import HyperionServer
 
         port = 51971 if args.port is None else args.port
         server = HyperionServer(source, args.host, port, log=log).start()
         (h, p), (_, sp) = server.address, server.stream_address
         return server, [f"twin serve: hyperion commands on tcp://{h}:{p}, peak stream on tcp://{h}:{sp}"]
-    from sim_interrogator.servers.fispec import FispecServer
+    from sim_interrogator.servers.fispec_server import FispecServer
 
     cores = None
     if args.cores:

@@ -2,8 +2,9 @@
 
 A :class:`Setup` is what :class:`~sim_interrogator.sim.SimInterrogator` runs: it builds the scene, brings it
 to its starting state, and is asked to act on the model as simulated time passes (move a hub, change
-constraint targets, apply tendon forces, change the temperature). Setups are registered by name in
-:data:`SETUPS`, which is what ``sim://NAME?key=value…`` opens. The experiments in ``scenarios/`` run setups and
+constraint targets, apply tendon forces, change the temperature). Setups are registered by name as entry points
+of the ``twin.sim_setups`` group in pyproject.toml (:mod:`twin.registry`), which is what ``sim://NAME?key=value…``
+opens; a setup's :attr:`Setup.name` is its entry's name. The experiments in ``scenarios/`` run setups and
 evaluate what comes out.
 """
 
@@ -18,15 +19,7 @@ from models.catheter import CatheterSpec, Pose
 from models.fixtures import ExtendedCurve, build_connect, build_groove, build_tube, rod_base_pose, settle
 from twin import shapes
 
-__all__ = ["SETUPS", "CalibrationPoses", "Setup", "StaticShape", "parse_params", "register"]
-
-#: name → Setup subclass; ``sim://NAME?…`` instantiates it with the query parameters.
-SETUPS: dict[str, type[Setup]] = {}
-
-
-def register(cls: type[Setup]) -> type[Setup]:
-    SETUPS[cls.name] = cls
-    return cls
+__all__ = ["CalibrationPoses", "Setup", "StaticShape", "parse_params"]
 
 
 class Setup:
@@ -114,7 +107,6 @@ def parse_params(cls: type[Setup], params: dict[str, str]) -> dict:
     return out
 
 
-@register
 class StaticShape(Setup):
     """The catheter held in one library shape (the paper's static experiment).
 
@@ -163,7 +155,6 @@ class StaticShape(Setup):
                 "segments": self.spec.n_segments, "timestep": self.spec.timestep}
 
 
-@register
 class CalibrationPoses(Setup):
     """The two poses of the two-step calibration, on request: ``straight``, then an in-plane ``bend``.
 

@@ -69,7 +69,7 @@ class SimInterrogator(Source):
         self._wall0: float | None = None
         self._closed = False
         self._fixture = setup.fixture_centreline() if truth else None
-        # A setup with the fibre as its own body (models/fibre.py) names the fibre's rod: the optics read its
+        # A setup with the fibre as its own body (models/lumen_fiber.py) names the fibre's rod: the optics read its
         # curvature (in the catheter's roll convention, setup.optics_roll()); the truth stays the catheter's.
         optics_rod = getattr(setup, "optics_rod_name", None) or setup.rod_name
         self.optics_reader = self.reader if optics_rod == setup.rod_name else RodReader(self.model, optics_rod)

@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 
 from scenarios.real_jig import EFFECTS, FACTOR, KEYS, compare, real_statistics
-from sim_interrogator.jig import AMIRO, amiro_fiber, loro
+from sim_interrogator.needle_jig import AMIRO, amiro_fiber, loro
 from twin import Calibration, FiberModel
 from twin.calibration import jig
 from twin.cli import main
 
 DATA = Path(__file__).parent / "data" / "amiro"
 POSES, NEEDLE, CALIBRATION = DATA / "poses.csv", DATA / "needle.toml", DATA / "calibration.toml"
+DATA_3AA = Path(__file__).parent / "data" / "amiro-3aa"
 GRATINGS = [0, 1, 2]
 LEVELS = [0.0, 0.5, 1.6, 2.0, 2.5, 3.2, 4.0]
 #: Measured on the table: in-sample RMS strain residual, LORO |Δκ| (1/m), LORO |Δdir| (deg).
@@ -157,3 +158,62 @@ def test_jig_validate_leave_one_rotation_out_command(capsys):
     for k in KEYS:
         assert out[k] == pytest.approx(REAL[k], rel=5e-4)
     assert main(["jig-validate", str(POSES), "--calibration", str(CALIBRATION), "--leave-one-rotation-out"]) == 2
+
+
+# ------------------------------------------------------------------------------------------------ second needle
+
+
+def test_second_needle_table_loads_as_described():
+    """tests/data/amiro-3aa (SOURCE.md there): needle_3CH_3AA, 81 rows (3 trials per groove but two folders of
+    270°), the same grooves and rotations, its own reference per rotation, std columns from 6 samples."""
+    fiber = FiberModel.load(DATA_3AA / "needle.toml")
+    poses = jig.read_poses(DATA_3AA / "poses.csv", fiber=fiber)
+    assert poses.n_poses == 81 and fiber.n_gratings == 3 and fiber.central_core is None
+    np.testing.assert_allclose(poses.orientations, np.deg2rad([0.0, 90.0, 180.0, 270.0]), atol=1e-12)
+    assert sorted(set(poses.curvature.tolist())) == LEVELS
+    counts = [int(np.isclose(poses.orientation, psi).sum()) for psi in poses.orientations]
+    assert counts == [21, 21, 21, 18]
+    assert 0.05e-3 < np.min(poses.std) and np.max(poses.std) < 3e-3
+    w0 = poses.wavelengths[poses.curvature == 0]
+    dev = np.abs(w0 - w0.mean(axis=0))
+    # the 12 references agree within 25 pm, but for CH2 AA2 at 270°, 55–130 pm low (SOURCE.md: a disturbed peak)
+    odd = np.zeros(dev.shape, bool)
+    odd[:, 1, 1] = True
+    assert np.all(dev[~odd] < 0.025) and np.all(dev[odd] < 0.12)
+
+
+def test_second_needle_calibration_reproduces_and_its_tip_grating_is_at_the_grooves_end(tmp_path):
+    fiber = FiberModel.load(DATA_3AA / "needle.toml")
+    poses = jig.read_poses(DATA_3AA / "poses.csv", fiber=fiber)
+    every = jig.fit(fiber, poses)
+    assert np.all(every.explained[:2] > 0.99) and every.explained[2] < 0.98
+    assert 0.55 < every.gains[2].mean() / every.gains[:2].mean() < 0.8
+    assert not any("mirror" in w for w in every.warnings)
+    out = tmp_path / "cal.toml"
+    assert main(["jig-calibrate", str(DATA_3AA / "poses.csv"), "--fiber", str(DATA_3AA / "needle.toml"),
+                 "--gratings", "0,1", "--out", str(out)]) == 0
+    new, kept = Calibration.load(out), Calibration.load(DATA_3AA / "calibration.toml")
+    np.testing.assert_allclose(np.array(new.design), np.array(kept.design), rtol=1e-9, atol=1e-15)
+    assert kept.provenance["jig_gratings"] == [0, 1] and kept.provenance["jig_unfixed_gratings"] == [2]
+
+
+def test_every_model_on_both_needles_as_documented():
+    """The side-by-side table of docs/jig.md ("Two real needles, every model") and README: leave one rotation out,
+    score over all levels (median per-level RMS |Δκ| in 1/m, median |mean Δdir| in deg), to the rounding shown there;
+    the error model's 95 % coverage too."""
+    from scenarios.real_jig import REAL_TABLES, VARIANTS, model_scores
+
+    documented = {
+        "needle_3CH_4AA_v2": {"linear": (0.129, 5.98), "physical": (0.134, 5.28), "matrix": (0.133, 5.47),
+                              "nuisance": (0.166, 5.15)},
+        "needle_3CH_3AA": {"linear": (0.270, 3.47), "physical": (0.246, 3.68), "matrix": (0.253, 3.68),
+                           "nuisance": (0.259, 3.11)},
+    }
+    coverage = {"needle_3CH_4AA_v2": 0.991, "needle_3CH_3AA": 0.877}
+    for table, rows in documented.items():
+        scores = {r["variant"]: r for r in model_scores(*REAL_TABLES[table], variants=VARIANTS[:4])}
+        for variant, (kappa, direction) in rows.items():
+            assert scores[variant]["loro_all_kappa_1_per_m"] == pytest.approx(kappa, abs=5e-4)
+            assert scores[variant]["loro_all_direction_deg"] == pytest.approx(direction, abs=5e-3)
+        assert scores["nuisance"]["loro_coverage_95"] == pytest.approx(coverage[table], abs=5e-4)
+        assert scores["linear"]["loro_coverage_95"] is None

@@ -6,14 +6,14 @@ import pytest
 from twin import Calibration, CalibrationError, FiberModel, Reconstructor, shapes, strain
 from twin.calibration import nominal_gain, scaled_core_angles, two_step
 
-FIBRE = FiberModel.paper()
-S = FIBRE.grating_s
+FIBER = FiberModel.paper()
+S = FIBER.grating_s
 PHI = np.deg2rad(25.0) * S / 0.17 + np.deg2rad(8.0) * np.sin(2 * np.pi * S / 0.17)  # docs/math.md §4.2's twist
 SPREAD = np.random.default_rng(7).normal(scale=0.3, size=(18, 4))  # as-built λ0 offsets, nm
 
 
 def pose(k, twist=PHI, n=1, noise=0.0, seed=0, **kw):
-    w = strain.forward(FIBRE, k, twist=twist, lambda0=FIBRE.lambda0 + SPREAD, **kw)
+    w = strain.forward(FIBER, k, twist=twist, lambda0=FIBER.lambda0 + SPREAD, **kw)
     w = np.repeat(w[None], n, axis=0)
     return w + np.random.default_rng(seed).normal(scale=noise, size=w.shape) if noise else w
 
@@ -23,8 +23,8 @@ def arc(kappa=16.0, alpha=0.7):
 
 
 def test_recovers_reference_and_twist_exactly_without_noise():
-    cal, report = two_step(FIBRE, pose(np.zeros((18, 2))), pose(arc()))
-    np.testing.assert_allclose(cal.lambda0, FIBRE.lambda0 + SPREAD, atol=1e-12)
+    cal, report = two_step(FIBER, pose(np.zeros((18, 2))), pose(arc()))
+    np.testing.assert_allclose(cal.lambda0, FIBER.lambda0 + SPREAD, atol=1e-12)
     np.testing.assert_allclose(cal.twist, PHI - PHI[0], atol=1e-10)  # exact up to float rounding
     np.testing.assert_allclose(report.twist, cal.twist)
     assert report.sign_changes == 0 and report.n_straight == 1
@@ -33,12 +33,12 @@ def test_recovers_reference_and_twist_exactly_without_noise():
 def test_compensation_restores_accuracy_on_a_3d_shape():
     """Uncompensated, 25°+8° of twist costs millimetres (docs/math.md §4.1); compensated, the error is that of an
     untwisted fibre (≤ 0.05 mm noise-free)."""
-    cal = Calibration.from_frames(FIBRE, pose(np.zeros((18, 2))), pose(arc()))
+    cal = Calibration.from_frames(FIBER, pose(np.zeros((18, 2))), pose(arc()))
     c = shapes.get("mixed")
     w = pose(c.curvature(S))[0]
     exact = c.positions(np.linspace(0, 0.17, 171))
-    raw = Reconstructor(FIBRE, Calibration(lambda0=cal.lambda0))(w)
-    fixed = Reconstructor(FIBRE, cal)(w)
+    raw = Reconstructor(FIBER, Calibration(lambda0=cal.lambda0))(w)
+    fixed = Reconstructor(FIBER, cal)(w)
     assert np.linalg.norm(raw.positions - exact, axis=1).max() > 2e-3
     # the remaining global roll is the twist at grating 0 (docs/math.md §4.2): undo it before comparing
     c0, s0 = np.cos(PHI[0]), np.sin(PHI[0])
@@ -48,7 +48,7 @@ def test_compensation_restores_accuracy_on_a_3d_shape():
 
 def test_averaged_noisy_calibration_and_reported_noise():
     """1 pm noise, 100 frames at κ_cal = 16 1/m: angle noise ≈ σ_k/κ/√100 ≈ 2e-4 rad (docs/math.md §4.2, §6)."""
-    cal, rep = two_step(FIBRE, pose(np.zeros((18, 2)), n=100, noise=1e-3, seed=1),
+    cal, rep = two_step(FIBER, pose(np.zeros((18, 2)), n=100, noise=1e-3, seed=1),
                         pose(arc(), n=100, noise=1e-3, seed=2))
     err = np.abs(cal.twist - (PHI - PHI[0]))
     assert err.max() < 1.5e-3
@@ -61,8 +61,8 @@ def test_inflection_is_refused_then_unwrapped_modulo_pi_on_request():
     k = np.outer(np.linspace(-20, 25, 18), [np.cos(0.3), np.sin(0.3)])  # an S-bend: sign change
     k[np.abs(k[:, 0]) < 6] *= 6 / np.abs(k[np.abs(k[:, 0]) < 6, 0])[:, None]  # keep |k| above the floor
     with pytest.raises(CalibrationError, match="flips at grating"):
-        two_step(FIBRE, pose(np.zeros((18, 2))), pose(k))
-    cal, rep = two_step(FIBRE, pose(np.zeros((18, 2))), pose(k), allow_sign_change=True)
+        two_step(FIBER, pose(np.zeros((18, 2))), pose(k))
+    cal, rep = two_step(FIBER, pose(np.zeros((18, 2))), pose(k), allow_sign_change=True)
     assert rep.sign_changes == 1
     np.testing.assert_allclose(cal.twist, PHI - PHI[0], atol=1e-10)
 
@@ -77,38 +77,38 @@ def test_inflection_is_refused_then_unwrapped_modulo_pi_on_request():
 )
 def test_guard_rails(straight, bend, message):
     with pytest.raises(CalibrationError, match=message):
-        two_step(FIBRE, straight, bend)
+        two_step(FIBER, straight, bend)
 
 
 def test_missing_peaks_in_calibration_frames():
     bend = pose(arc(), n=10)
     bend[:2, 4, 2] = np.nan  # occasional loss: averaged over
-    two_step(FIBRE, pose(np.zeros((18, 2)), n=10), bend)
+    two_step(FIBER, pose(np.zeros((18, 2)), n=10), bend)
     bend[:, 4, 2] = np.nan  # always lost: refused, naming the grating and core
     with pytest.raises(CalibrationError, match=r"grating 4 \(s = 40.0 mm\) core 2 lost its peak in 100%"):
-        two_step(FIBRE, pose(np.zeros((18, 2)), n=10), bend)
+        two_step(FIBER, pose(np.zeros((18, 2)), n=10), bend)
 
 
 def test_identified_parameters_enter_the_design():
     cal = Calibration(delta_theta=1.039, gain=28.01e-6)
-    angles = scaled_core_angles(FIBRE, 1.039)
+    angles = scaled_core_angles(FIBER, 1.039)
     np.testing.assert_allclose(angles, [0.0, 0.0, 1.039, 2.078])
-    true = FIBRE.replace(core_angles=angles, strain_sensitivity=0.777 * 28.01e-6 / nominal_gain(FIBRE))
+    true = FIBER.replace(core_angles=angles, strain_sensitivity=0.777 * 28.01e-6 / nominal_gain(FIBER))
     k = shapes.get("rotating-bend").curvature(S)
     w = strain.forward(true, k)
-    np.testing.assert_allclose(Reconstructor(FIBRE, cal).curvature(w).curvature, k, atol=1e-8)
-    assert np.abs(Reconstructor(FIBRE).curvature(w).curvature - k).max() > 0.5
+    np.testing.assert_allclose(Reconstructor(FIBER, cal).curvature(w).curvature, k, atol=1e-8)
+    assert np.abs(Reconstructor(FIBER).curvature(w).curvature - k).max() > 0.5
 
 
 def test_toml_round_trip_and_mismatch(tmp_path):
-    cal = Calibration(lambda0=FIBRE.lambda0 + SPREAD, twist=PHI - PHI[0], delta_theta=1.039, gain=2.8e-5,
+    cal = Calibration(lambda0=FIBER.lambda0 + SPREAD, twist=PHI - PHI[0], delta_theta=1.039, gain=2.8e-5,
                       delta_theta_std=1e-4, gain_std=1e-8, provenance={"method": "test", "frames": 3})
     cal.save(tmp_path / "c.toml")
     back = Calibration.load(tmp_path / "c.toml")
     np.testing.assert_array_equal(back.lambda0, cal.lambda0)
     np.testing.assert_array_equal(back.twist, cal.twist)
     assert (back.delta_theta, back.gain, back.provenance) == (1.039, 2.8e-5, {"method": "test", "frames": 3})
-    other = FiberModel.paper().replace(grating_s=FIBRE.grating_s[:10], lambda0=FIBRE.lambda0[:10])
+    other = FiberModel.paper().replace(grating_s=FIBER.grating_s[:10], lambda0=FIBER.lambda0[:10])
     with pytest.raises(ValueError, match="made for another sensor"):
         Reconstructor(other, back)
     (tmp_path / "bad.toml").write_text("gain = 29.1\n")
@@ -119,19 +119,19 @@ def test_toml_round_trip_and_mismatch(tmp_path):
 # ------------------------------------------------------------------ files (issue 11 item 10, issue 14: floats)
 
 
-def test_a_calibration_for_another_fibre_names_both_files(tmp_path, capsys):
+def test_a_calibration_for_another_fiber_names_both_files(tmp_path, capsys):
     from twin.cli import main
 
     other = FiberModel.paper().replace(grating_s=0.01 * np.arange(3), lambda0=FiberModel.paper().lambda0[:3])
     other.save(tmp_path / "other.toml")
     Calibration(lambda0=other.lambda0).save(tmp_path / "cal.toml")
-    FiberModel.paper().save(tmp_path / "fibre.toml")
-    code = main(["live", "synthetic://?rate=1000&pace=max", "--fiber", str(tmp_path / "fibre.toml"),
+    FiberModel.paper().save(tmp_path / "fiber.toml")
+    code = main(["live", "synthetic://?rate=1000&pace=max", "--fiber", str(tmp_path / "fiber.toml"),
                  "--calibration", str(tmp_path / "cal.toml"), "--frames", "3", "--quiet"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err
     assert f"{tmp_path / 'cal.toml'}: calibration field lambda0 has shape (3, 4)" in err
-    assert f"fibre model ({tmp_path / 'fibre.toml'}) has 18 gratings × 4 cores" in err
+    assert f"fibre model ({tmp_path / 'fiber.toml'}) has 18 gratings × 4 cores" in err
 
 
 @pytest.mark.parametrize("line, field", [("delta_theta = true", "delta_theta"), ("twist = {a = 1}", "twist"),

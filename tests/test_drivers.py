@@ -22,8 +22,8 @@ from sim_interrogator.servers import FispecServer, HyperionServer, IllumisenseSe
 from twin import Reconstructor, strain
 from twin.frames import PeakStatus
 from twin.io import hyperion, open_source
-from twin.io.hyperion_driver import HyperionSource, assign_peaks
-from twin.io.illumisense_driver import IllumisenseSource
+from twin.io.hyperion.driver import HyperionSource, assign_peaks
+from twin.io.illumisense.driver import IllumisenseSource
 from twin.io.source import SourceClosed
 from twin.io.synthetic import SyntheticSource, multicore_fiber
 from twin.io.transport import Backoff, parse_host_port

@@ -6,7 +6,7 @@ import pytest
 from twin import FiberModel
 
 
-def test_paper_fibre_matches_the_paper():
+def test_paper_fiber_matches_the_paper():
     f = FiberModel.paper()
     assert f.n_cores == 4 and f.n_gratings == 18
     assert f.central_core == 0 and f.core_radii[0] == 0
@@ -29,7 +29,7 @@ def test_model_is_immutable():
 
 def test_toml_round_trip(tmp_path):
     f = FiberModel.paper().replace(temperature_sensitivity=[6.6e-6, 6.61e-6, 6.59e-6, 6.6e-6], length=0.18)
-    path = tmp_path / "fibre.toml"
+    path = tmp_path / "fiber.toml"
     f.save(path)
     g = FiberModel.load(path)
     for name in ("core_angles", "core_radii", "grating_s", "lambda0", "temperature_sensitivity"):
@@ -133,7 +133,7 @@ strain_sensitivity = 0.777
         ("grating_s = 0.1", "grating_s", "float"),
     ],
 )
-def test_a_wrong_type_in_a_fibre_file_is_one_line_naming_file_and_field(tmp_path, line, field, kind):
+def test_a_wrong_type_in_a_fiber_file_is_one_line_naming_file_and_field(tmp_path, line, field, kind):
     key = line.split(" = ")[0]
     text = "\n".join(x for x in _GOOD_TOML.splitlines() if not x.startswith(key + " ")) + "\n" + line + "\n"
     path = tmp_path / "bad.toml"
@@ -144,14 +144,14 @@ def test_a_wrong_type_in_a_fibre_file_is_one_line_naming_file_and_field(tmp_path
     assert msg.startswith(f"{path}: {field}: expected ") and kind in msg and "\n" not in msg
 
 
-def test_the_good_fibre_file_of_those_tests_loads(tmp_path):
+def test_the_good_fiber_file_of_those_tests_loads(tmp_path):
     (tmp_path / "good.toml").write_text(_GOOD_TOML)
     f = FiberModel.load(tmp_path / "good.toml")
     assert f.n_gratings == 3 and f.strain_sensitivity == 0.777 and f.name == "probe"
 
 
-def test_a_binary_fibre_file_is_one_line_naming_the_file(tmp_path):
-    path = tmp_path / "fibre.toml"
+def test_a_binary_fiber_file_is_one_line_naming_the_file(tmp_path):
+    path = tmp_path / "fiber.toml"
     path.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(range(256)))
     with pytest.raises(ValueError, match=rf"^{path}: not a fibre model file: byte 0 is not UTF-8 text"):
         FiberModel.load(path)

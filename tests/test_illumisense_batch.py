@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 from twin.fiber import FiberModel
 from twin.frames import Frame, PeakStatus
 from twin.io import illumisense
-from twin.io import illumisense_scan as scan
 from twin.io.drivers import Driver
+from twin.io.illumisense import scan
 from twin.io.synthetic import SyntheticSource
 from twin.live import LiveLoop, join_batches, read_batch
 from twin.reconstruct import Reconstructor

@@ -23,8 +23,8 @@ from io_helpers import ScriptedServer, wait_until
 from sim_interrogator.servers import IllumisenseServer
 from twin import Reconstructor
 from twin.io import illumisense
-from twin.io.illumisense_driver import IllumisenseSource
-from twin.io.illumisense_vendor import VENDOR_FROM_BASE, VendorDistance
+from twin.io.illumisense.driver import IllumisenseSource
+from twin.io.illumisense.vendor import VENDOR_FROM_BASE, VendorDistance
 from twin.io.record import open_recording
 from twin.io.source import open_source
 from twin.io.synthetic import SyntheticSource, multicore_fiber

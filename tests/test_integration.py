@@ -1,4 +1,4 @@
-"""The fibre as its own body in the catheter's lumen (models/fibre.py) and the integration experiment.
+"""The fibre as its own body in the catheter's lumen (models/lumen_fiber.py) and the integration experiment.
 
 Physics (slow): glued with zero clearance the fibre reads what the welded model reads; with clearance, in a
 constant-curvature lumen the fibre rides on the outer wall with the curvature of that wall, 1/(R + c); the
@@ -14,19 +14,19 @@ import pytest
 pytest.importorskip("mujoco")
 
 from models.catheter import CatheterSpec, Scene
-from models.fibre import FibreSpec, add_fibre, glued_edges
-from sim_interrogator.fibre_setups import FIBRE_BASE_LENGTH, FibreSheathCycle, FibreStatic
+from models.lumen_fiber import FiberSpec, add_fiber, glued_edges
+from sim_interrogator.fiber_setups import FIBER_BASE_LENGTH, FiberSheathCycle, FiberStatic
 from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.sim import SimInterrogator
 from twin import FiberModel
 
 
 # ------------------------------------------------------------------------------------------------------ fast
-def test_fibre_sits_on_the_catheters_grid_with_its_glue_spots_and_tip_gap():
-    spec = CatheterSpec(base_length=FIBRE_BASE_LENGTH)
+def test_fiber_sits_on_the_catheters_grid_with_its_glue_spots_and_tip_gap():
+    spec = CatheterSpec(base_length=FIBER_BASE_LENGTH)
     scene = Scene("t")
     rod = scene.add_rod(spec)
-    h = add_fibre(scene, rod, FibreSpec(n_fixations=2, dx_prox=0.015, fixation_spacing=0.005, dx_dist=0.002))
+    h = add_fiber(scene, rod, FiberSpec(n_fixations=2, dx_prox=0.015, fixation_spacing=0.005, dx_dist=0.002))
     assert np.allclose(h.s, spec.vertex_s[h.first:h.first + h.s.size])  # beside catheter vertices at rest
     glued = h.s[h.glued]
     assert glued.max() <= -0.015 + 1e-9 and glued.min() >= -0.015 - 0.005 - 0.002 - 1e-9
@@ -77,29 +77,29 @@ def test_lumen_kernel_on_a_straight_lumen():
     assert np.allclose(tension, [-4 * fric - tip, -3 * fric - tip, -2 * fric - tip, -fric - tip])
 
 
-def test_bad_fibre_specs_are_refused():
+def test_bad_fiber_specs_are_refused():
     with pytest.raises(ValueError, match="stretch"):
-        FibreSpec(glued=True, offset=2e-4)
+        FiberSpec(glued=True, offset=2e-4)
     with pytest.raises(ValueError, match="n_fixations"):
-        FibreSpec(n_fixations=5)
+        FiberSpec(n_fixations=5)
     with pytest.raises(ValueError, match="clearance"):
-        FibreSpec(clearance=-1e-4)
+        FiberSpec(clearance=-1e-4)
     with pytest.raises(ValueError, match="lead_tension"):
-        FibreSpec(lead_tension=float("nan"))
+        FiberSpec(lead_tension=float("nan"))
     scene = Scene("t")
     rod = scene.add_rod(CatheterSpec())  # 10 mm base: no room for fixations 25 mm before the first grating
     with pytest.raises(ValueError, match="base_length"):
-        add_fibre(scene, rod, FibreSpec(dx_prox=0.025))
+        add_fiber(scene, rod, FiberSpec(dx_prox=0.025))
 
 
 # ------------------------------------------------------------------------------------------------------ slow
 @pytest.mark.slow
-def test_glued_fibre_without_clearance_reads_what_the_welded_model_reads():
-    setup = FibreStatic("helix", glued=True, clearance=0.0)
+def test_glued_fiber_without_clearance_reads_what_the_welded_model_reads():
+    setup = FiberStatic("helix", glued=True, clearance=0.0)
     sim = SimInterrogator(setup, FiberModel.paper(), OpticsConfig.ideal())
     g = sim.fiber.grating_s
     k_cath = sim.reader.read(sim.data).curvature_at(g)  # what the welded model's optics read
-    k_fib = setup.fibre_curvature(g)
+    k_fib = setup.fiber_curvature(g)
     # measured 0.019 1/m (helix, |k| = 40 1/m): the glue's connect constraints leave sub-micrometre play
     assert np.abs(k_fib - k_cath).max() < 0.05
     optics = Optics(sim.fiber, OpticsConfig.ideal())
@@ -111,10 +111,10 @@ def test_glued_fibre_without_clearance_reads_what_the_welded_model_reads():
 
 
 @pytest.mark.slow
-def test_glue_holds_the_fibres_roll_in_the_moving_sheath():
+def test_glue_holds_the_fibers_roll_in_the_moving_sheath():
     # In and out of the pre-bent sheath, the glued fibre's roll against the catheter's is held by the glue's
     # joint equalities: with explicit roll springs it drifted by 3–4° (|Δk| up to 2 1/m); measured now 0.003°.
-    setup = FibreSheathCycle(cycles=1, segments=50, glued=True, clearance=0.0)
+    setup = FiberSheathCycle(cycles=1, segments=50, glued=True, clearance=0.0)
     sim = SimInterrogator(setup, FiberModel.paper(), OpticsConfig.ideal(), rate=5.0)
     g = sim.fiber.grating_s
     roll, dk = 0.0, 0.0
@@ -122,7 +122,7 @@ def test_glue_holds_the_fibres_roll_in_the_moving_sheath():
         sim.read()
         roll = max(roll, float(np.abs(setup.roll_loss()).max()))
         k_cath = sim.reader.read(sim.data).curvature_at(g[:-1])
-        dk = max(dk, float(np.abs(setup.fibre_curvature(g[:-1]) - k_cath).max()))
+        dk = max(dk, float(np.abs(setup.fiber_curvature(g[:-1]) - k_cath).max()))
     assert roll < np.radians(0.05)
     # measured 0.034 1/m (|k| ≈ 29 1/m in the bend); the static helix's tolerance. Not the last grating: the
     # fibre's rod ends 3 mm beyond it, so its curvature there is clipped to the last interior vertex (4.5 mm
@@ -132,12 +132,12 @@ def test_glue_holds_the_fibres_roll_in_the_moving_sheath():
 
 
 @pytest.mark.slow
-def test_fibre_with_clearance_rides_the_outer_wall_of_a_bent_lumen():
+def test_fiber_with_clearance_rides_the_outer_wall_of_a_bent_lumen():
     # Free of axial load, a fibre in a bent lumen takes the path of least bending energy: the outer wall, of
     # curvature 1/(R + c). (The first version showed it on the inner wall: its 100× simulated weight, never
     # cancelled, compressed it, and a compressed fibre takes the shorter path.)
     c = 1.5e-4
-    setup = FibreStatic("arc", clearance=c)  # a planar arc of 25 1/m
+    setup = FiberStatic("arc", clearance=c)  # a planar arc of 25 1/m
     setup.random_start = False
     sim = SimInterrogator(setup, FiberModel.paper(), OpticsConfig.ideal())
     co = setup.coupler
@@ -156,7 +156,7 @@ def test_fibre_with_clearance_rides_the_outer_wall_of_a_bent_lumen():
     assert np.all(outer[mid] > c - 5e-6) and np.all(outer[mid] < c + 5e-6)
     # with the outer wall's curvature 1/(R + c) = 24.907 1/m (measured 24.912–24.915), not the axis' 25
     s_mid = np.linspace(0.04, 0.11, 8)
-    kf = np.linalg.norm(setup.fibre_curvature(s_mid), axis=1)
+    kf = np.linalg.norm(setup.fiber_curvature(s_mid), axis=1)
     assert np.allclose(kf, 1 / (1 / 25.0 + c), atol=0.03)
     # the longer outer path pulls the free tip back from the lumen's end by ≈ c·∫κ ds (≤ 0.64 mm over 170 mm;
     # measured 0.48 mm: the glue's transition and the free tail take the shorter line)
@@ -175,11 +175,11 @@ def test_the_leads_traction_enters_at_the_fixation_and_dies_out_along_the_lumen(
     s = np.arange(0.0, 0.0401, 0.0025)
     k = {}
     for tension in (0.0, t):
-        setup = FibreStatic("arc", clearance=c, lead_tension=tension, dx_prox=0.0)
+        setup = FiberStatic("arc", clearance=c, lead_tension=tension, dx_prox=0.0)
         setup.random_start = False
         SimInterrogator(setup, FiberModel.paper(), OpticsConfig.ideal())  # builds and settles the setup
-        k[tension] = setup.fibre_curvature(s)
-    spec = setup.fibre
+        k[tension] = setup.fiber_curvature(s)
+    spec = setup.fiber
     m = setup.coupler.glue_moment
     assert m == pytest.approx(t * spec.glue_eccentricity)
     a = np.sqrt(6 * c * spec.bending_stiffness / m)
@@ -218,7 +218,7 @@ def test_error_grows_with_clearance_and_tip_contact_disturbs_peaks():
 
 
 @pytest.mark.slow
-def test_without_base_fixation_the_fibre_slides_and_repeatability_worsens():
+def test_without_base_fixation_the_fiber_slides_and_repeatability_worsens():
     from scenarios.integration import BASELINE, Params, run_point
 
     params = Params(shapes=(), cycles=3)

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim_interrogator.jig import JigParams, needle_fiber, simulate
+from sim_interrogator.needle_jig import JigParams, needle_fiber, simulate
 from twin import Calibration, FiberModel, Reconstructor, metrics, strain
 from twin.calibration.jig import (
     JigPoses,
@@ -186,7 +186,7 @@ def test_physical_fit_finds_the_as_built_sensor(twin_jig):
 # ------------------------------------------------------------------------------------ sensors without a centre
 
 
-def test_common_mode_is_an_unknown_not_the_mean_over_fibres():
+def test_common_mode_is_an_unknown_not_the_mean_over_fibers():
     """docs/math.md §2.3: without a central core the common mode c is a third unknown of the least squares. The mean
     over fibres is c − mean_i(g_i u_i)·k: it carries bending as soon as the fibres are not exactly symmetric.
     Fibres at 0°, 109°, 246° with radii 0.33/0.37/0.35 mm bent at 2.2 1/m: the mean reads the common mode 29 µε
@@ -216,7 +216,7 @@ def test_common_mode_is_an_unknown_not_the_mean_over_fibres():
 
 
 def test_needle_toml_is_the_scenarios_needle():
-    f = FiberModel.load(DOCS / "needle-fibre.toml")
+    f = FiberModel.load(DOCS / "needle-fiber.toml")
     assert f.central_core is None and f.n_cores == 3 and f.grating_s[0] == 0.02
     assert np.all(np.diff(np.diff(f.grating_s)) != 0)  # uneven
     for name in ("core_angles", "core_radii", "grating_s", "lambda0"):
@@ -229,7 +229,7 @@ def _curve(fn, length):
 
 def test_reconstructor_and_metrics_on_the_needle_with_uneven_gratings_from_20_mm():
     """Gratings at 20, 35, 55, 80 mm, no central core, 5 K temperature change: the reconstruction starts at the
-    base (s = 0) holding the first grating's curvature there (docs/needle-fibre.toml). A constant 3D bend is then
+    base (s = 0) holding the first grating's curvature there (docs/needle-fiber.toml). A constant 3D bend is then
     exact (≤ 1e-9 m, integrator rounding); a curvature vector linear in s beyond the first grating is exact too
     (not-a-knot spline through uneven nodes, ≤ 1e-8 m); a lost peak drops its grating and the arc stays exact."""
     rec = Reconstructor(NEEDLE)
@@ -391,7 +391,7 @@ def test_csv_errors_name_file_line_and_column(tmp_path, text, message):
     assert str(info.value).startswith(str(path)) and "\n" not in str(info.value)
 
 
-def test_csv_must_match_the_fibre(tmp_path):
+def test_csv_must_match_the_fiber(tmp_path):
     path = tmp_path / "poses.csv"
     path.write_text(HEADER + f"\n0,0,{ROW}\n0,0.8,{ROW}\n")
     poses = read_poses(path)  # without a fibre: its own shape
@@ -409,8 +409,8 @@ def test_cli_calibrate_validate_and_cross_validate(twin_jig, tmp_path, capsys):
     poses, _ = twin_jig
     csv_path, cal_path = tmp_path / "poses.csv", tmp_path / "cal.toml"
     write_poses(csv_path, poses)
-    fibre = str(DOCS / "needle-fibre.toml")
-    assert main(["jig-calibrate", str(csv_path), "--fiber", fibre, "--out", str(cal_path), "--model", "matrix"]) == 0
+    fiber = str(DOCS / "needle-fiber.toml")
+    assert main(["jig-calibrate", str(csv_path), "--fiber", fiber, "--out", str(cal_path), "--model", "matrix"]) == 0
     out = capsys.readouterr().out
     assert "matrix model" in out and "roll α" in out and f"Wrote {cal_path}" in out
     assert Calibration.load(cal_path).provenance["jig_model"] == "matrix"
@@ -420,21 +420,21 @@ def test_cli_calibrate_validate_and_cross_validate(twin_jig, tmp_path, capsys):
     summary = report["results"][0]["validation"]["summary"]
     assert summary["max_abs_magnitude_error_1_per_m"] < 0.02 and summary["max_abs_direction_error_deg"] < 1.0
 
-    code = main(["jig-validate", str(csv_path), "--fiber", fibre, "--holdout-orientations", "180deg,270deg",
+    code = main(["jig-validate", str(csv_path), "--fiber", fiber, "--holdout-orientations", "180deg,270deg",
                  "--max-error", "0.02", "--max-direction-error-deg", "1", "--json"])
     report = json.loads(capsys.readouterr().out)
     assert code == 0 and report["passes"] is True
-    assert [r["model"] for r in report["results"]] == ["physical", "matrix"]
+    assert [r["model"] for r in report["results"]] == ["physical", "matrix", "linear", "nuisance"]
     assert report["results"][0]["fit"]["orientations_rad"] == pytest.approx([0.0, np.pi / 2])
 
-    code = main(["jig-validate", str(csv_path), "--fiber", fibre, "--holdout-orientations", "3.14159,4.71239",
+    code = main(["jig-validate", str(csv_path), "--fiber", fiber, "--holdout-orientations", "3.14159,4.71239",
                  "--max-error", "0.0001"])
     out = capsys.readouterr().out
     assert code == 1 and "FAIL" in out and "Comparison" in out
 
     bad = tmp_path / "bad.csv"
     bad.write_text(csv_path.read_text().replace("g1_c2", "g1_cx", 1))
-    assert main(["jig-calibrate", str(bad), "--fiber", fibre, "--out", str(tmp_path / "x.toml")]) == 2
+    assert main(["jig-calibrate", str(bad), "--fiber", fiber, "--out", str(tmp_path / "x.toml")]) == 2
     assert "unknown column 'g1_cx'" in capsys.readouterr().err
 
 

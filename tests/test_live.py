@@ -172,7 +172,7 @@ def test_a_failing_sink_is_dropped_and_the_recording_goes_on(tmp_path):
         assert len(r) == 500 and r.complete
 
 
-def test_frames_that_do_not_fit_the_fibre_are_a_clear_error():
+def test_frames_that_do_not_fit_the_fiber_are_a_clear_error():
     src = SyntheticSource(rate=1000, pace=False, frames=10, cores=7)
     loop = LiveLoop(src, Reconstructor(FiberModel.paper()), [])
     with pytest.raises(ValueError, match="18 gratings × 7 cores but the fibre model has 18 × 4"):

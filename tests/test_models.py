@@ -91,8 +91,8 @@ def test_spec_defaults_and_material():
     assert spec.solref == (0.004, 1.0)
     with pytest.raises(ValueError, match="n_segments"):
         CatheterSpec(n_segments=2)
-    with pytest.raises(ValueError, match="fibre_offset"):
-        CatheterSpec(fibre_offset=2e-3)
+    with pytest.raises(ValueError, match="fiber_offset"):
+        CatheterSpec(fiber_offset=2e-3)
     with pytest.raises(ValueError, match="solref_factor"):
         CatheterSpec(solref_factor=1.0)
 

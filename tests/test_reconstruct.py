@@ -8,10 +8,10 @@ from hypothesis.extra import numpy as hnp
 
 from twin import FiberModel, Frame, Reconstructor, shapes, strain
 
-FIBRE = FiberModel.paper()
+FIBER = FiberModel.paper()
 
 
-def synthetic(curve, fiber=FIBRE, noise=0.0, n=None, seed=0, **effects):
+def synthetic(curve, fiber=FIBER, noise=0.0, n=None, seed=0, **effects):
     k = curve.curvature(fiber.grating_s)
     w = strain.forward(fiber, k, **effects)
     if n is not None:
@@ -29,7 +29,7 @@ def max_error(shape, curve):
 
 @pytest.fixture(scope="module")
 def default():
-    return Reconstructor(FIBRE)
+    return Reconstructor(FIBER)
 
 
 @pytest.mark.parametrize("name", shapes.names())
@@ -52,7 +52,7 @@ def test_default_mode_with_1pm_noise(default):
 def test_paper_mode_errors_are_the_papers_kind(default):
     """The paper pipeline is exact on an arc and a helix (constant κ, τ) but loses millimetres where torsion
     varies or the bend passes an inflection (docs/math.md §3.2, §3.6), which the default mode does not."""
-    paper = Reconstructor.paper(FIBRE)
+    paper = Reconstructor.paper(FIBER)
     for name in ("arc", "helix"):
         c = shapes.get(name)
         assert max_error(paper(synthetic(c)), c) < 1e-9
@@ -65,7 +65,7 @@ def test_paper_mode_errors_are_the_papers_kind(default):
 def test_better_torsion_schemes_beat_the_papers():
     c = shapes.get("rotating-bend")
     w = synthetic(c)
-    errs = {t: max_error(Reconstructor(FIBRE, method="paper", torsion=t, integrator="magnus4")(w), c)
+    errs = {t: max_error(Reconstructor(FIBER, method="paper", torsion=t, integrator="magnus4")(w), c)
             for t in ("forward", "centred", "theta-spline")}
     assert errs["forward"] > errs["centred"] > errs["theta-spline"]
 
@@ -75,11 +75,11 @@ def test_helix_handedness_is_not_mirrored():
     gives the identical result; getting the handedness wrong mirrors the shape (docs/math.md §1 handedness trap)."""
     c = shapes.get("helix")
     w = synthetic(c)
-    good = Reconstructor(FIBRE)(w)
+    good = Reconstructor(FIBER)(w)
     assert max_error(good, c) < 0.05e-3
-    cw = FIBRE.replace(core_angles=-FIBRE.core_angles, handedness=-1)
+    cw = FIBER.replace(core_angles=-FIBER.core_angles, handedness=-1)
     np.testing.assert_allclose(Reconstructor(cw)(w).positions, good.positions, atol=1e-15)
-    wrong = Reconstructor(FIBRE.replace(handedness=-1))(w)
+    wrong = Reconstructor(FIBER.replace(handedness=-1))(w)
     mirrored = wrong.positions * np.array([1, -1, 1])
     np.testing.assert_allclose(mirrored, good.positions, atol=1e-12)
     # a mirror image is not a rigid motion: the best rigid fit stays millimetres off
@@ -138,7 +138,7 @@ def test_frame_without_any_usable_grating_gives_nan_shape(default):
 @pytest.mark.parametrize("integrator", ["magnus4", "hem-mid", "hem-left", "rk4"])
 def test_every_combination_runs_and_is_exact_on_an_arc(method, interpolation, integrator):
     c = shapes.get("arc")
-    rec = Reconstructor(FIBRE, method=method, interpolation=interpolation, integrator=integrator)
+    rec = Reconstructor(FIBER, method=method, interpolation=interpolation, integrator=integrator)
     shape = rec(synthetic(c, n=2))
     # constant curvature: every interpolant is exact and every integrator nearly so (RK4: 2e-10 m at 1 mm)
     assert max_error(shape, c).max() < 1e-9
@@ -149,13 +149,13 @@ def test_paper_pipeline_with_pchip_and_missing_nodes():
     w = synthetic(c, n=2)
     w[0, 4, 1] = np.nan
     for torsion in ("forward", "centred", "theta-spline"):
-        shape = Reconstructor(FIBRE, method="paper", interpolation="pchip", torsion=torsion)(w)
+        shape = Reconstructor(FIBER, method="paper", interpolation="pchip", torsion=torsion)(w)
         assert not shape.valid[0, 4] and np.isfinite(shape.positions).all()
 
 
 def test_paper_mode_frames_are_material_frames():
     c = shapes.get("helix")
-    shape = Reconstructor(FIBRE, method="paper", integrator="magnus4")(synthetic(c))
+    shape = Reconstructor(FIBER, method="paper", integrator="magnus4")(synthetic(c))
     # Frenet frames converted back: compare with the truth's twist-free material frames
     np.testing.assert_allclose(shape.frames, c.frames(shape.s), atol=1e-9)
 
@@ -166,7 +166,7 @@ def test_positions_at_interpolates_between_points(default):
     s = np.linspace(0, 0.17, 77)
     # cubic Hermite on 1 mm points: error O(h⁴κ³) ≪ 1 µm
     np.testing.assert_allclose(shape.positions_at(s), default(synthetic(c)).positions_at(s))
-    exact_at_points = Reconstructor(FIBRE, step=0.17 / 7000)(synthetic(c))
+    exact_at_points = Reconstructor(FIBER, step=0.17 / 7000)(synthetic(c))
     np.testing.assert_allclose(shape.positions_at(s), exact_at_points.positions_at(s), atol=1e-8)
     with pytest.raises(ValueError, match="must lie in"):
         shape.positions_at([0.2])
@@ -197,7 +197,7 @@ def test_gratings_not_starting_at_zero_and_uneven():
 )
 def test_bad_options_are_clear(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        Reconstructor(FIBRE, **kwargs)
+        Reconstructor(FIBER, **kwargs)
 
 
 def test_bad_wavelengths_are_clear(default):
@@ -210,7 +210,7 @@ def test_bad_wavelengths_are_clear(default):
 
 
 # ------------------------------------------------------------------ property-based bad input
-_REC = Reconstructor(FIBRE)
+_REC = Reconstructor(FIBER)
 
 
 @settings(max_examples=300, deadline=None)
@@ -245,19 +245,19 @@ def test_missing_peaks_never_crash_and_are_flagged(mask):
 @settings(max_examples=100, deadline=None)
 @given(radius=st.floats(max_value=-1e-12, allow_nan=False, allow_infinity=False), core=st.integers(0, 3))
 def test_negative_radii_are_refused(radius, core):
-    radii = FIBRE.core_radii.copy()
+    radii = FIBER.core_radii.copy()
     radii[core] = radius
     with pytest.raises(ValueError, match="core_radii"):
-        FIBRE.replace(core_radii=radii)
+        FIBER.replace(core_radii=radii)
 
 
 def test_torsion_with_the_material_method_is_an_error():
     with pytest.raises(ValueError, match="torsion applies to method='paper' only"):
-        Reconstructor(FIBRE, torsion="centred")
+        Reconstructor(FIBER, torsion="centred")
 
 
 # ------------------------------------------------------------------ the paper pipeline through low curvature
-def sheath_like(roll=0.0, fiber=FIBRE):
+def sheath_like(roll=0.0, fiber=FIBER):
     """Curvature at the gratings of a catheter leaving a straight guide (issue 12's case): exactly straight for
     the first 70 mm and the last 10 mm, a bend ramping to 25 1/m and back between, in the plane at ``roll``."""
     s = fiber.grating_s
@@ -275,9 +275,9 @@ def test_guarded_paper_pipeline_is_roll_symmetric():
     rolled back gives the same tip (1e-6 m) with θ_b held through the straight part. The literal transcription
     breaks the symmetry (by 0.75 mm here): atan2 of the straight gratings' (round-off) curvature is arbitrary."""
     rolls = 0.3 + 2 * np.pi * np.arange(8) / 8
-    w = np.stack([strain.forward(FIBRE, sheath_like(a)) for a in rolls])
+    w = np.stack([strain.forward(FIBER, sheath_like(a)) for a in rolls])
     tips = {}
-    for name, rec in (("guarded", Reconstructor.paper(FIBRE)), ("literal", Reconstructor.paper(FIBRE, kappa_min=0))):
+    for name, rec in (("guarded", Reconstructor.paper(FIBER)), ("literal", Reconstructor.paper(FIBER, kappa_min=0))):
         tip = rec(w).tip
         tips[name] = np.stack([roll_back(t, a) for t, a in zip(tip, rolls, strict=True)])
     spread = {k: np.linalg.norm(v - v.mean(axis=0), axis=1).max() for k, v in tips.items()}
@@ -290,34 +290,34 @@ def test_guarded_paper_pipeline_with_1pm_noise():
     from its noise-free value, and the tip scatters by < 0.2 mm (RMS distance from the mean tip); the literal
     one scatters by centimetres (random θ_b on the straight gratings turn into torsion spikes)."""
     k = sheath_like(0.4)
-    truth_tip = Reconstructor(FIBRE)(strain.forward(FIBRE, k)).tip  # the default pipeline noise-free: ≤ 0.05 mm
-    w = strain.forward(FIBRE, k)
+    truth_tip = Reconstructor(FIBER)(strain.forward(FIBER, k)).tip  # the default pipeline noise-free: ≤ 0.05 mm
+    w = strain.forward(FIBER, k)
     noisy = w + np.random.default_rng(3).normal(scale=1e-3, size=(50, *w.shape))
-    guarded = Reconstructor.paper(FIBRE)
+    guarded = Reconstructor.paper(FIBER)
     clean_err = np.linalg.norm(guarded(w).tip - truth_tip)
     tips = guarded(noisy).tip
     err = np.linalg.norm(tips - truth_tip, axis=1)
     assert abs(err.mean() - clean_err) < 0.5e-3
     assert np.sqrt(np.mean(np.sum((tips - tips.mean(axis=0)) ** 2, axis=1))) < 0.2e-3
-    literal = Reconstructor.paper(FIBRE, kappa_min=0)(noisy).tip
+    literal = Reconstructor.paper(FIBER, kappa_min=0)(noisy).tip
     assert np.sqrt(np.mean(np.sum((literal - literal.mean(axis=0)) ** 2, axis=1))) > 5e-3
 
 
 def test_guard_changes_nothing_where_curvature_is_reliable():
     """Where κ ≥ κ_min at every grating the guarded and literal pipelines are identical (bit for bit)."""
-    bent = [c for c in shapes.library() if np.hypot(*c.curvature(FIBRE.grating_s).T).min() >= 1.0]
+    bent = [c for c in shapes.library() if np.hypot(*c.curvature(FIBER.grating_s).T).min() >= 1.0]
     assert len(bent) >= 3
     w = np.stack([synthetic(c, noise=1e-3, seed=i) for i, c in enumerate(bent)])
     for torsion in ("forward", "centred", "theta-spline"):
-        a = Reconstructor.paper(FIBRE, torsion=torsion)(w).positions
-        b = Reconstructor.paper(FIBRE, torsion=torsion, kappa_min=0)(w).positions
+        a = Reconstructor.paper(FIBER, torsion=torsion)(w).positions
+        b = Reconstructor.paper(FIBER, torsion=torsion, kappa_min=0)(w).positions
         assert np.array_equal(a, b)
 
 
 def test_kappa_min_is_paper_only_and_checked():
     with pytest.raises(ValueError, match="paper method only"):
-        Reconstructor(FIBRE, kappa_min=1.0)
+        Reconstructor(FIBER, kappa_min=1.0)
     with pytest.raises(ValueError, match="kappa_min must be"):
-        Reconstructor.paper(FIBRE, kappa_min=-1.0)
-    assert Reconstructor.paper(FIBRE).kappa_min == 1.0
-    assert "kappa_min=0 " in repr(Reconstructor.paper(FIBRE, kappa_min=0))
+        Reconstructor.paper(FIBER, kappa_min=-1.0)
+    assert Reconstructor.paper(FIBER).kappa_min == 1.0
+    assert "kappa_min=0 " in repr(Reconstructor.paper(FIBER, kappa_min=0))

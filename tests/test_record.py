@@ -32,7 +32,7 @@ TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg"}
 
 
-def test_round_trip_of_frames_truth_fibre_and_calibration(tmp_path):
+def test_round_trip_of_frames_truth_fiber_and_calibration(tmp_path):
     frames = synthetic_frames(700, drop=0.05, noise=0.001, seed=2)
     fiber = FiberModel.paper()
     cal = Calibration(lambda0=fiber.lambda0 + 0.01, twist=np.linspace(0, 0.1, 18), provenance={"by": "test"})
@@ -225,7 +225,7 @@ def test_twin_replay_reports_errors_against_truth(tmp_path):
     assert bad.returncode == 2 and "no such fibre model file" in bad.stderr
 
 
-def test_replay_with_the_wrong_fibre_is_a_clear_error(tmp_path):
+def test_replay_with_the_wrong_fiber_is_a_clear_error(tmp_path):
     path = tmp_path / "r7.h5"
     with Recorder(path) as rec:
         rec.append(synthetic_frames(5, cores=7))

@@ -26,7 +26,7 @@ from twin.frames import Frame
 from twin.io import illumisense
 from twin.io.errors import RecordingDamaged
 from twin.io.illumisense import VendorSensor
-from twin.io.illumisense_vendor import VendorDistance, vendor_sensors
+from twin.io.illumisense.vendor import VendorDistance, vendor_sensors
 from twin.io.record import Recorder, open_recording
 from twin.io.replay import summarize
 from twin.io.source import open_source

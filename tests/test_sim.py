@@ -11,38 +11,38 @@ from twin import FiberModel, PeakStatus, Reconstructor, strain
 from twin.io import SourceClosed, open_source
 from twin.strain import CurvatureSolver, optical_strain
 
-FIBRE = FiberModel.paper()
+FIBER = FiberModel.paper()
 K = np.random.default_rng(0).uniform(-40, 40, (6, 18, 2))
 
 
 def test_ideal_optics_are_the_forward_model():
-    o = Optics(FIBRE, OpticsConfig.ideal())
+    o = Optics(FIBER, OpticsConfig.ideal())
     axial = np.random.default_rng(1).uniform(-1e-4, 1e-4, (6, 18))
     w, status = o.wavelengths(K, axial, delta_T=12.5)
     # the compiled effects kernel against twin.strain.forward: same arithmetic, rounding only
-    np.testing.assert_allclose(w, strain.forward(FIBRE, K, axial, 12.5), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(w, strain.forward(FIBER, K, axial, 12.5), rtol=0, atol=1e-12)
     assert not status.any()
     w1, _ = o.wavelengths(K[0])
     assert w1.shape == (18, 4)
 
 
 def test_uniform_temperature_shifts_all_cores_and_cancels():
-    o = Optics(FIBRE, OpticsConfig.ideal())
+    o = Optics(FIBER, OpticsConfig.ideal())
     w0, _ = o.wavelengths(K[0])
     w30, _ = o.wavelengths(K[0], delta_T=30.0)
     assert np.all(w30 - w0 > 0.29)  # S_T λ ΔT: 299–316 pm over 1510–1595 nm (docs/math.md §6)
-    solver = CurvatureSolver.for_fiber(FIBRE)
-    k0 = solver.solve(optical_strain(w0, FIBRE.lambda0)).curvature
-    k30 = solver.solve(optical_strain(w30, FIBRE.lambda0)).curvature
+    solver = CurvatureSolver.for_fiber(FIBER)
+    k0 = solver.solve(optical_strain(w0, FIBER.lambda0)).curvature
+    k30 = solver.solve(optical_strain(w30, FIBER.lambda0)).curvature
     np.testing.assert_allclose(k30, k0, atol=1e-8)
     # with a 0.3 % per-core S_T mismatch a little leaks (the paper: 0.29 mm over 30 K)
-    leaky = Optics(FIBRE, OpticsConfig.ideal(thermal_mismatch=0.003))
-    d = solver.solve(optical_strain(leaky.wavelengths(K[0], delta_T=30.0)[0], FIBRE.lambda0)).curvature - k0
+    leaky = Optics(FIBER, OpticsConfig.ideal(thermal_mismatch=0.003))
+    d = solver.solve(optical_strain(leaky.wavelengths(K[0], delta_T=30.0)[0], FIBER.lambda0)).curvature - k0
     assert 1e-3 < np.abs(d).max() < 0.1
 
 
 def test_peak_loss_when_a_shift_leaves_its_slot():
-    o = Optics(FIBRE, OpticsConfig.ideal(slot_half_width=2.5))
+    o = Optics(FIBER, OpticsConfig.ideal(slot_half_width=2.5))
     k = np.zeros((18, 2))
     k[5] = [70.0, 0.0]  # ≈ 3.1 nm on the core facing the bend: out of a ±2.5 nm slot
     w, status = o.wavelengths(k)
@@ -53,48 +53,48 @@ def test_peak_loss_when_a_shift_leaves_its_slot():
 def test_peaks_of_neighbouring_gratings_merge_at_a_kink():
     """Gratings 5 nm apart: a smooth bend of 67.5 1/m (≈ 3 nm) loses nothing, a kink where neighbours bend
     oppositely by 60 1/m (≈ 2.6 nm each way) brings their peaks within 1 nm and both are lost."""
-    o = Optics(FIBRE, OpticsConfig.ideal(min_peak_separation=1.0, band=(1500.0, 1600.0)))
+    o = Optics(FIBER, OpticsConfig.ideal(min_peak_separation=1.0, band=(1500.0, 1600.0)))
     assert not o.wavelengths(np.tile([67.5, 0.0], (18, 1)))[1].any()
     k = np.zeros((18, 2))
     k[7], k[8] = [-60.0, 0.0], [60.0, 0.0]  # core 1 (θ = 0): grating 7 stretched, grating 8 compressed
     w, status = o.wavelengths(k)
     assert np.isnan(w[7:9, 1]).all() and status[7:9, 1].all() and not np.delete(status, [7 * 4 + 1, 8 * 4 + 1]).any()
-    band = Optics(FIBRE, OpticsConfig.ideal(band=(1512.0, 1600.0)))
+    band = Optics(FIBER, OpticsConfig.ideal(band=(1512.0, 1600.0)))
     assert np.isnan(band.wavelengths(np.zeros((18, 2)))[0][0]).all()  # grating 0 at 1510 nm: outside
 
 
 def test_noise_quantisation_drift_and_spread():
     cfg = OpticsConfig.ideal(noise=1e-3, seed=3)
-    o = Optics(FIBRE, cfg)
+    o = Optics(FIBER, cfg)
     w, _ = o.wavelengths(np.zeros((4000, 18, 2)))
-    assert np.std(w - FIBRE.lambda0) == pytest.approx(1e-3, rel=0.02)
-    q = Optics(FIBRE, OpticsConfig.ideal(noise=1e-3, quantisation=1e-4)).wavelengths(K[0])[0]
+    assert np.std(w - FIBER.lambda0) == pytest.approx(1e-3, rel=0.02)
+    q = Optics(FIBER, OpticsConfig.ideal(noise=1e-3, quantisation=1e-4)).wavelengths(K[0])[0]
     np.testing.assert_allclose(q * 1e4, np.round(q * 1e4), atol=1e-6)
-    d = Optics(FIBRE, OpticsConfig.ideal(drift=1e-3, seed=1))
-    steps = np.array([d.wavelengths(np.zeros((18, 2)), t=float(t))[0] for t in range(401)]) - FIBRE.lambda0
+    d = Optics(FIBER, OpticsConfig.ideal(drift=1e-3, seed=1))
+    steps = np.array([d.wavelengths(np.zeros((18, 2)), t=float(t))[0] for t in range(401)]) - FIBER.lambda0
     # a random walk of 1 pm/√s: the spread of the increments over 100 s is ≈ 10 pm
     assert np.std(steps[400] - steps[300]) == pytest.approx(10e-3, rel=0.25)
-    spread = Optics(FIBRE, OpticsConfig.ideal(lambda0_spread=0.3, fiber_seed=2)).true_fiber.lambda0 - FIBRE.lambda0
+    spread = Optics(FIBER, OpticsConfig.ideal(lambda0_spread=0.3, fiber_seed=2)).true_fiber.lambda0 - FIBER.lambda0
     assert np.std(spread) == pytest.approx(0.3, rel=0.2)
 
 
-def test_true_fibre_parameters_and_twist():
-    o = Optics(FIBRE, OpticsConfig.ideal(delta_theta=1.039, gain_scale=0.961, twist_total=0.4))
+def test_true_fiber_parameters_and_twist():
+    o = Optics(FIBER, OpticsConfig.ideal(delta_theta=1.039, gain_scale=0.961, twist_total=0.4))
     d = o.describe()
     assert d["delta_theta"] == pytest.approx(1.039)
     assert d["gain_m"] == pytest.approx(37.5e-6 * 0.777 * 0.961)
     w, _ = o.wavelengths(K[0])
     # the nominal reconstruction sees the curvature rotated by the twist; the true calibration undoes it all
-    rec_true = Reconstructor(FIBRE, o.true_calibration())
+    rec_true = Reconstructor(FIBER, o.true_calibration())
     np.testing.assert_allclose(rec_true.curvature(w).curvature, K[0], atol=1e-8)
-    k_nom = Reconstructor(FIBRE).curvature(w).curvature
+    k_nom = Reconstructor(FIBER).curvature(w).curvature
     assert np.abs(k_nom - K[0]).max() > 1.0
 
 
 def test_grating_length_average_is_a_quadrature():
-    o = Optics(FIBRE, OpticsConfig.ideal(grating_length=4e-3))
+    o = Optics(FIBER, OpticsConfig.ideal(grating_length=4e-3))
     s = o.sample_s
-    quad = 3.0 + 200 * (s - FIBRE.grating_s[:, None]) ** 2  # mean over ±2 mm of a quadratic: 3 + 200·(2 mm)²/3
+    quad = 3.0 + 200 * (s - FIBER.grating_s[:, None]) ** 2  # mean over ±2 mm of a quadratic: 3 + 200·(2 mm)²/3
     k = np.stack([quad, 0 * quad], axis=-1)
     np.testing.assert_allclose(o.wavelengths(k)[0], o.wavelengths(np.tile([3.0 + 200 * 4e-6 / 3, 0], (18, 1)))[0],
                                atol=1e-12)
@@ -109,7 +109,7 @@ def test_sim_interrogator_frames_and_truth():
     assert truth.curvature.shape == (18, 2) and truth.positions.shape[1] == 3
     np.testing.assert_allclose(np.hypot(*truth.curvature.T), 40.0, rtol=2e-3)  # the helix's κ, rod discretised
     # the wavelengths encode the rod's own curvature at the gratings (averaged over 0 m: ideal optics)
-    k = Reconstructor(FIBRE).curvature(f0).curvature
+    k = Reconstructor(FIBER).curvature(f0).curvature
     np.testing.assert_allclose(k, truth.curvature, atol=1e-6)
 
 

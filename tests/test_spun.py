@@ -1,6 +1,6 @@
 """Spun (helical) multi-core fibres: the model, the exact and linear strains, the twist inversion, the
 reconstruction with the material frame carried by the measured twist, and the spin-rate calibration
-(docs/spun-fibres.md)."""
+(docs/spun-fibers.md)."""
 
 import numpy as np
 import pytest
@@ -33,7 +33,7 @@ def exact_helix(u, s):
 
 
 # ------------------------------------------------------------------------------------------- the model
-def test_straight_fibre_is_unchanged():
+def test_straight_fiber_is_unchanged():
     f = FiberModel.paper()
     assert f.spin_rate == 0.0 and f.spin_omega == 0.0
     np.testing.assert_array_equal(f.helix_cos2, 1.0)
@@ -186,7 +186,7 @@ def test_a_lost_peak_keeps_the_grating_and_interpolates_the_twist():
     np.testing.assert_allclose(rec.twist_angle(w)[-1], u[2] * SPUN.sensed_length, rtol=1e-4)
 
 
-def test_seven_core_spun_fibre_survives_a_lost_outer_core():
+def test_seven_core_spun_fiber_survives_a_lost_outer_core():
     f = FiberModel(core_angles=np.r_[0.0, np.arange(6) * np.pi / 3], core_radii=[0.0] + [35e-6] * 6,
                    grating_s=[0.0, 0.01, 0.02], lambda0=np.full((3, 7), 1550.0), central_core=0, spin_rate=50.0)
     k = np.array([[10.0, -4.0], [3.0, 8.0], [0.0, 20.0]])
@@ -325,7 +325,7 @@ def test_two_step_finds_the_spin_rate_and_phase():
     assert back.spin_rate == cal.spin_rate
 
 
-def test_peak_window_holds_for_a_spun_fibre():
+def test_peak_window_holds_for_a_spun_fiber():
     """An absurd peak on a spun fibre (twist measured) is missing like on straight cores, not a NaN shape."""
     from twin import FiberModel, Reconstructor
 

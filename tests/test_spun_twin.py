@@ -1,6 +1,6 @@
 """A spun fibre in the twin: the optics' exact helical path lengths against the linear model on a straight fibre
 (noise and peak loss included), the grating-length average, and the SimInterrogator reading the rod's own twist
-(docs/spun-fibres.md §6)."""
+(docs/spun-fibers.md §6)."""
 
 import numpy as np
 import pytest
@@ -20,12 +20,12 @@ TAU = RNG.uniform(-15, 15, (6, 18))
     OpticsConfig(grating_length=0.0, seed=4),
     OpticsConfig.ideal(min_peak_separation=1.0, band=(1512.0, 1600.0), noise=1e-3, seed=5),
 ])
-def test_the_spun_path_on_a_straight_fibre_is_the_linear_model_with_the_same_effects(cfg):
+def test_the_spun_path_on_a_straight_fiber_is_the_linear_model_with_the_same_effects(cfg):
     """With Ω = 0 and τ = 0 the exact path length is the linear model, so the spun path (exact strains) and the
     design form must give the same wavelengths, noise, drift, quantisation and lost peaks from the same seed
     (both go through the one compiled effects kernel; the strains differ only by rounding)."""
-    fibre = FiberModel.paper()
-    a, b = Optics(fibre, cfg), Optics(fibre, cfg)
+    fiber = FiberModel.paper()
+    a, b = Optics(fiber, cfg), Optics(fiber, cfg)
     k = K.copy()
     k[0, 7], k[0, 8] = [-60.0, 0.0], [60.0, 0.0]  # a kink: neighbouring peaks merge
     for t in (0.0, 0.5, 1.0):
@@ -43,7 +43,7 @@ def test_ideal_spun_optics_are_the_exact_path_length_and_invert():
     np.testing.assert_allclose(w, SPUN.lambda0 * (1 + e), rtol=0, atol=1e-12)
     assert not status.any()
     sol = Reconstructor(SPUN, o.true_calibration()).curvature(w)
-    # the reconstruction's residual model error (docs/spun-fibres.md §2): O(sin²α κ²/Ω) and −Ω ε_0 in τ
+    # the reconstruction's residual model error (docs/spun-fibers.md §2): O(sin²α κ²/Ω) and −Ω ε_0 in τ
     np.testing.assert_allclose(sol.twist_rate, TAU - SPUN.spin_omega * 2e-4, atol=3e-3)
     np.testing.assert_allclose(sol.curvature, K, rtol=1e-4, atol=1e-4)
     # a straight-core call without twist still works for a spun fibre (τ = 0)
@@ -90,7 +90,7 @@ def test_sim_interrogator_reads_the_rods_twist():
     rec = Reconstructor(SPUN, sim.optics.true_calibration())
     sol = rec.curvature(frame)
     np.testing.assert_allclose(sol.curvature, truth.curvature, atol=2e-3)
-    # ideal optics, no noise: what is left is the model error of docs/spun-fibres.md §2 (≈ 2e-4 rad/m here)
+    # ideal optics, no noise: what is left is the model error of docs/spun-fibers.md §2 (≈ 2e-4 rad/m here)
     np.testing.assert_allclose(sol.twist_rate, truth.twist, atol=0.01)
     tip = rec.twist_angle(frame)[-1]
     assert tip == pytest.approx(np.trapezoid(truth.twist, SPUN.grating_s), rel=0.02)

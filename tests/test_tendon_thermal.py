@@ -14,12 +14,12 @@ from scipy.stats import chi
 
 from models.rod_state import RodReader
 from scenarios import temperature_bath, tendon
-from sim_interrogator.source import open_sim
-from sim_interrogator.tendon import Tendon
-from sim_interrogator.thermal import Bath
+from sim_interrogator.sim_source import open_sim
+from sim_interrogator.tendon_setup import Tendon
+from sim_interrogator.thermal_setup import Bath
 from twin import FiberModel
 
-FIBRE = FiberModel.paper()
+FIBER = FiberModel.paper()
 TIP_NOISE_RMS = 0.144e-3  #: m, 3D RMS tip error from 1 pm of wavelength noise (docs/math.md §6)
 
 
@@ -71,20 +71,20 @@ def test_tendon_script_and_compression():
     assert setup.tension(0.5) == pytest.approx(8.0 * np.sin(np.pi / 4) ** 3)
     one = Tendon(max_tension=8.0, period=4.0, wires=1)
     assert np.all(one.tension(np.linspace(0, 8, 81)) >= 0) and one.tension(2.0) == pytest.approx(8.0)
-    d_t, axial = setup.conditions(3.0, FIBRE.grating_s)
+    d_t, axial = setup.conditions(3.0, FIBER.grating_s)
     assert d_t == 0.0
-    distal = FIBRE.grating_s >= setup.coil_s
+    distal = FIBER.grating_s >= setup.coil_s
     assert distal.sum() == 5  # gratings at 130–170 mm; the coil ends at 125.5 mm (100 segments)
     np.testing.assert_allclose(axial[distal], -8.0 / 2e4)
     assert not axial[~distal].any()
-    assert not Tendon(axial_stiffness=0.0).axial_strain(3.0, FIBRE.grating_s).any()
+    assert not Tendon(axial_stiffness=0.0).axial_strain(3.0, FIBER.grating_s).any()
     for bad in (dict(wires=3), dict(tendon_offset=2e-3), dict(deflectable_length=0.3), dict(period=0.0)):
         with pytest.raises(ValueError, match="sim://tendon"):
             Tendon(**bad)
 
 
 def test_tendon_runs_through_a_sim_url():
-    """sim://tendon is registered (sim_interrogator.source imports the module) and takes its parameters."""
+    """sim://tendon is registered (sim_interrogator.sim_source imports the module) and takes its parameters."""
     sim = open_sim("sim://tendon?cycles=0.25&period=2&rate=10&max_tension=4")
     frames = [sim.read() for _ in range(6)]
     assert sim.describe()["max_tension"] == 4.0
@@ -102,15 +102,15 @@ def test_bath_temperature_profiles_and_gradient():
     tt = np.linspace(0, 60, 61)
     assert np.all(np.diff(bath.bath_celsius(tt)) < 0)
     np.testing.assert_allclose(bath.bath_celsius(20.0), 22.0 + 38.0 * np.exp(-20.0 / bath.tau))
-    d_t, axial = bath.conditions(0.0, FIBRE.grating_s)
+    d_t, axial = bath.conditions(0.0, FIBER.grating_s)
     np.testing.assert_allclose(d_t, 38.0)
     assert axial == 0.0
-    np.testing.assert_allclose(bath.conditions(60.0, FIBRE.grating_s)[0], 8.0)
+    np.testing.assert_allclose(bath.conditions(60.0, FIBER.grating_s)[0], 8.0)
     lin = Bath(profile="linear", duration=30.0, start_celsius=60.0, end_celsius=30.0, reference_celsius=25.0,
                gradient=10.0)
-    d_t = lin.delta_t(np.array([0.0, 15.0]), FIBRE.grating_s)
-    assert d_t.shape == (2, FIBRE.n_gratings)
-    np.testing.assert_allclose(d_t[1], 45.0 - 25.0 + 10.0 * (FIBRE.grating_s - 0.085))
+    d_t = lin.delta_t(np.array([0.0, 15.0]), FIBER.grating_s)
+    assert d_t.shape == (2, FIBER.n_gratings)
+    np.testing.assert_allclose(d_t[1], 45.0 - 25.0 + 10.0 * (FIBER.grating_s - 0.085))
     with pytest.raises(ValueError, match="start > end > room"):
         Bath(end_celsius=20.0)
     with pytest.raises(ValueError, match="profile"):
@@ -126,7 +126,7 @@ def test_bath_runs_through_a_sim_url_and_reports_the_temperature():
     assert np.abs(frames[-1].truth.positions - frames[0].truth.positions).max() < 1e-8
     # the central core shifts by S_T·ΔT·λ0 (ideal optics: exactly the forward model)
     shift = frames[-1].wavelengths[:, 0] - frames[0].wavelengths[:, 0]
-    np.testing.assert_allclose(shift, FIBRE.temperature_sensitivity * FIBRE.lambda0[:, 0] * (
+    np.testing.assert_allclose(shift, FIBER.temperature_sensitivity * FIBER.lambda0[:, 0] * (
         frames[-1].truth.temperature[0] - frames[0].truth.temperature[0]), rtol=1e-9)
 
 
@@ -155,7 +155,7 @@ def test_temperature_bath_ci():
     assert effect == pytest.approx(predicted, rel=0.1, abs=5e-6)
     assert temperature_bath.tip_stats(with_m.tips["default"])["variation"] < noise_budget + effect
     d_t = (with_m.bath_celsius[-1] - with_m.bath_celsius[0])
-    expected_cm = FIBRE.temperature_sensitivity * FIBRE.lambda0[:, 0].mean() * d_t
+    expected_cm = FIBER.temperature_sensitivity * FIBER.lambda0[:, 0].mean() * d_t
     assert with_m.common_mode[-1] == pytest.approx(expected_cm, rel=0.02)
     assert temperature_bath.tip_stats(with_m.uncompensated_tips)["variation"] > 5e-3
     # the expected (RMS over as-built fibres) effect of a 0.3 % spread is of the paper's order (0.29 mm)
@@ -170,11 +170,11 @@ def _step_bound(setup: Tendon) -> float:
     """Tip error from not knowing where between two gratings the curvature steps: the spline through the
     gratings puts the step at their midpoint; the rod's is δs away, which turns the section by δs·κ_max about a
     lever of (L − s_step): m."""
-    g = FIBRE.grating_s
+    g = FIBER.grating_s
     below = g[g < setup.coil_s].max()
     delta = abs(setup.coil_s - (below + 0.5 * (g[1] - g[0])))
     kappa = float(setup.section_curvature(setup.max_tension))
-    return delta * kappa * (FIBRE.sensed_length - setup.coil_s) + 1e-4  # + 0.1 mm of higher-order terms
+    return delta * kappa * (FIBER.sensed_length - setup.coil_s) + 1e-4  # + 0.1 mm of higher-order terms
 
 
 def test_tendon_ci_ideal_optics_is_limited_by_the_curvature_step():

@@ -30,7 +30,7 @@ import pytest
 from twin import Reconstructor
 from twin.frames import Frame, Shape, Truth
 from twin.io.illumisense import VendorSensor
-from twin.io.illumisense_vendor import VENDOR_FROM_BASE, vendor_distance
+from twin.io.illumisense.vendor import VENDOR_FROM_BASE, vendor_distance
 from twin.io.synthetic import SyntheticSource
 from twin.live import LiveLoop, LiveStatus
 from twin.viewer import CAMERA_FOV_DEG, Viewer, ViewerConfig, ViewerError, ViewerSink, keep_open
@@ -667,7 +667,7 @@ def test_sink_in_the_live_loop_at_1_khz_draws_at_most_its_rate(make_viewer):
 
 # ------------------------------------------------------------------------------------------------ command line
 def test_take_viewer_options_anywhere_among_the_scenario_options():
-    from twin.cli.run import take_viewer_options
+    from twin.cli.run_command import take_viewer_options
 
     assert take_viewer_options(["--shapes", "arc", "--viewer", "--json"]) == (["--shapes", "arc", "--json"],
                                                                              True, None, False)
@@ -888,7 +888,7 @@ def orange(img: np.ndarray) -> np.ndarray:
 def test_browser_shows_the_vendor_shape_when_present_and_not_otherwise(make_viewer, tmp_path):
     """The interrogator's shape (orange, registered onto ours) is drawn along its projected centreline and
     nowhere else, named in the legend; a frame without one leaves no orange pixel."""
-    from twin.io.illumisense_vendor import vendor_in_base
+    from twin.io.illumisense.vendor import vendor_in_base
 
     v = make_viewer()
     shape = arc()

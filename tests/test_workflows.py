@@ -165,7 +165,7 @@ def test_calibration_choices_are_checked_and_described(tmp_path):
     """scenarios/_common/calibration.py: true, lambda0, nominal and a TOML resolve without simulation, each with a
     description for reports; anything else is one clear error."""
     from scenarios._common.calibration import calibration_for, check_calibration, label
-    from scenarios._common.optics import optics_config
+    from scenarios._common.optics_presets import optics_config
 
     true = calibration_for("true", optics_config("realistic"))
     assert true.calibration.delta_theta == pytest.approx(1.039) and "no lab" in true.description
@@ -187,7 +187,7 @@ def test_lab_calibration_is_close_to_the_truth_and_cached(tmp_path, monkeypatch)
     Δθ within 0.005 rad and g within 1 % (the fixtures' centrelines are not the catheter's: the catheter's play in
     the grooves and tubes costs accuracy); a second call loads the cached file."""
     from scenarios._common.calibration import cache_dir, calibration_for
-    from scenarios._common.optics import optics_config
+    from scenarios._common.optics_presets import optics_config
 
     monkeypatch.setenv("TWIN_CACHE_DIR", str(tmp_path))
     used = calibration_for("lab", optics_config("realistic"))

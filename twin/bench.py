@@ -2,7 +2,7 @@
 
 The measurements run in a child process pinned to one CPU with single-threaded BLAS, so "per core" means one
 core. :func:`report` compares each figure with its goal and, optionally, with an earlier run. The command is
-:mod:`twin.cli.bench`.
+:mod:`twin.cli.bench_command`.
 
 Sections are found through the registry (:mod:`twin.registry`, group ``twin.bench``: ``module:function``
 returning a dict), so the simulator's benchmarks live in their own packages without the sensing core naming them.

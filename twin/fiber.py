@@ -5,7 +5,7 @@ core ``i`` sits at ``core_radii[i] * (cos θ_i, sin θ_i)`` in (d1, d2), with θ
 +d3 when ``handedness`` is +1. A vendor drawing that counts angles clockwise is entered as written with
 ``handedness = -1``; everything downstream then uses the effective CCW angles ``handedness * core_angles``.
 
-A *spun* fibre (``spin_rate`` ≠ 0, docs/spun-fibres.md) has its outer cores wound helically: core ``i`` sits at
+A *spun* fibre (``spin_rate`` ≠ 0, docs/spun-fibers.md) has its outer cores wound helically: core ``i`` sits at
 θ_i + Ω s in the material frame, Ω = 2π·``spin_rate`` (turns/m, in the same sense as the core angles). Zero, the
 default, is today's straight-core fibre.
 """
@@ -289,7 +289,7 @@ class FiberModel:
         type (a list, table, date or boolean where a number belongs), are errors naming ``source`` and the
         field. The model remembers ``source`` (:func:`origin`) so later errors can name it too."""
         where = f"{source}: " if source else ""
-        check_table(data, cls, "fibre", where)
+        check_table(data, cls, "fiber", where)
         required = ("core_angles", "core_radii", "grating_s", "lambda0")
         missing = [k for k in required if k not in data]
         if missing:

@@ -63,7 +63,7 @@ class Reconstructor:
         up to π wherever part of the length is nearly straight (docs/math.md §3.6).
     twist : bool, optional
         Measure the mechanical twist rate at each grating and carry the material frame with it (a spun fibre,
-        docs/spun-fibres.md). Default: when the fibre is spun (``spin_rate`` ≠ 0) and the method is
+        docs/spun-fibers.md). Default: when the fibre is spun (``spin_rate`` ≠ 0) and the method is
         ``material``; False reconstructs a spun fibre with the twist ignored.
     wavelength_noise : float
         1σ wavelength noise per peak assumed by the twist inversion's weights and reported uncertainties, nm.

@@ -1,6 +1,6 @@
 """Spun (helical) multi-core fibres: the strain of a helical core and the per-grating twist inversion.
 
-docs/spun-fibres.md derives both models. In the material frame (d1, d2, d3) of the fibre, whose Darboux vector
+docs/spun-fibers.md derives both models. In the material frame (d1, d2, d3) of the fibre, whose Darboux vector
 is u = (κ1, κ2, τ) with the curvature vector k = (k_x, k_y) = (κ2, −κ1) (twin/_kernels.py, docs/math.md §1),
 an outer core at radius r sits at angle φ_i(s) = θ_i + Ω s. Its position is X = x + r (cos φ d1 + sin φ d2), and
 
@@ -178,7 +178,7 @@ class TwistSolver:
         centre-core peak: twist and the common mode are then inseparable).
     helix : tuple of float (Ω rad/m, r m), optional
         Undo the helix's second-order path length: the linear twist estimate τ_lin is mapped through the exact
-        pure-twist relation √(1 + cos²α r²(2Ωτ + τ²)) − 1 = cos²α r² Ω τ_lin (docs/spun-fibres.md), which
+        pure-twist relation √(1 + cos²α r²(2Ωτ + τ²)) − 1 = cos²α r² Ω τ_lin (docs/spun-fibers.md), which
         removes the τ/(2Ω) relative bias (1.6 % at 10 rad/m and 50 turns/m). None: the linear estimate.
     s : array_like, shape (n_gratings,), optional
         Grating positions, m, for interpolating τ into gratings that lost a peak the twist needs (default:

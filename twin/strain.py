@@ -36,7 +36,7 @@ def _core_angles(fiber: FiberModel, core_angles, twist) -> np.ndarray:
     theta = fiber.ccw_angles if core_angles is None else fiber.handedness * np.asarray(core_angles, float)
     theta = np.broadcast_to(theta, (fiber.n_gratings, fiber.n_cores)) if theta.ndim < 2 else theta
     if fiber.spin_rate:
-        # a spun fibre's cores advance by Ω s along it (docs/spun-fibres.md)
+        # a spun fibre's cores advance by Ω s along it (docs/spun-fibers.md)
         theta = theta + fiber.spin_omega * fiber.grating_s[:, None]
     if twist is not None:
         theta = theta + np.asarray(twist, dtype=np.float64)[..., None]
@@ -57,12 +57,12 @@ def design_matrix(fiber: FiberModel, *, core_angles=None, gains=None, twist=None
         Intrinsic twist angle of the cores at each grating, rad (cores at θ_i + φ_n).
 
     A spun fibre (``fiber.spin_rate`` ≠ 0) has its cores at θ_i + Ω s_n + φ_n and its bending columns scaled by
-    cos²α (the linear model of docs/spun-fibres.md; :func:`twin.spun.twist_design` adds the twist column).
+    cos²α (the linear model of docs/spun-fibers.md; :func:`twin.spun.twist_design` adds the twist column).
     """
     theta = _core_angles(fiber, core_angles, twist)
     g = fiber.gains if gains is None else np.asarray(gains, dtype=np.float64)
     if fiber.spin_rate:
-        g = g * fiber.helix_cos2  # a helical core feels cos²α of the bending strain (docs/spun-fibres.md)
+        g = g * fiber.helix_cos2  # a helical core feels cos²α of the bending strain (docs/spun-fibers.md)
     g = np.broadcast_to(g, theta.shape)
     d = np.empty((*theta.shape, 3))
     d[..., 0] = 1.0

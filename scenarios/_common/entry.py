@@ -23,7 +23,7 @@ has one, for checks across options), runs with progress on stderr, writes ``--re
 object (``--json``) or the text report. A catheter that does not settle is one line on stderr and exit status 1.
 
 Conventions the experiments share: ``optics: str = field(default="realistic", metadata=option(…,
-choices=OPTICS))`` turned into an ``OpticsConfig`` by :func:`scenarios._common.optics.optics_config`;
+choices=OPTICS))`` turned into an ``OpticsConfig`` by :func:`scenarios._common.optics_presets.optics_config`;
 ``calibration: str = field(default="lab", …)`` resolved by :func:`scenarios._common.calibration.calibration_for`,
 whose ``to_dict()`` goes into the JSON under ``calibration`` and whose ``label`` goes to
 ``scenarios.report.Report(directory, title, label)``, which stamps it on every figure.

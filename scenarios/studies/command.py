@@ -18,6 +18,8 @@ import os
 import sys
 import time
 
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "run a design study (a sweep over parameters and seeds) on Dask distributed"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from scenarios.studies.definitions import STUDIES

@@ -6,8 +6,8 @@ software — read the twin as hardware. ``twin serve PROTOCOL`` (:mod:`sim_inter
 """
 
 from sim_interrogator.servers.common import FramePump, TcpBroadcaster
-from sim_interrogator.servers.fispec import FispecServer
-from sim_interrogator.servers.hyperion import HyperionServer
-from sim_interrogator.servers.illumisense import IllumisenseServer
+from sim_interrogator.servers.fispec_server import FispecServer
+from sim_interrogator.servers.hyperion_server import HyperionServer
+from sim_interrogator.servers.illumisense_server import IllumisenseServer
 
 __all__ = ["FispecServer", "FramePump", "HyperionServer", "IllumisenseServer", "TcpBroadcaster"]

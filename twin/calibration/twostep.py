@@ -10,7 +10,7 @@ A :class:`Calibration` refines a :class:`~twin.fiber.FiberModel` for one physica
 * ``design`` — fitted per-grating design matrices (n_gratings, n_cores, 3) from a jig calibration, which
   replace the physical model entirely when present;
 * ``spin_rate``, ``spin_rate_std`` — a spun fibre's measured spin rate, turns/m, and its 1σ (the two-step
-  procedure fits it to the bend step's residual core angles; docs/spun-fibres.md); ``twist`` then holds what the
+  procedure fits it to the bend step's residual core angles; docs/spun-fibers.md); ``twist`` then holds what the
   fitted helix leaves;
 * ``provenance`` — free-form record of how it was made.
 """

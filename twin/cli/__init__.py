@@ -1,9 +1,10 @@
 """The `twin` command line.
 
 Each sub-command lives in its own module exposing ``add_arguments(parser)`` and ``run(args) -> int``; this file
-only routes. Modules are imported when their command runs, so `twin --help` is quick and the sensing core never
-imports the simulator. The core's commands are listed in :data:`COMMANDS`; commands and scenarios of the packages
-above the core (the demo, ``serve``, every ``twin run NAME``) come from the registry (:mod:`twin.registry`).
+only routes. Every command — the core's and those of the packages above it (the demo, ``serve``, ``study``) — is
+an entry point of the ``twin.commands`` group (:mod:`twin.registry`), and every ``twin run NAME`` one of
+``twin.scenarios``. Modules are imported when their command runs (the help of the others is read from their
+source), so `twin --help` is quick and the sensing core never imports the simulator.
 A command that needs an optional dependency which is not installed says which extra installs it.
 
 User mistakes (bad files, wrong options, unreachable sources) print one line on stderr and exit with status 2;
@@ -16,7 +17,6 @@ is in place within a few tens of milliseconds of start-up.
 from __future__ import annotations
 
 import argparse
-import importlib
 import os
 import sys
 from typing import TYPE_CHECKING
@@ -24,37 +24,16 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:  # pragma: no cover
     from twin.extras import MissingExtra
 
-#: the core's commands: command → (module, one-line help)
-COMMANDS: dict[str, tuple[str, str]] = {
-    "run": ("twin.cli.run", "run a scenario (an experiment of the paper, or our own)"),
-    "bench": ("twin.cli.bench", "measure reconstruction (and simulation, streaming) speed"),
-    "live": ("twin.cli.live", "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"),
-    "replay": ("twin.cli.replay", "reconstruct a recording (twin HDF5 or ILLumiSense log) and summarise it"),
-    "calibrate": ("twin.cli.calibrate", "two-step calibration (straight, then an in-plane bend) from a source"),
-    "identify": ("twin.cli.identify", "identify Δθ and g = r·S_ε from recordings of shapes of known geometry"),
-    "jig-calibrate": ("twin.cli.jig", "fit a calibration from jig poses (grooves of known curvature)"),
-    "jig-validate": ("twin.cli.jig", "curvature and bend-direction errors of a calibration on jig poses"),
-}
-
-#: help of the registered commands, so that `twin --help` imports none of them
-PLUGIN_HELP: dict[str, str] = {
-    "demo": "the main job: reconstruct shapes from (simulated) interrogator data and compare",
-    "serve": "serve a simulated interrogator over illumisense, fispec or hyperion",
-    "study": "run a design study (a sweep over parameters and seeds) on Dask distributed",
-}
-
 
 class UserError(Exception):
     """An error caused by the user's input; reported as one line, no traceback."""
 
 
-def commands() -> dict[str, tuple[str, str]]:
-    """Every command: the core's and the registered ones, name → (module, one-line help)."""
+def commands() -> dict[str, str]:
+    """Every command (the core's and those of the packages above it): name → module, from the registry."""
     from twin import registry
 
-    found = {name: (module, PLUGIN_HELP.get(name, "")) for name, module in registry.entries("twin.commands").items()}
-    found.update(COMMANDS)
-    return found
+    return registry.entries("twin.commands")
 
 
 def scenarios() -> dict[str, str]:
@@ -67,9 +46,6 @@ def scenarios() -> dict[str, str]:
 def _command_module(name: str):
     from twin import registry
 
-    module = commands()[name][0]
-    if name in COMMANDS:
-        return importlib.import_module(module)
     return registry.load("twin.commands", name)
 
 
@@ -84,13 +60,16 @@ def missing_extra(exc: ImportError) -> MissingExtra | None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from twin import registry
+
     parser = argparse.ArgumentParser(
         prog="twin",
         description="Fibre-optic shape sensing of catheters, with a MuJoCo physics twin.",
     )
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name, (_, help_text) in commands().items():
+    for name in commands():
+        help_text = registry.summary("twin.commands", name)
         p = sub.add_parser(name, help=help_text, description=help_text)
         p.set_defaults(_command=name)
     return parser

@@ -6,7 +6,7 @@ CPU; docs/protocols-illumisense.md for the layout):
 
 ``max_frames_per_s``
     Sustained throughput of the live path without the network: the pre-encoded byte stream, cut into 64 KiB
-    pieces as ``recv`` would return them, goes through what :class:`twin.io.illumisense_driver.IllumisenseSource`
+    pieces as ``recv`` would return them, goes through what :class:`twin.io.illumisense.driver.IllumisenseSource`
     and :class:`twin.live.LiveLoop` do with each piece: :meth:`~twin.io.illumisense.StreamDecoder.feed_batch`
     (one batch Frame per piece), :func:`twin.live.join_batches` (what :func:`twin.live.read_batch` hands the
     loop) and :meth:`twin.live.LiveLoop.process` (shape check, sequence and validity bookkeeping, one batched
@@ -27,7 +27,7 @@ CPU; docs/protocols-illumisense.md for the layout):
     block (curvature, angle, 171 shape points × 3; ≈ 6.9 kB).
 ``loopback_frames_per_s``
     The same through a real loopback TCP connection: a sender process pushes the records as fast as the
-    socket takes them and :class:`twin.io.illumisense_driver.IllumisenseSource` + :func:`twin.live.read_batch` +
+    socket takes them and :class:`twin.io.illumisense.driver.IllumisenseSource` + :func:`twin.live.read_batch` +
     ``LiveLoop.process`` consume them.
 ``latency_us_p50`` / ``latency_us_p99`` / ``latency_us_max``
     From a frame's send to its shape, at a realistic 1 kHz on loopback: the sender process writes the wall
@@ -64,7 +64,7 @@ def _stream_bytes(frames, fiber=None) -> bytes:
 
     if fiber is None:
         return b"".join(illumisense.encode_record(f) for f in frames)
-    from twin.io.illumisense_vendor import vendor_sensors
+    from twin.io.illumisense.vendor import vendor_sensors
     from twin.reconstruct import Reconstructor
 
     shapes = Reconstructor(fiber)(np.stack([f.wavelengths for f in frames]))
@@ -158,7 +158,7 @@ def _start_sender(mode: str, seconds: float, rate: float = 0.0) -> tuple[subproc
 
 
 def _loopback(fiber, seconds: float) -> dict:
-    from twin.io.illumisense_driver import IllumisenseSource
+    from twin.io.illumisense.driver import IllumisenseSource
     from twin.live import LiveLoop, read_batch
     from twin.reconstruct import Reconstructor
 
@@ -182,7 +182,7 @@ def _loopback(fiber, seconds: float) -> dict:
 
 
 def _latency(fiber, seconds: float, rate: float = 1000.0) -> dict:
-    from twin.io.illumisense_driver import IllumisenseSource
+    from twin.io.illumisense.driver import IllumisenseSource
     from twin.live import LiveLoop, batch_timestamps, read_batch
     from twin.reconstruct import Reconstructor
 

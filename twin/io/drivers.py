@@ -17,8 +17,8 @@ Common behaviour
 - :meth:`read_many` returns every frame already received (a burst after a stall is reconstructed as one batch);
   :meth:`read_batches` returns them as the decoder made them (1-D batch Frames kept whole), for the live loop.
 
-The protocols' drivers: :mod:`twin.io.illumisense_driver`, :mod:`twin.io.hyperion_driver`,
-:mod:`twin.io.fispec_driver`.
+The protocols' drivers: :mod:`twin.io.illumisense.driver`, :mod:`twin.io.hyperion.driver`,
+:mod:`twin.io.fispec.driver`.
 """
 
 from __future__ import annotations

@@ -501,7 +501,7 @@ class Recorder:
         offered = sum(len(v) for v in vendors if v)
         if not offered and not self._vendor_ref:
             return {}
-        from twin.io.illumisense_vendor import VendorArrays
+        from twin.io.illumisense.vendor import VendorArrays
 
         cols: dict[str, np.ndarray] = {}
         stored = 0

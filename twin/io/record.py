@@ -11,11 +11,11 @@ damaged recording is never ``complete``. Damage to the truth or to the interroga
 damaged row on.
 
 The interrogator's own reconstruction (ILLumiSense sensor blocks) comes back per sensor as
-:class:`~twin.io.illumisense_vendor.VendorArrays` (:meth:`RecordingReader.vendor`), from a twin recording or a
+:class:`~twin.io.illumisense.vendor.VendorArrays` (:meth:`RecordingReader.vendor`), from a twin recording or a
 log alike, and on the single frames of ``replay://`` as :attr:`Frame.vendor <twin.frames.Frame.vendor>`.
 
 ILLumiSense log files (``*.txt``, one record per line as lab loggers save the stream) are read too:
-:func:`open_recording` detects them by content and :mod:`twin.io.illumisense_log` reads them (layout, header
+:func:`open_recording` detects them by content and :mod:`twin.io.illumisense.log` reads them (layout, header
 lines, skipped lines, the vendor's sensor blocks). A log whose last line has no
 line end was cut: it is reported as damaged (its last record may be incomplete).
 """
@@ -333,14 +333,14 @@ class RecordingReader:
 
     def vendor(self, start: int = 0, stop: int | None = None) -> tuple:
         """The interrogator's own reconstruction of frames ``start:stop``, one
-        :class:`~twin.io.illumisense_vendor.VendorArrays` per sensor (rows from 0 = frame ``start``; empty
+        :class:`~twin.io.illumisense.vendor.VendorArrays` per sensor (rows from 0 = frame ``start``; empty
         when the recording has none). Rows past damaged vendor chunks come back absent."""
         start, stop = self._span(start, stop)
         if self._mem is not None:
             return tuple(a[start:stop] for a in self._vendor_mem)
         if not self._vendor_sensors:
             return ()
-        from twin.io.illumisense_vendor import VendorArrays
+        from twin.io.illumisense.vendor import VendorArrays
 
         f = self._file
         names = [f"vendor/sensor{j}/{k}" for j in range(self._vendor_sensors) for k in VENDOR_FIELDS]
@@ -417,8 +417,8 @@ def _load_toml(text) -> dict:
 
 
 def _read_log(reader: RecordingReader, *, channels_as: str, n_cores: int | None) -> Frame:
-    """Decode an ILLumiSense log file (:mod:`twin.io.illumisense_log`) into one batch of frames."""
-    from twin.io.illumisense_log import read_log
+    """Decode an ILLumiSense log file (:mod:`twin.io.illumisense.log`) into one batch of frames."""
+    from twin.io.illumisense.log import read_log
 
     log = read_log(reader.path, channels_as=channels_as, n_cores=n_cores)
     reader.errors.extend(log.errors)

@@ -26,7 +26,7 @@ from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.frames import Frame
 from twin.io.errors import RecordingDamaged
-from twin.io.illumisense_vendor import VendorDistance, frame_vendor
+from twin.io.illumisense.vendor import VendorDistance, frame_vendor
 from twin.io.record import open_recording
 from twin.io.source import Source, SourceClosed, parse_url
 from twin.live import LiveLoop
@@ -81,7 +81,7 @@ class ReplaySummary:
     vendor : dict
         When the recording (a twin recording or a log) carries the interrogator's own shape (sensor 0):
         ``vendor_frames_compared``, ``vendor_distance_max_mm``, ``vendor_distance_mean_mm`` (ours against it
-        after a rigid registration, :class:`twin.io.illumisense_vendor.VendorDistance`, on the same frames as
+        after a rigid registration, :class:`twin.io.illumisense.vendor.VendorDistance`, on the same frames as
         the truth); empty otherwise.
     notes : tuple of str
     """

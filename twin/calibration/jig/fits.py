@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twin.calibration import Calibration
+from twin.calibration.jig.nuisance import DEFAULT_TERMS, NuisanceFit, fit_nuisance
 from twin.calibration.jig.poses import MODELS, JigPoses, _rot, _wrap, jig_curvature, match_orientations
 from twin.fiber import FiberModel
 from twin.strain import design_matrix
@@ -22,7 +23,7 @@ class JigFit:
 
     Attributes
     ----------
-    model : {"physical", "matrix"}
+    model : {"physical", "matrix", "linear", "nuisance"}
     calibration : Calibration
         Usable by :class:`~twin.reconstruct.Reconstructor` and ``twin live``: per-grating ``design`` (nominal
         at gratings the jig did not fix), ``lambda0`` (mean of the fit orientations' references, nm) and the
@@ -55,6 +56,8 @@ class JigFit:
     n_poses : int
         Bent (non-reference) poses fitted.
     warnings : tuple of str
+    nuisance : NuisanceFit or None
+        ``nuisance`` model only: the jig errors it estimated and the fitted error covariances.
     """
 
     model: str
@@ -77,6 +80,7 @@ class JigFit:
     orientations: np.ndarray
     n_poses: int
     warnings: tuple[str, ...] = ()
+    nuisance: NuisanceFit | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready summary (SI units)."""
@@ -110,6 +114,14 @@ class JigFit:
             ],
             "unfixed_gratings": self.unfixed_gratings.tolist(),
             "warnings": list(self.warnings),
+            "jig_errors": None if self.nuisance is None else {
+                "terms": sorted(self.nuisance.terms),
+                "reseat_roll_deg": np.rad2deg(np.angle(self.nuisance.gain)).tolist(),
+                "reseat_gain": np.abs(self.nuisance.gain).tolist(),
+                "reseat_roll_std_deg": float(np.rad2deg(self.nuisance.roll_std)),
+                "reseat_gain_std": self.nuisance.gain_std,
+                "iterations": self.nuisance.iterations,
+            },
         }
 
 
@@ -333,6 +345,7 @@ def fit(
     orientations=None,
     trust_references: bool = False,
     min_explained: float = 0.5,
+    terms=DEFAULT_TERMS,
 ) -> JigFit:
     """Fit a jig calibration (see the module docstring for the models and conventions).
 
@@ -341,7 +354,10 @@ def fit(
     fiber : FiberModel
         The nominal sensor (core layout, gratings); its angles fix the frame, it is not otherwise trusted.
     poses : JigPoses
-    model : {"physical", "matrix"}
+    model : {"physical", "matrix", "linear", "nuisance"}
+        ``linear`` is the plain baseline: per grating, k = M e fitted by ordinary least squares on the bent poses
+        (common mode removed, M·1 = 0, no weights, references taken as exact). ``nuisance`` estimates the jig's
+        errors beside the sensor (:mod:`twin.calibration.jig.nuisance`).
     gratings : sequence of int, optional
         Gratings lying in the groove (whose curvature the jig fixes); default all. The others keep the nominal
         design and are listed in the result.
@@ -355,6 +371,9 @@ def fit(
     min_explained : float
         A fitted grating whose strain the jig curvature explains less than this (R²) is an error: it is most
         likely not in the groove. Below 0.99 a warning is given.
+    terms : iterable of str
+        ``nuisance`` model only: the jig errors to estimate, some of :data:`~twin.calibration.jig.nuisance.TERMS`
+        (default :data:`~twin.calibration.jig.nuisance.DEFAULT_TERMS`; ``trust_references`` drops ``"offset"``).
 
     Raises
     ------
@@ -372,9 +391,13 @@ def fit(
     if not bent.any():
         raise ValueError(f"{poses.source}: only reference rows (curvature 0); the fit needs bent poses")
     e_all, sigma_all = poses.strain()
-    rows = bent if trust_references else np.ones(poses.n_poses, bool)
+    trust = trust_references or model == "linear"  # the plain baseline takes the references as they are
+    # the nuisance model's zero per rotation is free: the reference rows, which only define the strain's zero, would
+    # pin it (their strain is 0 by construction), so they are left out and the zero rests on the bent poses alone
+    free_zero = model == "nuisance" and "offset" in frozenset(terms)
+    rows = bent if trust or free_zero else np.ones(poses.n_poses, bool)
     e, j = e_all[rows], jig_curvature(poses.orientation[rows], poses.curvature[rows])
-    group = None if trust_references else poses.orientation_index[rows]
+    group = None if trust else poses.orientation_index[rows]
     n_groups = poses.orientations.size
     ev = np.linalg.eigvalsh(j.T @ j)
     if ev[0] < 1e-6 * ev[-1]:
@@ -383,20 +406,39 @@ def fit(
             f"{poses.source}: the fit poses bend the sensor in one plane only (orientations {listed} rad are equal "
             "or opposite); fit on at least two orientations that are not 0 or π apart"
         )
-    w = np.ones(e.shape) if sigma_all is None else 1.0 / sigma_all[rows] ** 2
+    # the interrogator's standard errors weight the physical and matrix models; the linear baseline is unweighted
+    # and the nuisance model weights by the error covariance it fits
+    interrogator = sigma_all is not None and model in ("physical", "matrix")
+    w = 1.0 / sigma_all[rows] ** 2 if interrogator else np.ones(e.shape)
     w = np.where(np.isfinite(e), w, 0.0)
     q = _centred_basis(fiber.n_cores)
     n_fit, n_c = fit_g.size, fiber.n_cores
     beta = np.zeros((n_fit, n_c, 2))
     cov = np.zeros((n_fit, 2 * n_c, 2 * n_c))
     chi2 = np.zeros(n_fit)
-    matrix = np.zeros((n_fit, 2, n_c)) if model == "matrix" else None
-    matrix_std = np.zeros((n_fit, 2, n_c)) if model == "matrix" else None
+    inverse_model = model in ("matrix", "linear")
+    matrix = np.zeros((n_fit, 2, n_c)) if inverse_model else None
+    matrix_std = np.zeros((n_fit, 2, n_c)) if inverse_model else None
     rms, explained = np.zeros(n_fit), np.zeros(n_fit)
+    nuisance = None
+    if model == "nuisance":  # all gratings at once: the seating errors are shared by them
+        o_idx = poses.orientation_index[rows]
+        _, seat = np.unique(np.stack([o_idx, poses.curvature[rows]]), axis=1, return_inverse=True)
+        nuisance = fit_nuisance(e[:, fit_g], j, o_idx, n_groups, np.ravel(seat), q,
+                                terms=frozenset(terms) - ({"offset"} if trust else set()))
+        if nuisance is None:
+            raise ValueError(f"{poses.source}: too few usable poses to fit the nuisance model")
     for i, n in enumerate(fit_g):  # a few gratings; each fit is vectorised over poses and cores
-        # the forward (physical) fit always runs: it sets the frame, the layout and the fit statistics
-        out = _fit_physical(np.where(w[:, n] > 0, e[:, n], 0.0), w[:, n], j, q, group, n_groups)
-        inverse = _fit_matrix(e[:, n], j, q, group, n_groups) if model == "matrix" else ()
+        inverse = ()
+        if model == "nuisance":
+            out = (nuisance.beta[i], nuisance.beta_cov[i], nuisance.offsets[o_idx, i], np.nan)
+        elif model == "linear":  # no forward fit: the map alone, its frame and layout from its inverse
+            inverse = _fit_matrix(e[:, n], j, q, None, 0)
+            out = None if inverse is None else (np.linalg.pinv(inverse[0]), np.full((2 * n_c, 2 * n_c), np.nan),
+                                                np.zeros(e[:, n].shape), np.nan)
+        else:  # the forward (physical) fit runs for both: it sets the frame, the layout and the fit statistics
+            out = _fit_physical(np.where(w[:, n] > 0, e[:, n], 0.0), w[:, n], j, q, group, n_groups)
+            inverse = _fit_matrix(e[:, n], j, q, group, n_groups) if model == "matrix" else ()
         if inverse is None:
             out = None
         if out is None:
@@ -405,7 +447,7 @@ def fit(
                 f"the {model} model ({int(np.all(np.isfinite(e[:, n]), axis=1).sum())} poses with all peaks)"
             )
         beta[i], cov[i], offsets, chi2[i] = out
-        if model == "matrix":
+        if inverse_model:
             matrix[i], matrix_std[i] = inverse
         rms[i], explained[i] = _residual_stats(beta[i], offsets, e[:, n], w[:, n], j)
     warnings: list[str] = []
@@ -426,7 +468,7 @@ def fit(
     angles, gains, angles_std, gains_std = _polar(fiber, p, cov_p)
     roll_std = float(np.sqrt(np.sum(alpha_n_std**2)) / n_fit)
     core_rotation = _wrap(alpha - alpha_n)
-    if model == "matrix":  # into the fibre frame: k = R(α) j
+    if inverse_model:  # into the fibre frame: k = R(α) j
         c, s = np.cos(alpha), np.sin(alpha)
         m_j, s_j = matrix.copy(), matrix_std.copy()
         matrix = np.einsum("ab,gbc->gac", _rot(alpha), m_j)
@@ -448,7 +490,7 @@ def fit(
         warnings.append(f"grating {int(fit_g[i])} core {int(fiber.bending_cores[c])}: fitted gain is "
                         f"{ratio[i, c]:.2f}× nominal; check the fibre model's radii and S_ε")
     design = design_matrix(fiber).copy()
-    if model == "physical":
+    if not inverse_model:
         design[fit_g, :, 1:] = -p
     else:  # [1, M⁺]: the solver's inverse is exactly M; anchored like the physical layout (only c changes)
         _, a, t_nom = _anchor(fiber)
@@ -479,9 +521,11 @@ def fit(
     }
     provenance["jig_core_angles_std_rad"] = angles_std.tolist()
     provenance["jig_gains_std_m"] = gains_std.tolist()
-    if model == "matrix":
+    if inverse_model:
         provenance["jig_matrix_1_per_m"] = matrix.tolist()
         provenance["jig_matrix_std_1_per_m"] = matrix_std.tolist()
+    if nuisance is not None:
+        provenance.update(_error_model(fiber, nuisance, alpha))
     calibration = Calibration(lambda0=lam0, design=design, provenance=provenance)
     calibration.check(fiber)
     return JigFit(
@@ -501,8 +545,40 @@ def fit(
         matrix_std=matrix_std,
         rms_strain_residual=rms,
         explained=explained,
-        chi2_reduced=chi2 if sigma_all is not None else None,
+        chi2_reduced=chi2 if interrogator else None,
         orientations=poses.orientations,
         n_poses=int(bent.sum()),
         warnings=tuple(warnings),
+        nuisance=nuisance,
     )
+
+
+def _error_model(fiber: FiberModel, nz: NuisanceFit, alpha: float) -> dict:
+    """The calibration's error model as provenance entries (docs/jig.md, "The error model"): what a new pose's
+    curvature is expected to deviate from the jig's, used for the 95 % intervals of :func:`validate`.
+
+    * ``jig_error_strain_cov``: per fitted grating, the per-pose strain error covariance (C × C): pose + groove
+      seating;
+    * ``jig_reference_bias_1_per_m``, ``jig_reference_std_1_per_m``: per fitted grating, the mean and the scatter
+      over the rotations of the reference pose's curvature in the jig's frame (along, across the bend);
+    * ``jig_reseat_roll_std_rad``, ``jig_reseat_gain_std``: scatter of the roll and of ln(gain) between seatings,
+      shared by the gratings; ``jig_local_roll_std_rad``, ``jig_local_gain_std``: what each grating adds;
+    * ``jig_positions_cov_m2``: the covariance of the design's bend columns (fibre frame; 2C × 2C, ordered core,
+      component), the parameters' own uncertainty.
+    """
+    _, a, _ = _anchor(fiber)
+    n_c = fiber.n_cores
+    t = np.kron(np.eye(n_c) - a[None, :], np.eye(2))  # vec(β − aᵀβ): the anchored positions (sign irrelevant)
+    rot = np.kron(np.eye(n_c), _rot(alpha))
+    cov_p = np.einsum("ab,gbc,dc->gad", rot @ t, nz.beta_cov, rot @ t)
+    return {
+        "jig_error_terms": sorted(nz.terms),
+        "jig_error_strain_cov": (nz.strain_cov_pose + nz.strain_cov_seat).tolist(),
+        "jig_reference_bias_1_per_m": nz.reference.mean(axis=0).tolist(),
+        "jig_reference_std_1_per_m": nz.reference_std.tolist(),
+        "jig_reseat_roll_std_rad": nz.roll_std,
+        "jig_reseat_gain_std": nz.gain_std,
+        "jig_local_roll_std_rad": nz.local_roll_std,
+        "jig_local_gain_std": nz.local_gain_std,
+        "jig_positions_cov_m2": cov_p.tolist(),
+    }

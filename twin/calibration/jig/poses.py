@@ -12,7 +12,7 @@ import numpy as np
 
 from twin.fiber import FiberModel
 
-MODELS = ("physical", "matrix")
+MODELS = ("physical", "matrix", "linear", "nuisance")
 #: Rows whose orientations differ by less than this are one orientation (one session), rad.
 ORIENTATION_TOL = 1e-6
 #: Orientations named on the command line match the file's within this, rad.

@@ -11,6 +11,7 @@ import numpy as np
 from twin.calibration import Calibration
 from twin.calibration.jig.fits import JigFit, fit
 from twin.calibration.jig.poses import JigPoses, _rot, jig_curvature, match_orientations
+from twin.calibration.jig.score import ALL_LEVELS, CLINICAL, Bands, JigScore, cells, coverage, score
 from twin.fiber import FiberModel
 from twin.strain import CurvatureSolver
 
@@ -42,6 +43,12 @@ class JigValidation:
     min_curvature : float
         The summary covers poses with |κ| ≥ this, 1/m.
     source : str
+    magnitude_sigma : ndarray, shape (P, G), or None
+        Stated 1σ of |k̂| about its expected value, 1/m, from the calibration's error model (``nuisance``
+        calibrations; None otherwise).
+    magnitude_bias : ndarray, shape (G,), or None
+        Expected |k̂| − κ in this jig, 1/m: minus the jig's reference bias along the bend (the flat groove holds
+        the sensor slightly bent). The 95 % interval of κ is |k̂| − bias ± 1.96σ.
     """
 
     gratings: np.ndarray
@@ -55,6 +62,8 @@ class JigValidation:
     roll_fitted: bool
     min_curvature: float
     source: str = ""
+    magnitude_sigma: np.ndarray | None = None
+    magnitude_bias: np.ndarray | None = None
 
     @property
     def levels(self) -> np.ndarray:
@@ -87,6 +96,7 @@ class JigValidation:
         """Worst errors over poses with |κ| ≥ ``min_curvature`` (and over all bent poses), JSON-ready."""
         big = np.abs(self.curvature) >= self.min_curvature
         m, d = self.magnitude_error, np.rad2deg(self.direction_error)
+        cover, n_cover = self.coverage()
         return {
             "min_curvature_1_per_m": self.min_curvature,
             "n_poses": int(big.sum()),
@@ -97,7 +107,23 @@ class JigValidation:
             "rms_direction_error_deg": _stat(lambda x: np.sqrt(np.nanmean(x**2)), d[big]),
             "all_levels_max_abs_magnitude_error_1_per_m": _stat(np.nanmax, np.abs(m)),
             "all_levels_max_abs_direction_error_deg": _stat(np.nanmax, np.abs(d)),
+            "coverage_95": cover,
+            "n_coverage": n_cover,
+            "score": self.score(CLINICAL).to_dict(),
+            "score_all_levels": self.score(ALL_LEVELS).to_dict(),
         }
+
+    def score(self, bands: Bands = CLINICAL) -> JigScore:
+        """The one figure of merit (:mod:`twin.calibration.jig.score`) over rotation × grating × level cells."""
+        _, levels, rms, mean = cells(self.orientation, self.curvature, self.magnitude_error, self.direction_error)
+        return score(levels, rms, mean, bands)
+
+    def coverage(self) -> tuple[float | None, int]:
+        """Fraction of bent poses × gratings whose κ lies in the stated 95 % interval, and how many were judged
+        (None, 0 without an error model)."""
+        if self.magnitude_sigma is None:
+            return None, 0
+        return coverage(self.magnitude_error - self.magnitude_bias, self.magnitude_sigma)
 
     def passes(self, max_error: float, max_direction_error_deg: float) -> bool:
         """Whether every pose with |κ| ≥ ``min_curvature`` is within both tolerances (invalid poses fail)."""
@@ -193,6 +219,7 @@ def validate(
     z = (k_hat[..., 0] + 1j * k_hat[..., 1]) * np.conj(k[:, None, 0] + 1j * k[:, None, 1])
     direction = np.angle(z)
     direction = np.where(np.isnan(mag), np.nan, direction)
+    sigma, bias = _magnitude_sigma(prov, design, g, k_hat, k) if "jig_error_strain_cov" in prov else (None, None)
     s = prov.get("jig_grating_s_m")
     if fiber is not None:
         grating_s = fiber.grating_s[g]
@@ -210,7 +237,66 @@ def validate(
         roll_fitted=bool(fit_roll),
         min_curvature=float(min_curvature),
         source=poses.source,
+        magnitude_sigma=sigma,
+        magnitude_bias=bias,
     )
+
+
+def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.ndarray, k: np.ndarray):
+    """1σ of |k̂| (P, G) and its expected bias |k̂| − κ (G,) in this jig from a calibration's error model
+    (``jig_*`` provenance of a ``nuisance`` fit), 1/m.
+
+    The curvature error covariance of a pose at grating n, in the fibre frame, is
+
+        C = M Σ_e Mᵀ + σ_along² u uᵀ + σ_across² w wᵀ + κ² (σ_roll² w wᵀ + σ_gain² u uᵀ)
+            + κ² (1 + 1/n) (σ_roll,n² w wᵀ + σ_gain,n² u uᵀ) + M (I ⊗ k̂ᵀ) Σ_p (I ⊗ k̂) Mᵀ,
+
+    with M the calibration's strain → curvature map (rows 1–2 of the design's pseudo-inverse), Σ_e the per-pose
+    strain error covariance (pose + groove seating), u the jig's bend direction and w ⟂ u, σ_along, σ_across the
+    scatter of the rotations' reference curvature, σ_roll and σ_gain that of the seatings' roll and gain shared
+    by the gratings, σ_roll,n and σ_gain,n what each grating adds — twice: the pose's own seating, and the map,
+    which took it from the n fitted rotations on the pose's axis (1 when none is) — and Σ_p the covariance of the
+    design's bend columns (the parameters). The stated σ is that of the radial
+    component, ûᵀ C û with û = k̂/|k̂|; the bias is minus the jig's mean reference curvature along the bend.
+    Gratings the error model does not cover get NaN.
+    """
+    fit_g = list(prov.get("jig_gratings", []))
+    strain_cov = np.asarray(prov["jig_error_strain_cov"], dtype=np.float64)
+    pos_cov = np.asarray(prov["jig_positions_cov_m2"], dtype=np.float64)
+    s_roll, s_gain = float(prov["jig_reseat_roll_std_rad"]), float(prov["jig_reseat_gain_std"])
+    ref_bias = np.asarray(prov["jig_reference_bias_1_per_m"], dtype=np.float64)
+    ref_std = np.asarray(prov["jig_reference_std_1_per_m"], dtype=np.float64)
+    l_roll, l_gain = float(prov["jig_local_roll_std_rad"]), float(prov["jig_local_gain_std"])
+    fitted = np.asarray(prov["jig_orientations_rad"], dtype=np.float64)
+    psi = float(prov["jig_roll_rad"]) - np.arctan2(k[:, 1], k[:, 0])  # each pose's rotation, from its label
+    n_axis = np.maximum(np.sum(np.abs(np.sin(psi[:, None] - fitted[None, :])) < np.sin(np.deg2rad(10.0)), axis=1),
+                        1)
+    n_c = design.shape[1]
+    out = np.full(k_hat.shape[:2], np.nan)
+    bias = np.full(k_hat.shape[1], np.nan)
+    kappa = np.hypot(k[:, 0], k[:, 1])
+    u = k / np.maximum(kappa, 1e-300)[:, None]
+    w = np.stack([-u[:, 1], u[:, 0]], axis=-1)
+    loc = 1.0 + 1.0 / n_axis
+    jig_part = kappa[:, None, None] ** 2 * (
+        (s_roll**2 + loc * l_roll**2)[:, None, None] * np.einsum("pa,pb->pab", w, w)
+        + (s_gain**2 + loc * l_gain**2)[:, None, None] * np.einsum("pa,pb->pab", u, u))
+    for i, n in enumerate(g):  # a few gratings
+        if int(n) not in fit_g:
+            continue
+        f = fit_g.index(int(n))
+        bias[i] = -ref_bias[f, 0]
+        ref_part = (ref_std[f, 0] ** 2 * np.einsum("pa,pb->pab", u, u)
+                    + ref_std[f, 1] ** 2 * np.einsum("pa,pb->pab", w, w))
+        m = np.linalg.pinv(design[n])[1:]  # (2, C)
+        kh = k_hat[:, i]
+        lift = np.einsum("ce,pk->pcek", np.eye(n_c), kh).reshape(-1, n_c, 2 * n_c)  # (I ⊗ k̂ᵀ)
+        ml = np.einsum("ac,pcx->pax", m, lift)
+        cov = m @ strain_cov[f] @ m.T + ref_part + jig_part + np.einsum("pax,xy,pby->pab", ml, pos_cov[f], ml)
+        r = np.hypot(kh[:, 0], kh[:, 1])
+        uh = kh / np.where(r > 0, r, np.nan)[:, None]
+        out[:, i] = np.sqrt(np.einsum("pa,pab,pb->p", uh, cov, uh))
+    return out, bias
 
 
 def cross_validate(
@@ -266,6 +352,12 @@ class LoroStatistics:
         RMS strain residual of the fit on all orientations, over the gratings (dimensionless).
     min_curvature : float
         1/m.
+    model : str
+    coverage_95 : float or None
+        Fraction of held-out poses × gratings whose κ lies in the calibration's stated 95 % interval (models with
+        an error model: ``nuisance``; None otherwise).
+    n_coverage : int
+        How many were judged.
     """
 
     gratings: np.ndarray
@@ -275,6 +367,9 @@ class LoroStatistics:
     direction_mean: np.ndarray
     rms_strain_residual: float
     min_curvature: float
+    model: str = "physical"
+    coverage_95: float | None = None
+    n_coverage: int = 0
 
     @property
     def kappa_error(self) -> float:
@@ -287,6 +382,10 @@ class LoroStatistics:
         big = self.levels >= self.min_curvature
         return float(np.nanmedian(np.abs(self.direction_mean[:, :, big])))
 
+    def score(self, bands: Bands = CLINICAL) -> JigScore:
+        """The one figure of merit (:mod:`twin.calibration.jig.score`) over held-out rotation × grating × level."""
+        return score(self.levels, self.kappa_rms, self.direction_mean, bands)
+
     def to_dict(self) -> dict:
         """The three figures (strain dimensionless, 1/m, deg) and the per-level arrays, JSON-ready."""
         return {
@@ -298,6 +397,11 @@ class LoroStatistics:
             "orientations_rad": self.orientations.tolist(),
             "levels_1_per_m": self.levels.tolist(),
             "min_curvature_1_per_m": self.min_curvature,
+            "model": self.model,
+            "score": self.score(CLINICAL).to_dict(),
+            "score_all_levels": self.score(ALL_LEVELS).to_dict(),
+            "coverage_95": self.coverage_95,
+            "n_coverage": self.n_coverage,
             "kappa_rms_1_per_m": _json_array(np.round(self.kappa_rms, 6)),
             "direction_mean_deg": _json_array(np.round(np.rad2deg(self.direction_mean), 4)),
         }
@@ -316,34 +420,38 @@ def leave_one_rotation_out(
     gratings=None,
     trust_references: bool = False,
     min_curvature: float = 0.8,
+    terms=None,
 ) -> LoroStatistics:
     """Fit on all orientations but one, validate on that one, for each orientation in turn (and once on all).
 
     Parameters
     ----------
-    fiber, poses, model, gratings, trust_references : see :func:`fit`.
+    fiber, poses, model, gratings, trust_references, terms : see :func:`fit`.
     min_curvature : float
         Direction errors are summarised over levels ≥ this, 1/m.
     """
+    extra = {} if terms is None else {"terms": terms}
     orientations = np.unique(poses.orientation)
     if orientations.size < 3:
         raise ValueError(f"{poses.source}: leave-one-rotation-out needs at least 3 orientations, "
                          f"got {orientations.size}")
-    full = fit(fiber, poses, model=model, gratings=gratings, trust_references=trust_references)
+    full = fit(fiber, poses, model=model, gratings=gratings, trust_references=trust_references, **extra)
     levels = np.unique(np.abs(poses.curvature[~poses.is_reference]))
     g = full.gratings
-    kappa_rms = np.full((orientations.size, g.size, levels.size), np.nan)
-    direction = np.full_like(kappa_rms, np.nan)
-    for o, psi in enumerate(orientations):
-        _, check = cross_validate(fiber, poses, [psi], model=model, gratings=g,
-                                  trust_references=trust_references, min_curvature=min_curvature)
-        lv = np.abs(check.curvature)
-        for li, level in enumerate(levels):
-            sel = lv == level
-            if not sel.any():
-                continue
-            kappa_rms[o, :, li] = np.sqrt(np.nanmean(check.magnitude_error[sel] ** 2, axis=0))
-            direction[o, :, li] = np.nanmean(check.direction_error[sel], axis=0)
+    checks = []
+    for psi in orientations:
+        result = fit(fiber, poses.select(~match_orientations(poses, [psi])), model=model, gratings=g,
+                     trust_references=trust_references, **extra)
+        checks.append(validate(result.calibration, poses.select(match_orientations(poses, [psi])), fiber=fiber,
+                               min_curvature=min_curvature))
+    _, _, kappa_rms, direction = cells(np.concatenate([c.orientation for c in checks]),
+                                       np.concatenate([c.curvature for c in checks]),
+                                       np.concatenate([c.magnitude_error for c in checks]),
+                                       np.concatenate([c.direction_error for c in checks]),
+                                       orientations=orientations, levels=levels)
+    judged = [c for c in checks if c.magnitude_sigma is not None]
+    cover, n_cover = (coverage(np.concatenate([c.magnitude_error - c.magnitude_bias for c in judged]),
+                               np.concatenate([c.magnitude_sigma for c in judged])) if judged else (None, 0))
     return LoroStatistics(
         gratings=g,
         orientations=orientations,
@@ -352,4 +460,7 @@ def leave_one_rotation_out(
         direction_mean=direction,
         rms_strain_residual=float(np.sqrt(np.mean(full.rms_strain_residual**2))),
         min_curvature=float(min_curvature),
+        model=model,
+        coverage_95=cover,
+        n_coverage=n_cover,
     )

@@ -1,0 +1,231 @@
+"""The jig's plain linear baseline, the error-model (nuisance) calibration, the one score and the coverage of stated
+intervals (docs/jig.md, "Judging a calibration" and "The error model")."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sim_interrogator.needle_jig import needle_fiber
+from twin import Calibration, strain
+from twin.calibration.jig import JigPoses, fit, jig_curvature, leave_one_rotation_out, validate, write_poses
+from twin.calibration.jig.nuisance import DEFAULT_TERMS, TERMS
+from twin.calibration.jig.score import ALL_LEVELS, CLINICAL, Z95, cells, coverage, score
+from twin.cli import main
+
+NEEDLE = needle_fiber()
+ROLL = np.deg2rad(17.0)
+ORIENTATIONS = np.deg2rad([0.0, 90.0, 180.0, 270.0])
+LEVELS = (0.0, 0.25, 0.8, 1.0, 1.25, 3.125)
+
+
+def as_built():
+    """A needle 4° and 3–6 % off nominal, its cores' centroid on the axis and core 0 at 0° (the jig's gauge)."""
+    g = NEEDLE.gains[0]
+    p0 = 1.03 * g * np.array([1.0, 0.0])
+    p1 = 0.94 * g * np.array([np.cos(np.deg2rad(124.0)), np.sin(np.deg2rad(124.0))])
+    p = np.array([p0, p1, -p0 - p1])
+    return NEEDLE.replace(core_angles=np.arctan2(p[:, 1], p[:, 0]) % (2 * np.pi),
+                          core_radii=np.hypot(p[:, 0], p[:, 1]) / NEEDLE.strain_sensitivity)
+
+
+def session(true, roll_errors=None, references=None, trials=2, seed=0):
+    """Noise-free poses from the forward model. Rotation o is really at ψ_o + roll_errors[o]; its reference pose is
+    bent by references[o] (fibre frame, 1/m, every grating); the bent poses carry a random common mode."""
+    rng = np.random.default_rng(seed)
+    n_o = ORIENTATIONS.size
+    roll_errors = np.zeros(n_o) if roll_errors is None else np.asarray(roll_errors)
+    references = np.zeros((n_o, 2)) if references is None else np.asarray(references)
+    o_idx, kappa = (a.ravel() for a in np.meshgrid(np.repeat(np.arange(n_o), trials), LEVELS, indexing="ij"))
+    k = jig_curvature(ORIENTATIONS[o_idx] + roll_errors[o_idx], kappa, ROLL)
+    k = np.where((kappa == 0)[:, None], references[o_idx], k)
+    d_t = np.where(kappa > 0, rng.normal(0, 2.0, o_idx.size), 0.0)[:, None]
+    w = strain.forward(true, np.repeat(k[:, None, :], true.n_gratings, axis=1), delta_T=d_t)
+    return JigPoses(ORIENTATIONS[o_idx], kappa, w)
+
+
+# ------------------------------------------------------------------------------------------------ linear baseline
+
+
+def test_linear_map_recovers_an_exact_linear_sensor():
+    """Noise-free poses of a sensor that is exactly linear: the plain per-grating least-squares map reproduces every
+    curvature, of its own poses and of bends it never saw, to 1e-10, and finds the roll."""
+    true = as_built()
+    result = fit(NEEDLE, session(true), model="linear")
+    assert result.model == "linear" and result.chi2_reduced is None
+    assert result.roll == pytest.approx(ROLL, abs=1e-10)
+    np.testing.assert_allclose(result.gains, np.broadcast_to(true.gains, (4, 3)), rtol=1e-10)
+    check = validate(result.calibration, session(true, trials=1, seed=1))
+    assert np.abs(check.magnitude_error).max() < 1e-10 and np.abs(check.direction_error).max() < 1e-10
+    # bends in directions between the jig's: the map, not the fit, is being checked
+    k = jig_curvature(np.deg2rad(np.arange(5.0, 360.0, 30.0)), 1.7, 0.0)
+    w = strain.forward(true, np.repeat(k[:, None, :], 4, axis=1))
+    e = (w - true.lambda0) / true.lambda0
+    from twin.strain import CurvatureSolver
+
+    k_hat = CurvatureSolver(np.array(result.calibration.design)).solve(e).curvature
+    np.testing.assert_allclose(k_hat, np.repeat(k[:, None, :], 4, axis=1), atol=1e-10)
+
+
+def test_linear_map_is_unweighted_and_takes_the_references_as_they_are():
+    """The baseline ignores the std columns (same map with or without them) and fits no zero per rotation: a
+    reference bent by 0.1 1/m biases it, where the nuisance model, which fits each rotation's zero, stays exact but
+    for the strain's second order: (λ − λ_ref)/λ_ref against a bent reference is 1/(1 + ε_ref) ≈ 1 − 3e-5 of the
+    first-order strain, which leaves ≤ 1e-5 1/m at 3 1/m."""
+    true = as_built()
+    plain = session(true)
+    weighted = JigPoses(plain.orientation, plain.curvature, plain.wavelengths,
+                        std=np.random.default_rng(3).uniform(1e-4, 1e-3, plain.wavelengths.shape))
+    a = fit(NEEDLE, plain, model="linear").calibration.design
+    b = fit(NEEDLE, weighted, model="linear").calibration.design
+    np.testing.assert_allclose(np.array(a), np.array(b), rtol=1e-12, atol=1e-15)
+    bent_refs = session(true, references=[[0.1, 0.0], [0.0, -0.1], [-0.05, 0.05], [0.0, 0.1]])
+    linear = validate(fit(NEEDLE, bent_refs, model="linear").calibration, session(true, trials=1, seed=2))
+    nuisance = validate(fit(NEEDLE, bent_refs, model="nuisance").calibration, session(true, trials=1, seed=2))
+    assert np.nanmax(np.abs(linear.magnitude_error)) > 1e-3
+    assert np.nanmax(np.abs(nuisance.magnitude_error)) < 1e-5
+
+
+# ------------------------------------------------------------------------------------------------ nuisance model
+
+
+def test_nuisance_model_recovers_injected_rolls_and_reference_offsets():
+    """A session whose rotations are each off by a roll (mean 0 on each axis: what the two rotations of an axis share
+    is a shear of the sensor's map that no jig at 0/90/180/270° can tell apart, docs/jig.md) and whose reference
+    poses are bent: the nuisance fit returns the rolls (to 1e-5 rad), the references' curvature along and across
+    the bend (to 5e-5 1/m), the jig's roll (to 5e-5 rad) and the calibration to 1e-5 1/m (the second order of a
+    strain against a bent reference, see above); the physical model, which has no roll per rotation and whose zero
+    the reference rows pin, does not."""
+    true = as_built()
+    rolls = np.deg2rad([2.0, -1.5, -2.0, 1.5])
+    refs = np.array([[0.12, -0.03], [0.02, 0.09], [-0.10, 0.04], [0.05, 0.11]])
+    poses = session(true, roll_errors=rolls, references=refs)
+    result = fit(NEEDLE, poses, model="nuisance")
+    nz = result.nuisance
+    assert nz.terms == DEFAULT_TERMS and nz.iterations < 300
+    # rotating the sensor by +φ turns the bend by −φ in its frame: z_o = exp(−iφ_o)
+    np.testing.assert_allclose(np.angle(nz.gain), -rolls, atol=1e-5)
+    np.testing.assert_allclose(np.abs(nz.gain), 1.0, atol=1e-12)
+    bend = np.stack([np.cos(ROLL - ORIENTATIONS), np.sin(ROLL - ORIENTATIONS)], axis=-1)
+    across = np.stack([-bend[:, 1], bend[:, 0]], axis=-1)
+    expected = np.stack([np.sum(refs * bend, axis=1), np.sum(refs * across, axis=1)], axis=-1)
+    np.testing.assert_allclose(nz.reference, np.broadcast_to(expected[:, None, :], nz.reference.shape), atol=5e-5)
+    assert result.roll == pytest.approx(ROLL, abs=5e-5)
+    exact = session(true, trials=1, seed=4)
+    assert np.abs(validate(result.calibration, exact).magnitude_error).max() < 1e-5
+    physical = validate(fit(NEEDLE, poses, model="physical").calibration, exact)
+    assert np.abs(physical.magnitude_error).max() > 1e-3
+
+
+def test_nuisance_terms_are_checked_and_the_gain_term_finds_a_rotation_gain():
+    true = as_built()
+    poses = session(true)
+    with pytest.raises(ValueError, match="unknown nuisance terms"):
+        fit(NEEDLE, poses, model="nuisance", terms={"roll", "stiffness"})
+    # a rotation that follows only 95 % of every groove. A jig at 0/90/180/270° bends along two axes, and a gain
+    # common to both rotations of an axis is the sensor's own anisotropy: only the ratio within an axis is the jig's
+    # (docs/jig.md). With the gain term the 90° rotation reads 0.95 of the 270° one, and 0° and 180° agree.
+    scaled = session(true)
+    kappa = np.where(np.isclose(scaled.orientation, ORIENTATIONS[1]), 0.95, 1.0) * scaled.curvature
+    k = jig_curvature(scaled.orientation, kappa, ROLL)
+    w = strain.forward(true, np.repeat(k[:, None, :], 4, axis=1))
+    poses = JigPoses(scaled.orientation, scaled.curvature, w)
+    nz = fit(NEEDLE, poses, model="nuisance", terms=TERMS).nuisance
+    gains = np.abs(nz.gain)
+    assert gains[1] / gains[3] == pytest.approx(0.95, abs=1e-6)
+    assert gains[0] / gains[2] == pytest.approx(1.0, abs=1e-6)
+    assert np.mean(np.log(gains)) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_nuisance_calibration_saves_its_error_model(tmp_path):
+    true = as_built()
+    cal = fit(NEEDLE, session(true), model="nuisance").calibration
+    cal.save(tmp_path / "c.toml")
+    prov = Calibration.load(tmp_path / "c.toml").provenance
+    for key in ("jig_error_strain_cov", "jig_reference_bias_1_per_m", "jig_reference_std_1_per_m",
+                "jig_reseat_roll_std_rad", "jig_reseat_gain_std", "jig_positions_cov_m2"):
+        assert key in prov
+    assert np.array(prov["jig_error_strain_cov"]).shape == (4, 3, 3)
+    assert np.array(prov["jig_positions_cov_m2"]).shape == (4, 6, 6)
+
+
+# ------------------------------------------------------------------------------------------------ score, coverage
+
+
+def test_score_is_two_medians_over_the_cells_in_the_bands():
+    """Hand-made table: 2 rotations × 1 grating × 3 levels (0.5, 1.0, 2.0 1/m); the clinical band holds 0.5 and 1.0
+    for the magnitude and 1.0 for the direction; 'all levels' every level, direction from 0.8 on."""
+    orientation = np.repeat([0.0, 1.0], 6)
+    curvature = np.tile([0.5, 0.5, 1.0, 1.0, 2.0, 2.0], 2)
+    mag = np.array([0.1, -0.1, 0.2, 0.2, 0.4, -0.4, 0.3, 0.3, 0.0, 0.0, 0.1, 0.1])[:, None]
+    ang = np.deg2rad(np.array([10, 10, 1, 3, 5, 5, 20, 20, -4, -2, 7, 7.0]))[:, None]
+    _, levels, rms, mean = cells(orientation, curvature, mag, ang)
+    np.testing.assert_allclose(levels, [0.5, 1.0, 2.0])
+    np.testing.assert_allclose(rms[:, 0], [[0.1, 0.2, 0.4], [0.3, 0.0, 0.1]])
+    np.testing.assert_allclose(np.rad2deg(mean[:, 0]), [[10, 2, 5], [20, -3, 7]])
+    clinical = score(levels, rms, mean, CLINICAL)
+    assert clinical.magnitude_error == pytest.approx(np.median([0.1, 0.2, 0.3, 0.0]))
+    assert np.rad2deg(clinical.direction_error) == pytest.approx(np.median([2.0, 3.0]))
+    everything = score(levels, rms, mean, ALL_LEVELS)
+    assert everything.magnitude_error == pytest.approx(np.median([0.1, 0.2, 0.4, 0.3, 0.0, 0.1]))
+    assert np.rad2deg(everything.direction_error) == pytest.approx(np.median([2, 5, 3, 7.0]))
+    empty = score(np.array([2.0, 3.0]), rms[:, :, 1:], mean[:, :, 1:], CLINICAL)
+    assert empty.magnitude_error is None and empty.direction_error is None and empty.n_magnitude == 0
+
+
+def test_coverage_of_known_gaussian_errors():
+    """Errors drawn N(0, σ²) with σ stated right: 95 % ± 3 binomial σ (n = 40 000); stated at half their size: the
+    fraction inside ±1.96·σ/2, 67.3 %; NaNs and non-positive σ are not judged."""
+    rng = np.random.default_rng(7)
+    n = 40_000
+    sigma = rng.uniform(0.01, 0.3, n)
+    err = sigma * rng.standard_normal(n)
+    tol = 3 * np.sqrt(0.95 * 0.05 / n)
+    c, judged = coverage(err, sigma)
+    assert judged == n and abs(c - 0.95) < tol
+    half, _ = coverage(err, sigma / 2)
+    p_half = 0.6729  # P(|z| < Z95 / 2)
+    assert abs(half - p_half) < 3 * np.sqrt(p_half * (1 - p_half) / n)
+    err[:10], sigma[10:20] = np.nan, 0.0
+    assert coverage(err, sigma)[1] == n - 20
+    assert coverage([np.nan], [1.0]) == (None, 0)
+    assert Z95 == pytest.approx(1.959964, abs=1e-6)
+
+
+def test_validation_states_intervals_only_with_an_error_model():
+    true = as_built()
+    poses = session(true, roll_errors=np.deg2rad([1.0, -1.0, 0.5, -0.5]), references=0.05 * np.eye(4, 2))
+    phys = leave_one_rotation_out(NEEDLE, poses, model="physical")
+    nz = leave_one_rotation_out(NEEDLE, poses, model="nuisance")
+    assert phys.coverage_95 is None and phys.n_coverage == 0
+    assert nz.n_coverage > 0 and 0.0 <= nz.coverage_95 <= 1.0
+    d = nz.to_dict()
+    assert d["score"]["bands"] == "clinical" and d["score_all_levels"]["bands"] == "all levels"
+
+
+# ------------------------------------------------------------------------------------------------ CLI
+
+
+def test_cli_linear_and_nuisance_models(tmp_path, capsys):
+    true = as_built()
+    poses = session(true, roll_errors=np.deg2rad([1.0, -1.0, 0.5, -0.5]), references=0.05 * np.eye(4, 2))
+    csv_path = tmp_path / "poses.csv"
+    write_poses(csv_path, poses)
+    fiber_args = ["--fiber", str(tmp_path / "n.toml")]
+    NEEDLE.save(tmp_path / "n.toml")
+    for model in ("linear", "nuisance"):
+        out = tmp_path / f"{model}.toml"
+        assert main(["jig-calibrate", str(csv_path), *fiber_args, "--model", model, "--out", str(out)]) == 0
+        assert f"({model} model)" in capsys.readouterr().out
+        assert Calibration.load(out).provenance["jig_model"] == model
+    assert main(["jig-validate", str(csv_path), "--calibration", str(tmp_path / "nuisance.toml"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)["results"][0]["validation"]["summary"]
+    assert summary["n_coverage"] > 0 and summary["coverage_95"] is not None
+    assert set(summary["score"]) >= {"magnitude_error_1_per_m", "direction_error_deg", "bands"}
+    assert main(["jig-validate", str(csv_path), "--calibration", str(tmp_path / "linear.toml"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["results"][0]["validation"]["summary"]["coverage_95"] is None
+    assert main(["jig-validate", str(csv_path), *fiber_args, "--leave-one-rotation-out"]) == 0
+    out = capsys.readouterr().out
+    assert "Score, leave one rotation out" in out
+    for model in ("physical", "matrix", "linear", "nuisance"):
+        assert f"{model:>9s}  clinical:" in out

@@ -1,0 +1,208 @@
+"""`twin live URL`: reconstruct shapes live from any source of frames and report how the stream is doing.
+
+    twin live illumisense://127.0.0.1:2055 [--fiber FILE] [--calibration FILE] [--record FILE]
+              [--duration S] [--frames N] [--json] [--quiet] [--viewer [--viewer-rate HZ] [--keep-open]]
+              [--igtl [HOST:]PORT [--igtl-rate HZ]]
+
+Prints a status line about once a second (state, frame rate, lost samples, framing errors, reconnects,
+partial/unusable frames, tip position in mm; on stderr with ``--json``) and a summary at the end; ``--json``
+prints the summary as one JSON object on stdout. Ctrl-C ends the run cleanly: the recording is flushed and
+marked complete, and the summary is printed. Exit status 0, or 1 when a sink failed (e.g. the recording could
+not be written) or the source failed for good (a damaged recording: ``replay://FILE?salvage=1`` replays the
+frames before the damage instead).
+
+``--viewer`` shows the shapes live in a browser (meshcat, :mod:`twin.viewer`; the URL to open is printed on
+stderr): the latest shape at most ``--viewer-rate`` times a second (30), the truth beside it when the source
+carries one (the simulator), the interrogator's own shape when the frames carry one (ILLumiSense sensor blocks,
+live or replayed), grey when the stream is stale. The viewer's server stops when the run ends, or
+with ``--keep-open`` stays until Ctrl-C.
+
+``--igtl [HOST:]PORT`` serves the shapes over OpenIGTLink for 3D Slicer (:mod:`twin.igtl`; 127.0.0.1 unless a
+host is given; the address is printed on stderr): POLYDATA ``CatheterShape``, TRANSFORM ``CatheterTip`` and,
+with a truth, POLYDATA ``CatheterTruth``, at most ``--igtl-rate`` times a second (30).
+
+The fibre model is ``--fiber FILE``, else the one the source knows (the simulator, a recording), else the
+reference fibre :meth:`FiberModel.paper` (said on stderr). The calibration is ``--calibration FILE``, else the
+one a recording carries, else none.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from twin import jsonout
+from twin.calibration import Calibration
+from twin.fiber import FiberModel
+from twin.io.source import open_source, parse_url
+from twin.live import LiveLoop, LiveSummary, PrinterSink
+from twin.reconstruct import Reconstructor
+
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"
+
+__all__ = ["add_arguments", "run"]
+
+#: schemes whose opener takes the fibre model (to program peak windows, map peaks to gratings, …)
+FIBER_AWARE = ("illumisense", "fispec", "hyperion", "synthetic")
+#: schemes of real interrogators, which never know the fibre model themselves
+HARDWARE = ("illumisense", "fispec", "hyperion")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("url", help="source URL: sim://SCENARIO, illumisense://HOST:PORT, fispec://PORT, "
+                                    "hyperion://HOST, replay://FILE, synthetic://?rate=1000")
+    parser.add_argument("--fiber", type=Path, help="fibre model (TOML); default: the source's, else the paper's")
+    parser.add_argument("--calibration", type=Path, help="calibration (TOML)")
+    parser.add_argument("--record", type=Path, metavar="FILE", help="record the frames to this HDF5 file")
+    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    parser.add_argument("--frames", type=int, default=None, help="stop after this many frames")
+    parser.add_argument("--method", choices=("material", "paper"), default="material",
+                        help="reconstruction method (default material)")
+    parser.add_argument("--stale", type=float, default=0.5, help="seconds without a usable frame before 'stale'")
+    parser.add_argument("--print-rate", type=float, default=1.0, help="status lines per second (default 1)")
+    parser.add_argument("--json", action="store_true", help="print the final summary as one JSON object")
+    parser.add_argument("--quiet", action="store_true", help="no status lines")
+    parser.add_argument("--viewer", action="store_true", help="show the shapes live in a browser (meshcat)")
+    parser.add_argument("--viewer-rate", type=float, default=30.0, metavar="HZ",
+                        help="most frames the viewer draws per second (default 30)")
+    parser.add_argument("--keep-open", action="store_true",
+                        help="keep the viewer serving after the run, until Ctrl-C")
+    parser.add_argument("--igtl", metavar="[HOST:]PORT", default=None,
+                        help="serve the shapes over OpenIGTLink (3D Slicer) on HOST (127.0.0.1):PORT")
+    parser.add_argument("--igtl-rate", type=float, default=30.0, metavar="HZ",
+                        help="most OpenIGTLink updates per second (default 30)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.duration is not None and not args.duration > 0:  # NaN too
+        raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
+    if args.frames is not None and args.frames < 1:
+        raise ValueError(f"--frames must be at least 1, got {args.frames}")
+    if not args.stale > 0:
+        raise ValueError(f"--stale must be a positive number of seconds, got {args.stale}")
+    if args.viewer and not args.viewer_rate > 0:
+        raise ValueError(f"--viewer-rate must be positive, got {args.viewer_rate}")
+    if args.igtl is not None and not args.igtl_rate > 0:
+        raise ValueError(f"--igtl-rate must be positive, got {args.igtl_rate}")
+    fiber = FiberModel.load(args.fiber) if args.fiber else None
+    scheme = parse_url(args.url)[0]
+    if fiber is None and scheme in HARDWARE:
+        # hardware does not know its fibre; the drivers need one to program peak windows and map peaks
+        fiber = FiberModel.paper()
+        print("twin live: using the reference fibre (FiberModel.paper()); give the sensor's with --fiber FILE",
+              file=sys.stderr)
+    options = {"fiber": fiber} if (fiber is not None and scheme in FIBER_AWARE) else {}
+    first = open_source(args.url, **options)
+    pending = [first]
+
+    def factory():
+        return pending.pop() if pending else open_source(args.url, **options)
+
+    sinks: list = []
+    viewer_sink = igtl_sink = None
+    try:
+        if fiber is None:
+            fiber = first.fiber
+        if fiber is None:
+            fiber = FiberModel.paper()
+            print("twin live: using the reference fibre (FiberModel.paper()); give the sensor's with --fiber FILE",
+                  file=sys.stderr)
+        calibration = Calibration.load(args.calibration) if args.calibration else getattr(first, "calibration", None)
+        rec = Reconstructor(fiber, calibration, method=args.method)
+        uncertainty = None  # the confidence tube for the viewer and OpenIGTLink (the default pipeline's)
+        if rec.method == "material" and not rec.twist:
+            from twin.uncertainty import Uncertainty
+
+            uncertainty = Uncertainty(rec)
+        if not args.quiet:
+            sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate))
+        recorder = None
+        if args.record:
+            from twin.io.record import Recorder
+
+            recorder = Recorder(args.record, fiber=fiber, calibration=calibration, source_url=args.url,
+                                rate=first.rate)
+            sinks.append(recorder)
+        from twin.io.illumisense.vendor import VendorDistance
+
+        vendor = VendorDistance()  # ILLumiSense sends its own shape: compare ours with it (a few frames/s)
+        sinks.append(vendor)
+        if args.viewer:
+            from twin.viewer import Viewer, ViewerConfig, ViewerSink
+
+            viewer = Viewer(ViewerConfig(max_fps=args.viewer_rate),
+                            calibration=args.calibration.name if args.calibration else None)
+            viewer_sink = ViewerSink(viewer, rate=args.viewer_rate, close_viewer=not args.keep_open,
+                                     uncertainty=uncertainty)
+            sinks.append(viewer_sink)
+        if args.igtl is not None:
+            from twin.igtl import IgtlServer, IgtlSink, parse_address
+
+            server = IgtlServer(*parse_address(args.igtl))
+            igtl_sink = IgtlSink(server, rate=args.igtl_rate, uncertainty=uncertainty)
+            sinks.append(igtl_sink)
+            print(f"twin live: OpenIGTLink on {server.address[0]}:{server.address[1]}", file=sys.stderr, flush=True)
+    except BaseException:
+        first.close()
+        if viewer_sink is not None:
+            viewer_sink.viewer.close()
+        if igtl_sink is not None:
+            igtl_sink.close()
+        raise
+    loop = LiveLoop(factory, rec, sinks, stale_after=args.stale)
+    summary = loop.run(duration=args.duration, max_frames=args.frames)
+    out = summary.as_dict()
+    out.update(vendor.as_dict())
+    if recorder is not None:
+        out["record_file"] = str(args.record)
+        out["recorded_frames"] = recorder.frames_written
+        out["recorded_vendor_dropped"] = recorder.vendor_dropped
+    if viewer_sink is not None:
+        out["viewer_frames"] = viewer_sink.frames_shown
+        out["viewer_errors"] = viewer_sink.errors
+        if viewer_sink.errors:
+            print(f"twin live: viewer: {viewer_sink.errors} errors, last: {viewer_sink.last_error}", file=sys.stderr)
+    if igtl_sink is not None:
+        out["igtl_frames"] = igtl_sink.frames_sent
+        out["igtl_clients"] = igtl_sink.server.clients_seen
+        out["igtl_errors"] = igtl_sink.errors
+    if args.json:
+        print(jsonout.dumps(out))
+    else:
+        print(format_summary(summary, out))
+    if viewer_sink is not None and args.keep_open:
+        from twin.viewer import keep_open
+
+        keep_open(viewer_sink.viewer)
+    return 1 if summary.sink_errors or summary.reason == "source failed" else 0
+
+
+def format_summary(summary: LiveSummary, out: dict) -> str:
+    s = summary.status
+    lines = [
+        f"twin live: {summary.duration:.1f} s, {s.frames} frames ({summary.frames_per_s:.1f} Hz), "
+        f"ended: {summary.reason}",
+        f"  lost samples {s.lost_samples} in {s.sequence_gaps} gaps, sequence resets {s.sequence_resets}, "
+        f"framing errors {s.framing_errors}, disconnects {s.disconnects}, reconnects {s.reconnects}, "
+        f"stale {s.stale_events} times",
+        f"  frames complete {s.frames_complete}, partial {s.frames_partial}, unusable {s.frames_unusable}, "
+        f"with missing peaks {s.frames_missing_peaks}, rejected {s.frames_rejected}; invalid nodes "
+        f"{s.invalid_nodes}; peaks outside their window {s.peaks_outside_window}",
+        f"  source rate {s.rate_hz:.1f} Hz (its timestamps)"
+        + (f"; fell behind real time {s.behind_events} times (last arrival rate {s.arrival_hz:.1f} Hz)"
+           if s.behind_events else ""),
+    ]
+    if s.tip is not None:
+        lines.append("  last tip (" + ", ".join(f"{1e3 * x:.2f}" for x in s.tip) + ") mm")
+    if "vendor_distance_max_mm" in out:
+        lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): max "
+                     f"{out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
+    if "record_file" in out:
+        lines.append(f"  recorded {out['recorded_frames']} frames to {out['record_file']}"
+                     + (f"; {out['recorded_vendor_dropped']} sensor blocks not stored (a layout other than the "
+                        "recording's, docs/protocols-illumisense.md)" if out.get("recorded_vendor_dropped") else ""))
+    for err in summary.sink_errors:
+        lines.append(f"  error: {err}")
+    return "\n".join(lines)

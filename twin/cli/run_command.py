@@ -1,0 +1,120 @@
+"""`twin run NAME [options]`: run a scenario found through the registry (:mod:`twin.registry`).
+
+``--viewer [--viewer-rate HZ] [--keep-open]`` (before or among the scenario's options) opens a browser view
+(:class:`twin.viewer.Viewer`; the URL is printed on stderr) and hands it to the scenario as ``args.viewer``
+(None without the flag); the scenario's own parser never sees these options. Scenarios draw as they go with
+``viewer = getattr(args, "viewer", None)`` then ``viewer.show(shape, truth, label=…)`` (``getattr``: the same
+``run(args)`` also serves the scenario's own ``__main__``, whose parser has no viewer). A scenario that does not
+draw still runs; the viewer's server stops when the scenario returns, or with ``--keep-open`` stays until Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+#: one-line help (read by `twin --help` without importing this module)
+HELP = "run a scenario (an experiment of the paper, or our own)"
+
+VIEWER_HELP = ("--viewer [--viewer-rate HZ] [--keep-open]: show the run in a browser (the URL is printed on "
+               "stderr), at most HZ frames per second (default 30); --keep-open keeps it serving after the run, until "
+               "Ctrl-C")
+COMMON_HELP = ("Options the experiments share (after NAME; `twin run NAME --help` lists them all): --json (one "
+               "JSON object on stdout), --report DIR (plots and a markdown summary), --calibration (the calibration "
+               "to reconstruct with), and " + VIEWER_HELP + ".")
+
+
+COMMON_HELP = ("Every scenario takes --json (one JSON object on stdout) and --report DIR (DIR/report.md with "
+               "figures); the experiments take --calibration lab|true|lambda0|nominal|FILE (default lab: calibrated "
+               "as a lab would, two-step then identification against the fixtures' geometry; true: the twin's true "
+               "parameters) and --optics realistic|ideal. `twin run NAME --help` lists a scenario's own options.")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from twin.cli import scenarios
+
+    parser.epilog = COMMON_HELP + " " + VIEWER_HELP
+    known = scenarios()
+    parser.epilog = COMMON_HELP
+    parser.add_argument("--viewer", action="store_true", help="show the run in a browser (meshcat)")
+    parser.add_argument("--viewer-rate", type=float, default=None, metavar="HZ",
+                        help="most frames the viewer draws per second (default 30; implies --viewer)")
+    parser.add_argument("--keep-open", action="store_true",
+                        help="keep the viewer serving after the run, until Ctrl-C (implies --viewer)")
+    parser.add_argument("name", metavar="NAME", help="scenario: " + ", ".join(known) if known else "scenario name")
+    parser.add_argument("options", nargs=argparse.REMAINDER, help="the scenario's own options (see NAME --help)")
+
+
+def take_viewer_options(options: list[str]) -> tuple[list[str], bool, float | None, bool]:
+    """Split ``--viewer``, ``--viewer-rate HZ`` (or ``=HZ``) and ``--keep-open`` out of a scenario's options.
+
+    Returns the remaining options (in order), whether a viewer was asked for, the rate (None: default) and
+    whether to keep it open. Everything after a ``--`` is left to the scenario.
+    """
+    rest: list[str] = []
+    wanted, rate, keep = False, None, False
+    i = 0
+    while i < len(options):
+        opt = options[i]
+        if opt == "--":
+            rest += options[i:]
+            break
+        if opt == "--viewer":
+            wanted = True
+        elif opt == "--keep-open":
+            wanted = keep = True
+        elif opt == "--viewer-rate" or opt.startswith("--viewer-rate="):
+            if opt == "--viewer-rate":
+                if i + 1 >= len(options):
+                    raise ValueError("--viewer-rate needs a value (frames per second)")
+                i += 1
+                value = options[i]
+            else:
+                value = opt.partition("=")[2]
+            try:
+                rate = float(value)
+            except ValueError:
+                raise ValueError(f"--viewer-rate: expected frames per second, got {value!r}") from None
+            if not rate > 0:
+                raise ValueError(f"--viewer-rate must be positive, got {value}")
+            wanted = True
+        else:
+            rest.append(opt)
+        i += 1
+    return rest, wanted, rate, keep
+
+
+def run(args: argparse.Namespace) -> int:
+    from twin import registry
+    from twin.cli import UserError, scenarios
+
+    known = scenarios()
+    if args.name not in known:
+        raise UserError(f"no scenario {args.name!r}; known scenarios: {', '.join(known) or 'none installed'}")
+    module = registry.load("twin.scenarios", args.name)
+    parser = argparse.ArgumentParser(prog=f"twin run {args.name}", description=module.__doc__, epilog=VIEWER_HELP)
+    module.add_arguments(parser)
+    options, wanted, rate, keep = take_viewer_options(list(args.options))
+    keep = keep or bool(getattr(args, "keep_open", False))
+    rate = rate if rate is not None else getattr(args, "viewer_rate", None)
+    wanted = wanted or bool(getattr(args, "viewer", False)) or rate is not None or keep
+    if rate is not None and not rate > 0:
+        raise ValueError(f"--viewer-rate must be positive, got {rate}")
+    ns = parser.parse_args(options)
+    ns.viewer = None
+    if wanted:
+        from twin.viewer import Viewer, ViewerConfig
+
+        ns.viewer = Viewer(ViewerConfig(max_fps=rate if rate is not None else 30.0))
+    try:
+        return int(module.run(ns) or 0)
+    finally:
+        if ns.viewer is not None:
+            if ns.viewer.frames_shown == 0:
+                print(f"twin run: scenario {args.name} drew nothing in the viewer (it does not use args.viewer)",
+                      file=sys.stderr)
+            if keep:
+                from twin.viewer import keep_open
+
+                keep_open(ns.viewer)
+            ns.viewer.close()
