@@ -91,10 +91,12 @@ class ModelError:
                 "parameter_scale": self.parameter_scale, "source": self.source}
 
 
-#: The model error of the default pipeline in the twin with the lab calibration, fitted by
-#: ``scenarios/uncertainty_fit.py`` on the lab's identification shapes (LAB_SHAPES) against the catheter's own
-#: centreline — shapes and noise seeds that no scored run uses (docs/math.md §8.4).
-TWIN_MODEL_ERROR = ModelError(curvature=0.0, relative=0.0, source="placeholder")
+#: The model error of the default pipeline in the twin: a white curvature error of 0.076 1/m per component and
+#: grating, the mean of the two folds' fits in ``twin run static-shapes`` (12 library shapes held by connect
+#: constraints, realistic optics, lab calibration; each fold's fitted on the other fold's shapes: 0.077 and
+#: 0.075 1/m; docs/math.md §8.4). A real sensor's is larger — the AMIRo needle's held-out curvature error in its
+#: jig is 0.13 1/m (docs/jig.md) — so fit your own (:func:`fit_model_error`).
+TWIN_MODEL_ERROR = ModelError(curvature=0.076, source="twin static-shapes, two folds (docs/math.md §8.4)")
 
 
 @lru_cache(maxsize=16)
