@@ -5,7 +5,8 @@ import pytest
 
 from twin import Calibration, FiberModel, Reconstructor, shapes, strain
 from twin.calibration import nominal_delta_theta, nominal_gain
-from twin.uncertainty import ModelError, Uncertainty, tube_radius
+from twin.tube import tube_radius
+from twin.uncertainty import ModelError, Uncertainty
 
 FIBRE = FiberModel.paper()
 N_MC = 2000

@@ -430,7 +430,7 @@ class Shape:
         """1σ lateral radius of each point, m, shape (..., n_points): √(tr Σ_⊥ / 2), the per-axis standard
         deviation of the position error in the plane normal to the curve (Σ_⊥, :meth:`confidence`). Needs
         :attr:`covariance`."""
-        from twin.uncertainty import lateral_eigenvalues
+        from twin.tube import lateral_eigenvalues
 
         return np.sqrt(lateral_eigenvalues(self._covariance(), self.frames[..., :, 2]).mean(axis=-1))
 
@@ -439,9 +439,9 @@ class Shape:
 
         The tube's cross-section at a point is the circle, normal to the curve, that holds ``level`` of the
         point's lateral error: the position error projected on the normal plane, a 2-D Gaussian of covariance
-        Σ_⊥ (the linearised propagation; :func:`twin.uncertainty.tube_radius`). The error along the tangent does
+        Σ_⊥ (the linearised propagation; :func:`twin.tube.tube_radius`). The error along the tangent does
         not move a point out of a tube, so it is left out. Needs :attr:`covariance`."""
-        from twin.uncertainty import tube_radius
+        from twin.tube import tube_radius
 
         return tube_radius(self._covariance(), self.frames[..., :, 2], level)
 

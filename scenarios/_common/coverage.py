@@ -121,11 +121,15 @@ def run_coverage(fiber: FiberModel, optics: OpticsConfig, cal: Calibration | Non
                  truth: np.ndarray, progress: Say | None = None, averaged: int = 1) -> dict:
     """The 95 % tube of the default pipeline's ``shape`` (a batch, reconstructed with ``cal``) against ``truth``
     (base frame, at the shape's arc lengths): :func:`summary` with the model error fitted on the lab's
-    identification shapes (:func:`lab_model_error`), which it names. ``averaged``: frames averaged into each of
+    identification shapes (:func:`lab_model_error`), which it names, and, as a diagnostic, the model error this
+    run itself would have needed. ``averaged``: frames averaged into each of
     ``wavelengths`` (the white noise shrinks by its square root)."""
     cal = cal or Calibration()
     me = lab_model_error(fiber, optics, cal, progress=progress)
     rec = Reconstructor(fiber, cal)
     unc = Uncertainty(rec, model_error=me, wavelength_noise=rec.wavelength_noise / np.sqrt(averaged))
     out = unc.propagate(shape, wavelengths)
-    return {**summary(out, truth), "model_error": me.to_dict()}
+    # a diagnostic, not a calibration: the white curvature error that would have brought this run's own points
+    # to 95 % (where the tube fails, how far the error model is from this regime)
+    needed = fit_model_error(unc, shape, wavelengths, truth, level=LEVEL, source="fitted on this run (diagnostic)")
+    return {**summary(out, truth), "model_error": me.to_dict(), "model_error_needed_in_sample": needed.to_dict()}
