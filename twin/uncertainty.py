@@ -238,11 +238,6 @@ class Uncertainty:
             sens[idx] = -np.einsum("mic,pmcj->mipj", p[:, 1:], self._dd[:, g])
         return ck, sens
 
-    def curvature_covariance(self, shape: Shape, wavelengths=None) -> np.ndarray:
-        """Per-grating curvature covariance (..., n_gratings, 2, 2), (1/m)²: :meth:`propagate`'s
-        ``curvature_covariance``."""
-        return self.propagate(shape, wavelengths).curvature_covariance
-
     # ------------------------------------------------------------------ positions
     def _basis(self, nodes: np.ndarray) -> np.ndarray:
         """Interpolation basis (n_points, n_gratings) of the reconstructor for the valid gratings ``nodes``
@@ -296,6 +291,7 @@ class Uncertainty:
         if not all_valid:
             out[~vf.any(axis=-1)] = np.nan
         return out.reshape((*shape.positions.shape[:-1], 3, 3))
+
 
 def _quadrature(rec: Reconstructor) -> dict:
     """Where the propagation evaluates: breakpoints (output indices of 0, the gratings, the end; knn's jumps
