@@ -8,7 +8,7 @@ from twin.calibration import nominal_delta_theta, nominal_gain
 from twin.tube import tube_radius
 from twin.uncertainty import ModelError, Uncertainty
 
-FIBRE = FiberModel.paper()
+FIBER = FiberModel.paper()
 N_MC = 2000
 #: a sample covariance element S_ab of n draws has standard error √((C_aa C_bb + C_ab²)/(n − 1)); 4 of them
 #: over the ~30 elements compared keeps a false alarm below 1e-3 while a 10 % error in σ² (0.45 SE per %) fails
@@ -17,7 +17,7 @@ N_SE = 4.0
 POINTS = (3, 7, 15, 40, 85, 130, 170)
 
 
-def wavelengths(name: str, fiber=FIBRE) -> np.ndarray:
+def wavelengths(name: str, fiber=FIBER) -> np.ndarray:
     return strain.forward(fiber, shapes.get(name).curvature(fiber.grating_s))
 
 
@@ -42,7 +42,7 @@ def sample_covariance(positions: np.ndarray) -> np.ndarray:
 def test_linearised_covariance_equals_monte_carlo_of_wavelength_noise(name):
     """(i) 2000 reconstructions under 1 pm Gaussian wavelength noise: their position covariance at seven points
     equals the linearised one within the Monte-Carlo sampling error (N_SE standard errors per element)."""
-    rec = Reconstructor(FIBRE)
+    rec = Reconstructor(FIBER)
     unc = Uncertainty(rec, wavelength_noise=1e-3, model_error=ModelError(), parameters=False)
     w0 = wavelengths(name)
     w = w0 + 1e-3 * np.random.default_rng(7).standard_normal((N_MC, *w0.shape))
@@ -54,7 +54,7 @@ def test_linearised_covariance_equals_monte_carlo_of_wavelength_noise(name):
 def test_missing_peaks_and_a_lost_grating_match_monte_carlo():
     """The masked inversion (a peak missing at grating 5) and a grating with no peaks (9, interpolated over):
     the same Monte-Carlo check, and the lost grating's own covariance is NaN."""
-    rec = Reconstructor(FIBRE)
+    rec = Reconstructor(FIBER)
     unc = Uncertainty(rec, wavelength_noise=1e-3, model_error=ModelError(), parameters=False)
     w0 = wavelengths("rotating-bend")
     w0[5, 2] = np.nan
@@ -72,9 +72,9 @@ def test_missing_peaks_and_a_lost_grating_match_monte_carlo():
 def test_parameter_covariance_matches_monte_carlo_of_calibrations():
     """(b) Δθ and g drawn from the calibration's 1σ (noise-free wavelengths): the reconstructions' covariance
     equals the linearised parameter term, at the same sampling tolerance."""
-    dth, g = nominal_delta_theta(FIBRE), nominal_gain(FIBRE)
+    dth, g = nominal_delta_theta(FIBER), nominal_gain(FIBER)
     cal = Calibration(delta_theta=dth, gain=g, delta_theta_std=4e-3, gain_std=0.01 * g)
-    rec = Reconstructor(FIBRE, cal)
+    rec = Reconstructor(FIBER, cal)
     unc = Uncertainty(rec, wavelength_noise=0.0, model_error=ModelError())
     w0 = wavelengths("helix")
     rng = np.random.default_rng(9)
@@ -89,32 +89,32 @@ def test_constant_curvature_arc_gives_the_analytic_tip_covariance():
     1 %: κ ∝ 1/g, so every grating's κ has variance (κ σ_g/g)², fully correlated, and the tip's covariance is
     (κ σ_g/g)² ∂p/∂κ ∂p/∂κᵀ. Agreement to 1e-5 relative (the 3-point rule on 5 mm with κh = 0.1 errs by
     ~(κh)⁴/180 ≈ 6e-7)."""
-    kappa, g = 20.0, nominal_gain(FIBRE)
+    kappa, g = 20.0, nominal_gain(FIBER)
     cal = Calibration(gain=g, gain_std=0.01 * g)
-    rec = Reconstructor(FIBRE, cal)
+    rec = Reconstructor(FIBER, cal)
     unc = Uncertainty(rec, wavelength_noise=0.0, model_error=ModelError())
-    k = np.zeros((FIBRE.n_gratings, 2))
+    k = np.zeros((FIBER.n_gratings, 2))
     k[:, 0] = kappa
-    out = unc(strain.forward(FIBRE, k))
+    out = unc(strain.forward(FIBER, k))
     var_k = (kappa * 0.01) ** 2
     np.testing.assert_allclose(out.curvature_covariance[:, 0, 0], var_k, rtol=1e-6)
-    big_l = FIBRE.sensed_length
+    big_l = FIBER.sensed_length
     c, s = np.cos(kappa * big_l), np.sin(kappa * big_l)
     dp = np.array([big_l * s / kappa - (1 - c) / kappa**2, 0.0, big_l * c / kappa - s / kappa**2])
     expected = var_k * np.outer(dp, dp)
     np.testing.assert_allclose(out.covariance[-1], expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
 
 
-def test_white_model_error_on_a_straight_fibre_with_linear_interpolation():
+def test_white_model_error_on_a_straight_fiber_with_linear_interpolation():
     """(ii) White curvature error σ per component and grating, linear interpolation, straight fibre: the tip
     moves by ∫(L − s) δk(s) ds, so Var = σ² Σ w_n² with w_n = ∫(L − s) φ_n ds over the hat functions:
     (L − s_n)Δ inside, LΔ/2 − Δ²/6 at the base, Δ²/6 at the tip. Exact up to rounding (the integrand is a
     polynomial of degree 2 on each piece)."""
-    rec = Reconstructor(FIBRE, interpolation="linear")
+    rec = Reconstructor(FIBER, interpolation="linear")
     sigma = 0.05
     unc = Uncertainty(rec, wavelength_noise=0.0, model_error=ModelError(curvature=sigma), parameters=False)
-    out = unc(FIBRE.lambda0)
-    s_n, big_l = FIBRE.grating_s, FIBRE.sensed_length
+    out = unc(FIBER.lambda0)
+    s_n, big_l = FIBER.grating_s, FIBER.sensed_length
     delta = s_n[1] - s_n[0]
     w = (big_l - s_n) * delta
     w[0] = big_l * delta / 2 - delta**2 / 6
@@ -127,7 +127,7 @@ def test_white_model_error_on_a_straight_fibre_with_linear_interpolation():
 
 def test_zero_noise_gives_zero_radius():
     """(iii) No noise, no model error, no parameter errors: every covariance, σ and tube radius is exactly 0."""
-    rec = Reconstructor(FIBRE)
+    rec = Reconstructor(FIBER)
     unc = Uncertainty(rec, wavelength_noise=0.0, model_error=ModelError(), parameters=False)
     out = unc(np.stack([wavelengths("helix"), wavelengths("s-curve")]))
     assert out.covariance.shape == (2, rec.s.size, 3, 3)
@@ -140,7 +140,7 @@ def test_batch_equals_single_frames():
     """One call on a batch gives what single calls give (batch-first, no per-frame state), to rounding: numpy's
     einsum sums in another order for a batch than for one frame, so elements near zero differ by ~1e-12 of the
     largest."""
-    unc = Uncertainty(Reconstructor(FIBRE), model_error=ModelError(0.02, 0.01))
+    unc = Uncertainty(Reconstructor(FIBER), model_error=ModelError(0.02, 0.01))
     w = np.stack([wavelengths(n) for n in ("arc", "helix", "mixed")])
     batch = unc(w)
     for i in range(3):
@@ -174,19 +174,19 @@ def test_tube_radius_closed_forms_and_monte_carlo(level):
 
 
 def test_shape_without_uncertainty_says_so():
-    shape = Reconstructor(FIBRE)(wavelengths("arc"))
+    shape = Reconstructor(FIBER)(wavelengths("arc"))
     with pytest.raises(ValueError, match="no uncertainty"):
         shape.confidence(0.95)
     with pytest.raises(ValueError, match=r"\(0, 1\)"):
-        Uncertainty(Reconstructor(FIBRE))(wavelengths("arc")).confidence(95)
+        Uncertainty(Reconstructor(FIBER))(wavelengths("arc")).confidence(95)
 
 
 def test_the_paper_pipeline_is_refused():
     with pytest.raises(ValueError, match="material method"):
-        Uncertainty(Reconstructor.paper(FIBRE))
+        Uncertainty(Reconstructor.paper(FIBER))
 
 
-def perturbed(names, sigma_k: float, n: int, seed: int, fiber=FIBRE):
+def perturbed(names, sigma_k: float, n: int, seed: int, fiber=FIBER):
     """``n`` frames of each library shape with a white curvature error σ_k per component and grating (the model
     error's form) and 1 pm wavelength noise, and the exact truth at the reconstruction's arc lengths."""
     rng = np.random.default_rng(seed)
@@ -206,7 +206,7 @@ def test_fit_recovers_an_injected_curvature_error_and_covers_held_out_shapes():
     the resulting σ at the tip), and its tube holds 93–97 % of six other shapes' points."""
     from twin.uncertainty import coverage, fit_model_error
 
-    rec = Reconstructor(FIBRE)
+    rec = Reconstructor(FIBER)
     unc = Uncertainty(rec, parameters=False)
     w, truth = perturbed(["arc", "s-curve", "hook", "helix", "rotating-bend", "two-plane"], 0.2, 100, 11)
     me = fit_model_error(unc, rec(w), w, truth)
@@ -220,8 +220,8 @@ def test_fit_lowers_an_overstated_parameter_error():
     the fit leaves the model error at 0 and scales the stated 1σ down until 95 % of the points are inside."""
     from twin.uncertainty import coverage, fit_model_error
 
-    g = nominal_gain(FIBRE)
-    rec = Reconstructor(FIBRE, Calibration(gain=g, gain_std=0.03 * g))
+    g = nominal_gain(FIBER)
+    rec = Reconstructor(FIBER, Calibration(gain=g, gain_std=0.03 * g))
     unc = Uncertainty(rec)
     w, truth = perturbed(["arc", "helix", "s-curve"], 0.0, 100, 13)
     me = fit_model_error(unc, rec(w), w, truth)
