@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import require_tool
 
 from twin import FiberModel, Reconstructor
 from twin.frames import Frame, Shape, Truth
@@ -232,7 +233,9 @@ def test_clients_come_and_go_during_a_live_run():
     import threading
 
     result = {}
-    runner = threading.Thread(target=lambda: result.update(summary=loop.run(duration=4.0, handle_signals=False)))
+    # the run ends when the clients are done (loop.stop), not after a set time: a slow start on a loaded machine
+    # cannot end it under them; 120 s is only a hang guard
+    runner = threading.Thread(target=lambda: result.update(summary=loop.run(duration=120.0, handle_signals=False)))
     runner.start()
     try:
         a = connect(server)
@@ -245,11 +248,13 @@ def test_clients_come_and_go_during_a_live_run():
         seen_b = [receive(b) for _ in range(12)]
         b.close()
     finally:
+        loop.stop("clients done")
         runner.join(timeout=60)
     summary = result["summary"]
-    assert summary.sink_errors == () and sink.errors == 0 and summary.reason == "duration"
-    # the loop kept going to the end (frame counts depend on the machine's load: only a floor far below 2000)
-    assert summary.status.frames > 200 and summary.status.source_errors == 0
+    assert summary.sink_errors == () and sink.errors == 0 and summary.reason == "clients done"
+    # the loop kept going through the clients' comings and goings: every bundle sent (3 messages: shape, tip,
+    # truth) is a frame reconstructed, a and b saw 3 and 4 distinct bundles, and the source never failed
+    assert summary.status.frames >= sink.frames_sent >= 9 // 3 + 12 // 3 and summary.status.source_errors == 0
     for seen in (seen_a, seen_b):  # whole bundles, in order, truth included (the synthetic source has one)
         assert [m["device"] for m in seen[:3]] == ["CatheterShape", "CatheterTip", "CatheterTruth"]
         assert all(m["lines"] and len(m["lines"][0]) == len(m["points"]) for m in seen if m["type"] == "POLYDATA")
@@ -292,10 +297,10 @@ def test_twin_live_igtl_flag():
 INCLUDE = "/usr/include/openigtlink"
 
 
-@pytest.mark.skipif(not (os.path.isdir(INCLUDE) and shutil.which("g++")),
-                    reason="Debian's libopenigtlink-dev and g++ are not installed")
 def test_debians_libopenigtlink_reads_the_stream(tmp_path):
     """A reader built on Debian's libopenigtlink (tests/data/igtl_reader.cxx) checks the CRCs and decodes."""
+    require_tool(os.path.isdir(INCLUDE) and shutil.which("g++") is not None,
+                 "Debian's libopenigtlink-dev and g++ are not installed (.ci/run installs them)")
     reader = tmp_path / "igtl_reader"
     build = subprocess.run(["g++", "-O1", f"-I{INCLUDE}", "-o", str(reader),
                             str(Path(__file__).with_name("data") / "igtl_reader.cxx"), "-lOpenIGTLink"],
