@@ -644,9 +644,8 @@ def test_fuzz_hyperion_stream_decoders(data, cuts):
             options, data[8: 8 + n_cmd].decode("ascii"), data[8 + n_cmd: 8 + n_cmd + n_arg].decode("ascii"))
 
 
-@pytest.mark.xfail(strict=True, reason="docs/protocols.md §3.4: the reserved fields must be 0 (the only way to "
-                   "notice lost framing on this stream); twin/io/hyperion.py does not check the peak header's")
 def test_hyperion_peak_header_with_reserved_bits_set_is_refused():
+    """docs/protocols.md §3.4: the reserved fields must be 0 (the only way to notice lost framing on this stream)."""
     content = bytearray(HYPERION_PEAKS)
     content[4] = 1  # the reserved u32 after the version
     with pytest.raises(FramingError):

@@ -149,6 +149,11 @@ def run(args: argparse.Namespace) -> int:
         rec = Reconstructor(fiber, calibration, method=args.method)
         # the references the frames may carry: the simulator's truth, the interrogator's own shape
         truth, vendor = TruthError(), VendorDistance()
+        uncertainty = None  # the confidence tube for the viewer and OpenIGTLink (the default pipeline's)
+        if rec.method == "material" and not rec.twist:
+            from twin.uncertainty import Uncertainty
+
+            uncertainty = Uncertainty(rec)
         if not args.quiet:
             sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate,
                                      extras=(truth.status_text, vendor.status_text)))
@@ -163,7 +168,8 @@ def run(args: argparse.Namespace) -> int:
             from twin.viewer import Viewer, ViewerConfig, ViewerSink
 
             viewer = Viewer(ViewerConfig(max_fps=args.viewer_rate), calibration=calibration_label(args, calibration))
-            viewer_sink = ViewerSink(viewer, rate=args.viewer_rate, close_viewer=not args.keep_open)
+            viewer_sink = ViewerSink(viewer, rate=args.viewer_rate, close_viewer=not args.keep_open,
+                                     uncertainty=uncertainty)
             sinks.append(viewer_sink)
         if args.igtl is not None:
             from twin.igtl import IgtlServer, IgtlSink, parse_address
@@ -174,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
             except OSError as exc:  # "[Errno 98] … ('127.0.0.1', 18944)" named neither the option nor the protocol
                 reason = os.strerror(exc.errno).lower() if exc.errno else str(exc)
                 raise OSError(f"--igtl {args.igtl}: cannot serve OpenIGTLink on {host}:{port}: {reason}") from None
-            igtl_sink = IgtlSink(server, rate=args.igtl_rate)
+            igtl_sink = IgtlSink(server, rate=args.igtl_rate, uncertainty=uncertainty)
             sinks.append(igtl_sink)
             print(f"twin live: OpenIGTLink on {server.address[0]}:{server.address[1]}", file=sys.stderr, flush=True)
         if args.foxglove is not None:
