@@ -74,7 +74,6 @@ from twin.io.transport import Backoff
 from twin.reconstruct import Reconstructor
 
 __all__ = [
-    "CallbackSink",
     "Counters",
     "FrameFlag",
     "LiveLoop",
@@ -132,13 +131,9 @@ class Counters:
     time_first: float = float("nan")
     time_last: float = float("nan")
 
-    #: the counts a LiveStatus carries as they are
-    REPORTED = ("frames", "frames_complete", "frames_partial", "frames_unusable", "frames_missing_peaks",
-                "peaks_outside_window", "frames_rejected", "lost_samples", "sequence_gaps", "sequence_resets",
-                "invalid_nodes", "source_errors", "reconstruct_errors", "stale_events")
-
     def reported(self) -> dict:
-        return {k: getattr(self, k) for k in self.REPORTED}
+        """The counts a :class:`LiveStatus` carries as they are (:data:`REPORTED`)."""
+        return {k: getattr(self, k) for k in REPORTED}
 
     @property
     def time_span(self) -> float | None:
@@ -237,6 +232,11 @@ class LiveStatus:
         out["arrival_hz"] = round(self.arrival_hz, 3)
         out["source"] = {k: v for k, v in self.source.items() if isinstance(v, int | float | str | bool | None)}
         return out
+
+
+#: the counts a :class:`LiveStatus` carries straight from :class:`Counters`: every field the two share, named
+#: once in each class (a count added to both is reported without a third list to keep in step)
+REPORTED = tuple(f.name for f in dataclasses.fields(Counters) if f.name in LiveStatus.__dataclass_fields__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -741,13 +741,3 @@ def format_status(s: LiveStatus) -> str:
         f"unusable {s.frames_unusable}  invalid nodes {s.invalid_nodes}  tip {tip}"
     )
 
-
-class CallbackSink:
-    """Calls ``fn(frame, shape, status)`` with the latest frame of each batch (a single Frame and its Shape)."""
-
-    def __init__(self, fn: Callable[[Frame, Shape, LiveStatus], None]):
-        self.fn = fn
-
-    def __call__(self, frames, shapes, status) -> None:
-        if frames and shapes is not None:
-            self.fn(frames[-1], shapes[len(frames) - 1], status)
