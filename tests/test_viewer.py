@@ -600,11 +600,11 @@ def test_sink_draws_the_latest_usable_frame_and_keeps_a_dropped_one(make_viewer)
     figures = dict(v.hud()["figures"])
     assert figures["source rate"] == "99.5 Hz" and figures["lost frames"] == "3"
     # not due: the frame is held, not drawn (due in a minute, so no stall can make it due meanwhile) …
-    sink._due = time.monotonic() + 60.0
+    sink.latest.due = time.monotonic() + 60.0
     sink(frames[:1], batch[:1], status(n=1))
     assert sink.frames_shown == 1
     # … and once due, a heartbeat without frames draws the held one
-    sink._due = time.monotonic()
+    sink.latest.due = time.monotonic()
     sink([], None, status())
     assert sink.frames_shown == 2
     spy.clear()

@@ -270,12 +270,13 @@ class FoxgloveSink:
 
     def __init__(self, server: FoxgloveServer, rate: float = 30.0, *, calibration: str | None = None,
                  close_server: bool = True, stream: TextIO | None = None):
-        if not rate > 0:
-            raise ValueError(f"FoxgloveSink: rate must be positive, got {rate}")
+        from twin.viewer.geometry import LatestUsable
+
+        self.latest = LatestUsable(rate, "FoxgloveSink")
         foxglove = require("foxglove", "Foxglove")
         from foxglove.channels import PoseInFrameChannel, SceneUpdateChannel
 
-        self.server, self.period, self.close_server, self.stream = server, 1.0 / rate, close_server, stream
+        self.server, self.close_server, self.stream = server, close_server, stream
         self.calibration = calibration
         ctx = server.context
         self._scene = SceneUpdateChannel("/catheter/scene", context=ctx)
@@ -286,23 +287,14 @@ class FoxgloveSink:
         self.frames_sent = 0
         self.errors = 0
         self.last_error: str | None = None
-        self._pending: tuple | None = None
-        self._due = -float("inf")
 
     def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None:
-        from twin.viewer.geometry import latest_usable, next_due
-
         try:
-            if frames and shapes is not None:
-                i = latest_usable(shapes, status.flags, len(frames))
-                if i is not None:
-                    f = frames[i]
-                    self._pending = (shapes[i], f.truth, getattr(f, "vendor", None), float(f.timestamp))
-            now = time.monotonic()
-            if self._pending is not None and now >= self._due and status.state != "ended":
-                pending, self._pending = self._pending, None
-                self._due = next_due(self._due, now, self.period)
-                self._publish(*pending, status)
+            self.latest.offer(frames, shapes, status.flags)
+            taken = self.latest.take() if status.state != "ended" else None
+            if taken is not None:
+                frame, shape = taken
+                self._publish(shape, frame.truth, frame.vendor, float(frame.timestamp), status)
                 self.frames_sent += 1
         except Exception as exc:  # Foxglove must never end the live loop
             self.errors += 1

@@ -381,33 +381,25 @@ class IgtlSink:
 
     def __init__(self, server: IgtlServer, rate: float = 30.0, *, close_server: bool = True,
                  stream: TextIO | None = None, uncertainty=None):
-        if not rate > 0:
-            raise ValueError(f"IgtlSink: rate must be positive, got {rate}")
-        self.server, self.period, self.close_server, self.stream = server, 1.0 / rate, close_server, stream
+        from twin.viewer.geometry import LatestUsable
+
+        self.latest = LatestUsable(rate, "IgtlSink")
+        self.server, self.close_server, self.stream = server, close_server, stream
         self.uncertainty = uncertainty  # a twin.uncertainty.Uncertainty: the sent shape gets its tube
         self.frames_sent = 0
         self.errors = 0
         self.last_error: str | None = None
-        self._pending: tuple[Shape, Truth | None] | None = None
-        self._due = -float("inf")
 
     def __call__(self, frames: Frame, shapes: Shape | None, status: LiveStatus) -> None:
-        from twin.viewer.geometry import latest_usable, next_due
-
         try:
-            if frames and shapes is not None:
-                i = latest_usable(shapes, status.flags, len(frames))
-                if i is not None:
-                    shape = shapes[i]
-                    if self.uncertainty is not None and shape.covariance is None:
-                        shape = self.uncertainty.propagate(shape, frames[i])
-                    self._pending = (shape, frames[i].truth)
-            now = time.monotonic()
-            if self._pending is not None and now >= self._due:
-                shape, truth = self._pending
-                self._pending = None
-                self._due = next_due(self._due, now, self.period)
-                self.server.publish(bundle(shape, truth))
+            self.latest.offer(frames, shapes, status.flags)
+            taken = self.latest.take()
+            if taken is not None:
+                frame, shape = taken
+                # propagated for the frame sent only, not for every batch's pick the rate limit then replaces
+                if self.uncertainty is not None and shape.covariance is None:
+                    shape = self.uncertainty.propagate(shape, frame)
+                self.server.publish(bundle(shape, frame.truth))
                 self.frames_sent += 1
         except Exception as exc:  # OpenIGTLink must never end the live loop
             self.errors += 1

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import sys
-import time
 from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
-from twin.frames import Frame, Shape, Truth
+from twin.frames import Frame, Shape
 from twin.viewer import geometry as geo
 from twin.viewer.client import ViewerError
 
@@ -46,19 +45,15 @@ class ViewerSink:
 
     def __init__(self, viewer: Viewer, rate: float = 30.0, *, close_viewer: bool = True,
                  stream: TextIO | None = None, uncertainty=None):
-        if not rate > 0:
-            raise ValueError(f"ViewerSink: rate must be positive, got {rate}")
         self.viewer = viewer
         self.uncertainty = uncertainty
-        self.period = 1.0 / rate
+        self.latest = geo.LatestUsable(rate, "ViewerSink")
         self.close_viewer = close_viewer
         self.stream = stream
         self.errors = 0
         self.last_error: str | None = None
         self.frames_received = 0
         self.frames_shown = 0
-        self._pending: tuple[Shape, Truth | None, tuple | None, Frame] | None = None
-        self._due = -float("inf")
         self._gave_up = False
 
     def __call__(self, frames: Frame, shapes: Shape | None, status: LiveStatus) -> None:
@@ -73,10 +68,7 @@ class ViewerSink:
 
     def _handle(self, frames, shapes, status) -> None:
         self.frames_received += len(frames)
-        if frames and shapes is not None:
-            pick = geo.latest_usable(shapes, status.flags, len(frames))
-            if pick is not None:
-                self._pending = (shapes[pick], frames[pick].truth, frames[pick].vendor, frames[pick])
+        self.latest.offer(frames, shapes, status.flags)
         v = self.viewer
         if v.closed:
             return
@@ -86,16 +78,13 @@ class ViewerSink:
                 self._gave_up = True
                 raise ViewerError(v.broken)
             return
-        if self._pending is not None:
-            now = time.monotonic()
-            if ended or now >= self._due:  # the run's last shape is drawn whatever the rate limit says
-                shape, truth, vendor, frame = self._pending
-                self._pending = None
-                self._due = geo.next_due(self._due, now, self.period)
-                if self.uncertainty is not None and shape.covariance is None:
-                    shape = self.uncertainty.propagate(shape, frame)
-                v.show(shape, truth, force=True, vendor=vendor)
-                self.frames_shown += 1
+        taken = self.latest.take(force=ended)  # the run's last shape is drawn whatever the rate limit says
+        if taken is not None:
+            frame, shape = taken
+            if self.uncertainty is not None and shape.covariance is None:
+                shape = self.uncertainty.propagate(shape, frame)
+            v.show(shape, frame.truth, force=True, vendor=frame.vendor)
+            self.frames_shown += 1
         # what arrived, measured (over the last 2 s; at the end, over the run, as the terminal's summary says),
         # beside the source's own rate: a source behind real time shows as such
         arrival = status.frames / status.elapsed if ended and status.elapsed > 0 else status.arrival_hz
