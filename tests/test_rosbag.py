@@ -285,3 +285,10 @@ def test_the_interrogators_own_shape_round_trips_and_is_compared_like_hdf5s(run,
             assert np.array_equal(a.curvature, b.curvature, equal_nan=True) and a.spacing == b.spacing
     vm, vh = summarize(tmp_path / "v.mcap").vendor, summarize(tmp_path / "v.h5").vendor
     assert vm and vm == vh
+    # twin export carries the HDF5 recording's sensor blocks into the bag, per sensor and frame
+    assert main(["export", str(tmp_path / "v.h5"), str(tmp_path / "e.mcap"), "--batch", "16"]) == 0
+    with open_recording(tmp_path / "e.mcap") as e, open_recording(tmp_path / "v.h5") as h:
+        assert len(e.vendor()) == 2
+        for a, b in zip(e.vendor(), h.vendor(), strict=True):
+            assert np.array_equal(a.present, b.present)
+            assert np.array_equal(a.positions, b.positions, equal_nan=True)

@@ -19,7 +19,6 @@ from pathlib import Path
 
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
-from twin.frames import frame_vendor
 from twin.io.errors import RecordingDamaged
 from twin.io.record import Recorder, open_recorder, open_recording
 from twin.reconstruct import Reconstructor
@@ -55,12 +54,11 @@ def run(args: argparse.Namespace) -> int:
                 shapes = _shapes(rec, frames.wavelengths)
                 blocks = reader.vendor(start, start + m)
                 received = reader.received(start, start + m)
-                if isinstance(recorder, Recorder):  # frames only; the sensor blocks ride on the batch
-                    batch = replace(frames, vendor=tuple(blocks)) if blocks else frames
+                batch = replace(frames, vendor=tuple(blocks)) if blocks else frames  # the sensor blocks ride on it
+                if isinstance(recorder, Recorder):  # frames only
                     recorder.append(batch, received=float(received[0]) if len(received) else None)
                 else:
-                    vendor = [frame_vendor(blocks, i) for i in range(m)] if blocks else None
-                    recorder.append(frames, shapes, received=received, vendor=vendor)
+                    recorder.append(batch, shapes, received=received)
         finally:
             recorder.close()
     print(f"twin export: {recorder.frames_written} frames of {args.recording} to {args.out}")
