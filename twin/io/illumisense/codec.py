@@ -1,4 +1,4 @@
-"""FBGS ILLumiSense TCP data stream: record codec, batch decoder and stream decoder (docs/protocols-illumisense.md).
+"""FBGS ILLumiSense TCP data stream: record codec and batch decoder (docs/protocols-illumisense.md).
 
 Wire format (ILLumiSense pushes one record per sample on TCP; the client sends nothing)::
 
@@ -10,11 +10,11 @@ Wire format (ILLumiSense pushes one record per sample on TCP; the client sends n
                 TAB "Shape z [cm]" TAB N {TAB z}×N }×S                                      sensor blocks
               [line ending: CR LF, LF or none]
 
-This one module holds both directions — :func:`encode_record` for the simulator's server, :func:`decode_record`,
-:func:`decode_many` and :class:`StreamDecoder` for the driver — because they share the layout and its
+This one module holds both directions — :func:`encode_record` for the simulator's server, :func:`decode_record`
+and :func:`decode_many` for the stream decoder and the log reader — because they share the layout and its
 decisions (the tokenizer lives in :mod:`twin.io.illumisense.scan`, the stream decoder in
-:mod:`twin.io.illumisense.stream`, the log reader in :mod:`twin.io.illumisense.log`, the comparison with the
-vendor's shape in :mod:`twin.io.illumisense.vendor`).
+:mod:`twin.io.illumisense.stream`, the log reader in :mod:`twin.io.illumisense.log`, the building of the
+vendor's sensor blocks from our shapes in :mod:`twin.io.illumisense.vendor`).
 
 Decoding (what is known and what is assumed: docs/protocols-illumisense.md):
 
@@ -48,16 +48,6 @@ layout matches a known layout (same token count, counts, labels) are checked and
 the others are walked field by field, which also builds the layout for the next ones. The batch stays a set
 of arrays until a caller asks for Records (:func:`decode_many`) or frames; the stream decoder's
 ``feed_batch`` hands it over as one batch Frame.
-
-Stream (:class:`StreamDecoder`): the payload is printable text with no NUL and no LF before its end, and the
-length prefix of any payload under 16 MiB starts with a NUL byte. After an error the decoder hunts: it skips
-to the next NUL byte, reads a candidate length, rejects it at once when it is out of bounds or when the bytes
-already received for it hold a NUL or an early LF, and accepts it only when the payload decodes. In sync, a
-record still waiting for the rest of its payload is checked the same way as its bytes arrive, so a corrupted
-prefix that is still in bounds does not make the decoder wait for bytes the later prefixes prove wrong. Every
-loss of sync counts once in :attr:`StreamDecoder.framing_errors`; skipped bytes in ``bytes_discarded``. The channel
-layout is learned from a consensus (:class:`LayoutConsensus`), not from the first record alone: records of
-another layout are counted in ``odd_records`` and dropped, and a new layout that persists is re-learned.
 
 Why one module of this size: the record layout is written once, for both directions (the simulator's server
 encodes with it, the driver and the log reader decode), so that the two cannot drift apart.
