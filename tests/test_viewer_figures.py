@@ -9,10 +9,10 @@ No timing asserts: figures are compared with the loop's own summary, waits are h
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 import pytest
+from conftest import require_tool
 from test_viewer import (
     CHROMIUM,
     H,
@@ -44,11 +44,6 @@ def viewer():
     assert gone(v.server_pid)
 
 
-def need_chromium() -> None:
-    if CHROMIUM is None:
-        if os.environ.get("CI"):
-            pytest.fail("chromium is missing (.ci/run installs Debian's chromium)")
-        pytest.skip("chromium is not installed")
 
 
 # ------------------------------------------------------------------------------------------------------- A1
@@ -142,7 +137,7 @@ def test_browser_shows_a_tenth_of_a_millimetre_as_a_plot_and_magnified(viewer, t
     (a flat red line halfway up a 0–0.2 mm axis) and draws the reconstruction's deviation magnified 100 times
     about the truth: 10 mm off, where the test's own geometry puts it (the arc's points moved by 100 × 0.1 mm
     along the base's d2, away from the truth)."""
-    need_chromium()
+    require_tool(CHROMIUM is not None, "chromium is not installed (.ci/run installs Debian's chromium)")
     shape = arc()
     truth = truth_of(shape, offset=1e-4, fixture=False)
     viewer.show(shape, truth, label="tenth of a millimetre")
