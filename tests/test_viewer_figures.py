@@ -44,8 +44,6 @@ def viewer():
     assert gone(v.server_pid)
 
 
-
-
 # ------------------------------------------------------------------------------------------------------- A1
 def test_a_replayed_recording_names_its_stored_calibration(tmp_path, capsys):
     """A1: `twin live replay://run.h5 --viewer` said "calibration none" when the recording stores one."""
