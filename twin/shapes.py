@@ -98,10 +98,6 @@ class ShapeCurve:
         return s, self.positions(s)
 
 
-def _zeros_like(s):
-    return np.zeros_like(s)
-
-
 def _vec(kx, ky):
     return np.stack(np.broadcast_arrays(kx, ky), axis=-1)
 

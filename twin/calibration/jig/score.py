@@ -43,7 +43,6 @@ class Bands:
 
 CLINICAL = Bands("clinical", (0.25, 1.25), (0.8, 1.25))
 ALL_LEVELS = Bands("all levels", (0.0, np.inf), (0.8, np.inf))
-BANDS = {"clinical": CLINICAL, "all": ALL_LEVELS}
 
 
 @dataclass(frozen=True)
