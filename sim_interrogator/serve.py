@@ -27,9 +27,9 @@ import math
 import signal
 import threading
 import time
-from urllib.parse import parse_qsl, urlencode, urlsplit
+from urllib.parse import urlencode
 
-from twin.io.source import open_source
+from twin.io.source import open_source, parse_url
 
 #: one-line help (read by `twin --help` without importing this module)
 HELP = "serve a simulated interrogator over illumisense, fispec or hyperion"
@@ -72,7 +72,7 @@ def source_url(args: argparse.Namespace) -> str:
     rate = args.rate if args.rate is not None else (100.0 if not args.source else None)
     if rate is not None:
         add["rate"] = f"{rate:g}"
-    query = dict(parse_qsl(urlsplit(url).query, keep_blank_values=True))
+    query = parse_url(url)[2]
     missing = {k: v for k, v in add.items() if k not in query}
     if missing:
         url = url.split("?", 1)[0] + "?" + urlencode({**query, **missing})
