@@ -37,7 +37,6 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
@@ -288,7 +287,7 @@ class FoxgloveSink:
         self.errors = 0
         self.last_error: str | None = None
 
-    def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None:
+    def __call__(self, frames: Frame, shapes: Shape | None, status: LiveStatus) -> None:
         try:
             self.latest.offer(frames, shapes, status.flags)
             taken = self.latest.take() if status.state != "ended" else None
