@@ -401,16 +401,15 @@ class LiveLoop:
         """
         n = len(w)
         shape = self._shape
-        outside = self.rec.peaks_outside(w)
+        # the strain once, for the window check, the flags and the reconstruction (NaN where missing or outside)
+        e, outside = self.rec.strain(w)
         n_outside = int(np.count_nonzero(outside))
-        if n_outside:
-            w = np.where(outside, np.nan, w)  # missing, for the reconstruction and the flags alike
-        flags = np.isnan(w.reshape(n, -1)).any(axis=1).astype(np.uint8)  # MISSING_PEAKS = 1
+        flags = np.isnan(e.reshape(n, -1)).any(axis=1).astype(np.uint8)  # MISSING_PEAKS = 1
         # counted before the sequence counter adds its own flag to the same array
         n_missing = int(np.count_nonzero(flags))
         self._count_sequence(sequence, flags)
         try:
-            shapes = self.rec(w)
+            shapes = self.rec.from_strain(e)
         except Exception as exc:  # the frames still reach the sinks (the recorder keeps them)
             if not self.c["reconstruct_errors"]:
                 print(f"twin live: reconstruction failed: {exc}", file=sys.stderr)
