@@ -22,6 +22,7 @@ then serves until Ctrl-C (or SIGTERM, ``--duration``, or the end of the source) 
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import threading
 import time
@@ -32,7 +33,7 @@ from twin.io.source import open_source
 #: one-line help (read by `twin --help` without importing this module)
 HELP = "serve a simulated interrogator over illumisense, fispec or hyperion"
 
-__all__ = ["add_arguments", "run", "source_url"]
+__all__ = ["add_arguments", "check_arguments", "run", "source_url"]
 
 PROTOCOLS = ("illumisense", "fispec", "hyperion")
 
@@ -77,9 +78,18 @@ def source_url(args: argparse.Namespace) -> str:
     return url
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.rate is not None and not args.rate > 0:
+def check_arguments(args: argparse.Namespace) -> None:
+    """Refuse impossible numbers before anything is opened (one line each, through the CLI's ValueError)."""
+    if args.rate is not None and not (math.isfinite(args.rate) and args.rate > 0):
         raise ValueError(f"--rate must be a positive frequency in Hz, got {args.rate}")
+    if args.port is not None and not 0 <= args.port <= 65535:
+        raise ValueError(f"--port must be a TCP port in 0–65535 (0: any free one), got {args.port}")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise ValueError(f"--duration must be a positive, finite number of seconds, got {args.duration}")
+
+
+def run(args: argparse.Namespace) -> int:
+    check_arguments(args)
     url = source_url(args)
     warnings = None
     if url.startswith("sim://"):

@@ -459,22 +459,23 @@ def test_hyperion_server_answers_absurd_arguments_and_lives_on():
         assert server.stats()["bad_requests"] == 1 and server.stats()["failed_requests"] == 0
 
 
-def test_hyperion_server_caps_connections_and_counts_the_refused():
+def test_hyperion_server_caps_connections_evicting_the_quietest():
+    """At the cap a newcomer is served and the connection quiet longest goes (issue 23 B12: refusing the
+    newcomer let idle connections lock the real client out)."""
     fiber = multicore_fiber(4, 18)
     with HyperionServer(SyntheticSource(rate=200, fiber=fiber), port=0, max_clients=3) as server:
         held = [socket.create_connection(server.address) for _ in range(3)]
-        assert all(_ask(c, "#isready").ok for c in held)  # served (and so registered) before more arrive
-        extra = [socket.create_connection(server.address) for _ in range(4)]
-        for c in extra:
-            assert recv_all(c) == b""  # closed at once
+        for c in held:
+            assert _ask(c, "#isready").ok  # served (and so registered), the first one asked first
+        assert _ask(held[2], "#isready").ok and _ask(held[1], "#isready").ok  # held[0] is now the quietest
+        with socket.create_connection(server.address) as extra:
+            assert _ask(extra, "#isready").ok  # the newcomer is served…
+            assert recv_all(held[0]) == b""  # …and the quietest was closed
+            assert _ask(held[1], "#isready").ok and _ask(held[2], "#isready").ok  # the others still are
         streams = [socket.create_connection(server.stream_address) for _ in range(5)]
-        assert wait_until(lambda: server.stats()["refused"] == 4 + 2)
+        assert wait_until(lambda: server.stats()["evicted"] == 1 + 2)
         assert server.stream.clients == 3
-        held[0].close()
-        assert wait_until(lambda: len(server._conns) == 2)
-        with socket.create_connection(server.address) as again:
-            assert _ask(again, "#isready").ok  # a freed place is taken again
-        for c in held[1:] + extra + streams:
+        for c in held + streams:
             c.close()
 
 

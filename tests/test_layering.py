@@ -13,7 +13,8 @@ FORBIDDEN = {
     "models": {"sim_interrogator", "scenarios"},
     "sim_interrogator": {"scenarios"},
 }
-OPTIONAL = ("mujoco", "meshcat", "matplotlib", "h5py", "dask", "distributed", "pyarrow", "zmq", "tornado", "umsgpack")
+OPTIONAL = ("mujoco", "meshcat", "matplotlib", "h5py", "dask", "distributed", "pyarrow", "zmq", "tornado", "umsgpack",
+            "mcap", "zstandard", "lz4", "foxglove", "rosbags", "mcap_ros2")
 
 
 def _imports(path: Path):

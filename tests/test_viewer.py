@@ -403,7 +403,8 @@ def test_scene_shows_error_colours_truth_on_top_and_the_figures(make_viewer):
     # the next frame: shape, gratings and truth again; the unchanged fixture and the scale are not resent
     spy.clear()
     assert v.show(shape, truth)
-    assert sorted(p for _, p, _ in spy.sent) == ["/twin/gratings", "/twin/shape", "/twin/truth"]
+    assert sorted(p for _, p, _ in spy.sent) == ["/twin/gratings", "/twin/magnified", "/twin/shape",
+                                                 "/twin/truth"]
     # without a truth: coloured by curvature, no error figures
     spy.clear()
     v.show(shape, force=True)
@@ -567,7 +568,7 @@ def test_sink_draws_the_latest_usable_frame_and_keeps_a_dropped_one(make_viewer)
     (mesh,) = spy.objects("/twin/shape")
     assert np.allclose(attribute(mesh, "position")[: v.config.sides].mean(axis=0), truth.positions[0], atol=1e-6)
     figures = dict(v.hud()["figures"])
-    assert figures["rate"] == "99.5 Hz" and figures["lost frames"] == "3"
+    assert figures["source rate"] == "99.5 Hz" and figures["lost frames"] == "3"
     sink.period = 0.2
     sink._due = time.monotonic() + 0.1
     sink(frames[:1], batch[:1], status(n=1))

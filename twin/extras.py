@@ -25,6 +25,10 @@ EXTRAS: dict[str, str] = {
     "dask": "study",
     "distributed": "study",
     "pyarrow": "study",
+    "mcap": "ros",
+    "zstandard": "ros",
+    "lz4": "ros",
+    "foxglove": "ros",
 }
 
 

@@ -28,10 +28,13 @@ NPOLYGONS, SIZE_POLYGONS, NTRIANGLE_STRIPS, SIZE_TRIANGLE_STRIPS, NATTRIBUTES; s
 float32 x y z, then each cell array as (count, index…) uint32 words. No library is needed (pyigtl, the
 obvious one, writes POLYDATA cell arrays in the wrong byte order).
 
-The server never slows the live loop: :meth:`IgtlServer.publish` appends a whole bundle of messages to each
-client's buffer and returns; one thread accepts clients, sends what is buffered and reads (and discards) what
-clients send. A client that does not keep up has bundles dropped whole (counted), never cut, so its stream
-stays parseable; a client that disconnects is forgotten. Clients may come and go at any time.
+The server never slows the live loop: :meth:`IgtlServer.publish` queues a whole bundle of messages for each
+client and returns; one thread accepts clients, sends what is queued and reads (and discards) what clients
+send. A client that does not keep up has its oldest bundles dropped whole (counted), never cut, so its stream
+stays parseable and the newest shape is the one waiting; what waits for one client is bounded (``max_backlog``
+bytes of whole bundles, plus the one being sent). At most ``max_clients`` (16) clients at once: one more
+evicts the client furthest behind (of equals the newest), counted, so connections that never read cannot lock
+3D Slicer out. A client that disconnects is forgotten. Clients may come and go at any time.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ import struct
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, TextIO
 
@@ -56,6 +60,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "HEADER_SIZE",
+    "MAX_CLIENTS",
     "IgtlServer",
     "IgtlSink",
     "crc64",
@@ -157,11 +162,26 @@ def parse_address(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]
     return host, number
 
 
-class _Client:
-    __slots__ = ("address", "out", "sock")
+#: most OpenIGTLink clients at once (3D Slicer needs one)
+MAX_CLIENTS = 16
+#: bytes waiting for a client that still count as keeping up (a few bundles of a 1 mm-sampled catheter)
+SLACK_BYTES = 64 << 10
 
-    def __init__(self, sock: socket.socket, address):
-        self.sock, self.address, self.out = sock, address, bytearray()
+
+class _Client:
+    __slots__ = ("address", "order", "out", "queued", "sock", "waiting")
+
+    def __init__(self, sock: socket.socket, address, order: int):
+        self.sock, self.address, self.order = sock, address, order
+        self.out = memoryview(b"")  # the rest of the bundle being sent
+        self.waiting: deque[bytes] = deque()  # whole bundles not yet started
+        self.queued = 0  # bytes in ``waiting``
+
+    def behind(self) -> tuple[int, int]:
+        """The eviction order: (bytes waiting, arrival); up to :data:`SLACK_BYTES` waiting counts as keeping up
+        (a reader has a bundle or two in flight), and of those the newest goes first."""
+        waiting = self.queued + len(self.out)
+        return (waiting if waiting > SLACK_BYTES else 0), self.order
 
 
 class IgtlServer:
@@ -172,16 +192,23 @@ class IgtlServer:
     host, port : str, int
         Where to listen (127.0.0.1; port 0 picks a free one: see :attr:`address`).
     max_backlog : int
-        Bytes buffered per client beyond which a new bundle is dropped for that client.
+        Most bytes of whole bundles waiting for one client; the oldest beyond are dropped (the newest is kept).
+    max_clients : int
+        Most clients at once; one more evicts the one furthest behind.
 
     Attributes
     ----------
-    clients_seen, bundles_published, bundles_dropped : int
-        Connections accepted; bundles handed to :meth:`publish`; bundles dropped for slow clients.
+    clients_seen, bundles_published, bundles_dropped, evicted : int
+        Connections accepted; bundles handed to :meth:`publish`; bundles dropped for slow clients; clients
+        evicted at the cap.
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 18944, *, max_backlog: int = 1 << 20):
-        self.max_backlog = max_backlog
+    def __init__(self, host: str = "127.0.0.1", port: int = 18944, *, max_backlog: int = 256 << 10,
+                 max_clients: int = MAX_CLIENTS):
+        if not max_clients >= 1 or not max_backlog >= 0:
+            raise ValueError(f"IgtlServer: max_clients >= 1 and max_backlog >= 0 needed, got {max_clients}, "
+                             f"{max_backlog}")
+        self.max_backlog, self.max_clients = int(max_backlog), int(max_clients)
         self._listener = socket.create_server((host, port), reuse_port=False)
         self._listener.setblocking(False)
         self.address: tuple[str, int] = self._listener.getsockname()[:2]
@@ -197,6 +224,7 @@ class IgtlServer:
         self.clients_seen = 0
         self.bundles_published = 0
         self.bundles_dropped = 0
+        self.evicted = 0
         self._thread = threading.Thread(target=self._serve, name="twin-igtl", daemon=True)
         self._thread.start()
 
@@ -206,6 +234,11 @@ class IgtlServer:
         with self._lock:
             return len(self._clients)
 
+    def backlog(self) -> list[int]:
+        """Bytes waiting for each client (whole bundles queued plus the rest of the one being sent)."""
+        with self._lock:
+            return [c.queued + len(c.out) for c in self._clients.values()]
+
     def publish(self, bundle: bytes) -> int:
         """Queue ``bundle`` (whole messages) for every client; returns how many clients it was queued for."""
         if self._closed:
@@ -214,10 +247,11 @@ class IgtlServer:
         with self._lock:
             self.bundles_published += 1
             for c in self._clients.values():
-                if len(c.out) > self.max_backlog:
+                c.waiting.append(bundle)  # one object shared by every client
+                c.queued += len(bundle)
+                while len(c.waiting) > 1 and c.queued > self.max_backlog:  # the newest shape wins
+                    c.queued -= len(c.waiting.popleft())
                     self.bundles_dropped += 1
-                    continue
-                c.out += bundle
                 queued += 1
         if queued:
             with contextlib.suppress(OSError):
@@ -229,7 +263,8 @@ class IgtlServer:
         while not self._closed:
             with self._lock:
                 for fd, c in self._clients.items():
-                    self._selector.modify(c.sock, selectors.EVENT_READ | (selectors.EVENT_WRITE if c.out else 0), fd)
+                    busy = len(c.out) or c.waiting
+                    self._selector.modify(c.sock, selectors.EVENT_READ | (selectors.EVENT_WRITE if busy else 0), fd)
             try:
                 events = self._selector.select(timeout=0.5)
             except (OSError, ValueError):
@@ -253,7 +288,13 @@ class IgtlServer:
                 sock.setblocking(False)
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 with self._lock:
-                    self._clients[sock.fileno()] = _Client(sock, address)
+                    full = len(self._clients) >= self.max_clients
+                    victim = max(self._clients, key=lambda fd: self._clients[fd].behind()) if full else None
+                if victim is not None:  # the newcomer is served; the one furthest behind makes way
+                    self.evicted += 1
+                    self._drop(victim)
+                with self._lock:
+                    self._clients[sock.fileno()] = _Client(sock, address, self.clients_seen)
                     self.clients_seen += 1
                 self._selector.register(sock, selectors.EVENT_READ, sock.fileno())
 
@@ -267,10 +308,14 @@ class IgtlServer:
                 raise ConnectionResetError("closed by the client")  # requests from clients are not answered
             if mask & selectors.EVENT_WRITE:
                 with self._lock:
-                    data = bytes(c.out)
-                sent = c.sock.send(data) if data else 0
+                    if not len(c.out) and c.waiting:
+                        nxt = c.waiting.popleft()
+                        c.queued -= len(nxt)
+                        c.out = memoryview(nxt)
+                    data = c.out
+                sent = c.sock.send(data) if len(data) else 0
                 with self._lock:
-                    del c.out[:sent]
+                    c.out = c.out[sent:]
         except (BlockingIOError, InterruptedError):
             return
         except OSError:

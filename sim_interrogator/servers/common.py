@@ -1,6 +1,11 @@
 """Plumbing shared by the protocol servers: a thread that pumps frames out of a Source, a TCP server that
 pushes the same bytes to every connected client, and the one log writer every server thread uses.
 
+Local clients that connect and then do nothing never lock the real client out: a client that takes no data for
+:data:`IDLE_TIMEOUT` s is dropped, and a connection beyond :data:`MAX_CLIENTS` evicts the client furthest
+behind (the most data waiting for it, ours and the kernel's; of equals the newest, so a client that reads keeps
+its place while idle connections make way for each other and for it) instead of being refused.
+
 Log lines go through :func:`log`: one ``write`` of the whole line under one lock, so lines from the pump, the
 accept threads and the client threads never interleave or leave blank lines (``print`` writes the text and the
 newline separately).
@@ -8,9 +13,12 @@ newline separately).
 
 from __future__ import annotations
 
+import fcntl
 import queue
 import socket
+import struct
 import sys
+import termios
 import threading
 import time
 from collections.abc import Callable
@@ -19,10 +27,15 @@ from twin.frames import Frame
 from twin.io.rate import RateMeter
 from twin.io.source import Source, SourceClosed
 
-__all__ = ["MAX_CLIENTS", "FramePump", "TcpBroadcaster", "log"]
+__all__ = ["IDLE_TIMEOUT", "MAX_CLIENTS", "FramePump", "TcpBroadcaster", "log", "unsent_bytes"]
 
-#: most clients a server port accepts at once; more are refused (closed at once) and counted
+#: most clients a server port serves at once; one more evicts the client furthest behind (counted)
 MAX_CLIENTS = 32
+#: s a client may take no data (a stream client) or send no request (a command connection) before it is dropped
+IDLE_TIMEOUT = 30.0
+
+#: a client with no more than this waiting for it (messages queued, bytes in the kernel) keeps up
+SLACK_MESSAGES, SLACK_BYTES = 8, 64 << 10
 
 _LOG_LOCK = threading.Lock()
 
@@ -134,26 +147,47 @@ class FramePump:
         self.ended.set()
 
 
+def unsent_bytes(sock: socket.socket) -> int:
+    """Bytes written to ``sock`` that its peer has not yet taken (the kernel's send queue; 0 where unknown)."""
+    try:
+        return struct.unpack("i", fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0"))[0]
+    except (OSError, ValueError):
+        return 0
+
+
 class _Client:
-    def __init__(self, sock: socket.socket, addr, owner: TcpBroadcaster, max_queue: int):
-        self.sock, self.addr, self.owner = sock, addr, owner
+    def __init__(self, sock: socket.socket, addr, owner: TcpBroadcaster, max_queue: int, order: int):
+        self.sock, self.addr, self.owner, self.order = sock, addr, owner, order
         self.queue: queue.Queue[bytes | None] = queue.Queue(max_queue)
         self.alive = True
         self.sent = 0
         self.thread = threading.Thread(target=self._run, name=f"{owner.name}-client", daemon=True)
 
+    def behind(self) -> tuple[bool, int, int, int]:
+        """How far behind the client is, for eviction: (far behind, messages queued, bytes in the kernel,
+        arrival). A reader has at most a record or two in flight: below :data:`SLACK_MESSAGES` messages and
+        :data:`SLACK_BYTES` bytes a client counts as keeping up, and of those the newest goes first."""
+        q, u = self.queue.qsize(), unsent_bytes(self.sock) if self.alive else 0
+        if q > SLACK_MESSAGES or u > SLACK_BYTES:
+            return True, q, u, self.order
+        return False, 0, 0, self.order
+
     def _run(self) -> None:
+        why = "disconnected"
         try:
             while True:
                 data = self.queue.get()
                 if data is None:
                     break
-                self.sock.sendall(data)
+                self.sock.sendall(data)  # the socket's timeout is the idle timeout: no progress, no client
                 self.sent += 1
+        except TimeoutError:
+            why = f"dropped: took no data for {self.owner.idle_timeout:g} s"
+            self.owner.dropped_idle += 1
         except OSError:
             pass  # the client went away; the broadcaster notices below
         finally:
-            self.owner._remove(self, "disconnected")
+            self.owner._remove(self, why)
 
     def close(self) -> None:
         self.alive = False
@@ -162,15 +196,20 @@ class _Client:
         except OSError:
             pass
         self.sock.close()
+        try:  # wake the sender if it waits for data (if it is sending, the closed socket wakes it)
+            self.queue.put_nowait(None)
+        except queue.Full:
+            pass
 
 
 class TcpBroadcaster:
     """A TCP server pushing the same bytes to every connected client; clients come and go freely.
 
     Each client has its own sender thread and queue, so a slow client delays nobody: when its queue holds
-    ``max_queue`` messages (4096 records ≈ 4 s at 1 kHz) it is disconnected and counted in ``dropped_slow``.
-    At most ``max_clients`` clients are served at once (one thread each); a connection beyond them is closed at
-    once and counted in ``refused``.
+    ``max_queue`` messages (4096 records ≈ 4 s at 1 kHz) it is disconnected and counted in ``dropped_slow``; a
+    client that takes no data for ``idle_timeout`` s is disconnected and counted in ``dropped_idle``. At most
+    ``max_clients`` clients are served at once (one thread each); a connection beyond them evicts the client
+    furthest behind (the module notes), counted in ``evicted``.
 
     Parameters
     ----------
@@ -186,13 +225,19 @@ class TcpBroadcaster:
         Print connects and disconnects on stderr.
     max_clients : int
         Most clients at once.
+    idle_timeout : float
+        Longest a client may take no data while some waits for it, s.
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, *, name: str = "tcp", max_queue: int = 4096,
                  on_connect: Callable[[socket.socket], None] | None = None, log: bool = False,
-                 max_clients: int = MAX_CLIENTS):
+                 max_clients: int = MAX_CLIENTS, idle_timeout: float = IDLE_TIMEOUT):
+        if not max_clients >= 1 or not idle_timeout > 0:
+            raise ValueError(f"{name}: max_clients >= 1 and idle_timeout > 0 needed, got {max_clients}, "
+                             f"{idle_timeout}")
         self.name, self.max_queue, self.on_connect, self.log = name, max_queue, on_connect, log
         self.max_clients = int(max_clients)
+        self.idle_timeout = float(idle_timeout)
         try:
             self._listener = socket.create_server((host, port), reuse_port=False)
         except OSError as exc:
@@ -205,7 +250,8 @@ class TcpBroadcaster:
         self.connections = 0
         self.disconnects = 0
         self.dropped_slow = 0
-        self.refused = 0
+        self.dropped_idle = 0
+        self.evicted = 0
         self.published = 0
         self._thread = threading.Thread(target=self._accept, name=f"{name}-accept", daemon=True)
 
@@ -226,13 +272,14 @@ class TcpBroadcaster:
                 continue
             except OSError:
                 break
-            if self.clients >= self.max_clients:
-                self.refused += 1
-                sock.close()
-                if self.log and self.refused == 1:
-                    log(f"{self.name}: more than {self.max_clients} clients; refusing the others (counted)")
-                continue
-            sock.settimeout(None)
+            with self._lock:
+                full = list(self._clients) if len(self._clients) >= self.max_clients else None
+            if full:
+                # the newcomer is served; the one furthest behind (of equals the newest) makes way
+                victim = max(full, key=_Client.behind)
+                self.evicted += 1
+                self._remove(victim, f"evicted: {self.max_clients} clients, this one furthest behind")
+            sock.settimeout(self.idle_timeout)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             try:
                 if self.on_connect is not None:
@@ -240,8 +287,8 @@ class TcpBroadcaster:
             except OSError:
                 sock.close()
                 continue
-            client = _Client(sock, addr, self, self.max_queue)
             with self._lock:
+                client = _Client(sock, addr, self, self.max_queue, self.connections)
                 self._clients.append(client)
                 self.connections += 1
             client.thread.start()
@@ -255,8 +302,10 @@ class TcpBroadcaster:
             self._clients.remove(client)
             self.disconnects += 1
         client.close()
-        if self.log and not self._closed.is_set():
-            log(f"{self.name}: client {client.addr[0]}:{client.addr[1]} {why}")
+        # evictions are said once (a storm of connections must not flood the log); all are counted
+        if self.log and not self._closed.is_set() and (not why.startswith("evicted") or self.evicted == 1):
+            log(f"{self.name}: client {client.addr[0]}:{client.addr[1]} {why}"
+                + (" (further evictions counted, not shown)" if why.startswith("evicted") else ""))
 
     def publish(self, data: bytes) -> None:
         """Queue ``data`` for every connected client."""

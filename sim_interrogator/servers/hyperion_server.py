@@ -8,8 +8,11 @@
   status (never an empty reply, never a dead thread). A connection that sends a malformed or oversized request
   header gets an error response and is closed (a binary stream without sync marker cannot be re-entered);
   other connections are unaffected. At most :data:`~sim_interrogator.servers.common.MAX_CLIENTS` (32)
-  command connections and as many stream clients are served at once; more are closed at once and counted
-  (``refused``).
+  command connections and as many stream clients are served at once: one more command connection evicts the
+  one that has been quiet longest (no request since), one more stream client the one furthest behind
+  (:class:`~sim_interrogator.servers.common.TcpBroadcaster`); both counted (``evicted``). A command connection
+  that sends no request for ``idle_timeout`` s (30 s) is closed, and counted (``idle_closed``): idle
+  connections never lock a real client out.
 - Peak stream (command port + 1 = 51972 by default): every frame is pushed to every connected client as one
   success response whose content is the peak data (:func:`twin.io.hyperion.encode_stream_frame`).
 
@@ -21,8 +24,9 @@ from __future__ import annotations
 
 import socket
 import threading
+import time
 
-from sim_interrogator.servers.common import MAX_CLIENTS, FramePump, TcpBroadcaster, log
+from sim_interrogator.servers.common import IDLE_TIMEOUT, MAX_CLIENTS, FramePump, TcpBroadcaster, log
 from twin.frames import Frame
 from twin.io import hyperion
 from twin.io.errors import FramingError
@@ -59,11 +63,13 @@ class HyperionServer:
         Print client connects and disconnects on stderr.
     max_clients : int
         Most command connections (and stream clients) at once.
+    idle_timeout : float
+        Longest a command connection may send no request, and a stream client take no data, s.
     """
 
     def __init__(self, source: Source, host: str = "127.0.0.1", port: int = hyperion.COMMAND_PORT, *,
                  stream_port: int | None = None, rate: float | None = None, log: bool = False,
-                 max_clients: int = MAX_CLIENTS):
+                 max_clients: int = MAX_CLIENTS, idle_timeout: float = IDLE_TIMEOUT):
         self.source = source
         fiber = getattr(source, "fiber", None)
         speed = round(getattr(source, "rate", None) or rate or 1000)
@@ -80,17 +86,20 @@ class HyperionServer:
         except OSError as exc:
             raise OSError(f"hyperion: cannot listen on {host}:{port}: {exc.strerror or exc}") from None
         self._listener.settimeout(0.2)
-        self.stream = TcpBroadcaster(host, stream_port, name="hyperion-stream", log=log, max_clients=max_clients)
+        self.stream = TcpBroadcaster(host, stream_port, name="hyperion-stream", log=log, max_clients=max_clients,
+                                     idle_timeout=idle_timeout)
         self.pump = FramePump(source, rate=rate)
         self.pump.subscribe(self._publish)
         self.log = log
         self.max_clients = int(max_clients)
+        self.idle_timeout = float(idle_timeout)
         self.requests = 0
         self.bad_requests = 0
         self.failed_requests = 0
-        self.refused = 0
+        self.evicted = 0
+        self.idle_closed = 0
         self._closed = threading.Event()
-        self._conns: list[socket.socket] = []
+        self._conns: dict[socket.socket, float] = {}  # connection → when it last sent a request (or connected)
         self._conns_lock = threading.Lock()
         self._thread = threading.Thread(target=self._accept, name="hyperion-commands", daemon=True)
 
@@ -116,16 +125,18 @@ class HyperionServer:
             except OSError:
                 break
             with self._conns_lock:
-                full = len(self._conns) >= self.max_clients
-                if not full:
-                    self._conns.append(conn)
-            if full:
-                self.refused += 1
-                conn.close()
-                if self.log and self.refused == 1:
-                    log(f"hyperion: more than {self.max_clients} command connections; refusing the others (counted)")
-                continue
-            conn.settimeout(None)
+                victim = min(self._conns, key=self._conns.get) if len(self._conns) >= self.max_clients else None
+                if victim is not None:
+                    del self._conns[victim]  # its thread closes it; it is no longer counted, nor chosen again
+                self._conns[conn] = time.monotonic()
+            if victim is not None:
+                # the newcomer is served; the connection quiet longest makes way (a real client asks)
+                self.evicted += 1
+                _shut(victim)
+                if self.log and self.evicted == 1:
+                    log(f"hyperion: more than {self.max_clients} command connections; the one quiet longest is "
+                        "closed for each newcomer (counted, not shown again)")
+            conn.settimeout(self.idle_timeout)
             threading.Thread(target=self._serve, args=(conn,), name="hyperion-command", daemon=True).start()
 
     def _respond(self, req: hyperion.Request) -> bytes:
@@ -143,9 +154,16 @@ class HyperionServer:
         decoder = hyperion.RequestDecoder(max_argument=MAX_ARGUMENT, max_command=MAX_COMMAND)
         try:
             while not self._closed.is_set():
-                data = conn.recv(65536)
+                try:
+                    data = conn.recv(65536)
+                except TimeoutError:
+                    self.idle_closed += 1
+                    break
                 if not data:
                     break
+                with self._conns_lock:
+                    if conn in self._conns:
+                        self._conns[conn] = time.monotonic()
                 try:
                     requests = decoder.feed(data)
                 except FramingError as exc:
@@ -166,8 +184,7 @@ class HyperionServer:
         finally:
             conn.close()
             with self._conns_lock:
-                if conn in self._conns:
-                    self._conns.remove(conn)
+                self._conns.pop(conn, None)
 
     def start(self) -> HyperionServer:
         self.stream.start()
@@ -183,17 +200,15 @@ class HyperionServer:
         with self._conns_lock:
             conns = list(self._conns)
         for c in conns:
-            try:
-                c.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
+            _shut(c)
         self.stream.close()
         self.pump.stop()
         self.source.close()
 
     def stats(self) -> dict:
         return {"frames": self.pump.frames, "requests": self.requests, "bad_requests": self.bad_requests,
-                "failed_requests": self.failed_requests, "refused": self.refused + self.stream.refused,
+                "failed_requests": self.failed_requests, "evicted": self.evicted + self.stream.evicted,
+                "idle_closed": self.idle_closed + self.stream.dropped_idle,
                 "stream_clients": self.stream.clients, "behind_events": self.pump.meter.behind_events}
 
     def __enter__(self) -> HyperionServer:
@@ -201,3 +216,11 @@ class HyperionServer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _shut(conn: socket.socket) -> None:
+    """End a connection from another thread: its reader wakes with no data and closes it."""
+    try:
+        conn.shutdown(socket.SHUT_RDWR)
+    except OSError:
+        pass

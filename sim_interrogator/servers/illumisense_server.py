@@ -9,14 +9,15 @@ gratings, shape points every 1 mm in the vendor frame (x along the fibre axis,
 :data:`twin.io.illumisense.vendor.VENDOR_FROM_BASE`). ``blocks="engineering"`` sends the older layout instead
 (E = every grating's optical strain in µε), ``blocks="none"`` the channel blocks alone. The client sends
 nothing; clients may connect and disconnect at any time, and each one gets the records from the moment it
-connected (a client that falls ~4 s behind is dropped).
+connected (a client that falls ~4 s behind, or takes no data for 30 s, is dropped; at most 32 at once, one more
+evicts the one furthest behind: :mod:`sim_interrogator.servers.common`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from sim_interrogator.servers.common import FramePump, TcpBroadcaster, log
+from sim_interrogator.servers.common import IDLE_TIMEOUT, MAX_CLIENTS, FramePump, TcpBroadcaster, log
 from twin.frames import Frame
 from twin.io import illumisense
 from twin.io.source import Source
@@ -44,10 +45,14 @@ class IllumisenseServer:
         without it nothing follows.
     log : bool
         Print client connects and disconnects on stderr.
+    max_clients, idle_timeout : int, float
+        Most clients at once (one more evicts the one furthest behind); longest a client may take no data, s
+        (:class:`~sim_interrogator.servers.common.TcpBroadcaster`).
     """
 
     def __init__(self, source: Source, host: str = "127.0.0.1", port: int = illumisense.DEFAULT_PORT, *,
-                 rate: float | None = None, channels_as: str = "cores", blocks: str = "sensors", log: bool = False):
+                 rate: float | None = None, channels_as: str = "cores", blocks: str = "sensors", log: bool = False,
+                 max_clients: int = MAX_CLIENTS, idle_timeout: float = IDLE_TIMEOUT):
         if blocks not in BLOCKS:
             raise ValueError(f"blocks: expected one of {', '.join(BLOCKS)}, got {blocks!r}")
         self.source = source
@@ -59,7 +64,8 @@ class IllumisenseServer:
             from twin.reconstruct import Reconstructor
 
             self._rec = Reconstructor(self.fiber)
-        self.broadcaster = TcpBroadcaster(host, port, name="illumisense", log=log)
+        self.broadcaster = TcpBroadcaster(host, port, name="illumisense", log=log, max_clients=max_clients,
+                                          idle_timeout=idle_timeout)
         self.pump = FramePump(source, rate=rate)
         self.pump.subscribe(self._publish)
         self.records_sent = 0
@@ -112,6 +118,7 @@ class IllumisenseServer:
         b = self.broadcaster
         return {"frames": self.pump.frames, "records_sent": self.records_sent, "clients": b.clients,
                 "connections": b.connections, "disconnects": b.disconnects, "dropped_slow": b.dropped_slow,
+                "dropped_idle": b.dropped_idle, "evicted": b.evicted,
                 "encode_errors": self.encode_errors}
 
     def __enter__(self) -> IllumisenseServer:

@@ -41,9 +41,10 @@ from twin.io.hdf5 import (
     readable_rows,
 )
 
-__all__ = ["FORMAT", "Recorder", "RecordingReader", "chunk_rows", "open_recording"]
+__all__ = ["FORMAT", "Recorder", "RecordingReader", "chunk_rows", "open_recorder", "open_recording"]
 
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_MCAP_SIGNATURE = b"\x89MCAP0\r\n"
 
 
 # ------------------------------------------------------------------------------------------------- reading
@@ -404,8 +405,30 @@ def _number(v) -> float:
 
 
 def open_recording(path: str | Path, **kw) -> RecordingReader:
-    """Open a twin HDF5 recording or an ILLumiSense log file for reading (see :class:`RecordingReader`)."""
+    """Open a twin HDF5 recording, a twin MCAP recording (:class:`twin.io.rosbag.McapRecording`, the same
+    interface) or an ILLumiSense log file for reading (see :class:`RecordingReader`); the kind is told by the
+    file's first bytes."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError:
+        head = b""  # RecordingReader says what is wrong, in its words
+    if head == _MCAP_SIGNATURE:
+        from twin.io.rosbag import McapRecording
+
+        return McapRecording(path)
     return RecordingReader(path, **kw)
+
+
+def open_recorder(path: str | Path, **kw):
+    """A recorder for ``path`` chosen by its extension: ``.mcap`` a rosbag2-compatible MCAP file
+    (:class:`twin.io.rosbag.McapRecorder`), anything else twin HDF5 (:class:`Recorder`). Keywords: ``fiber``,
+    ``calibration``, ``source_url``, ``rate``."""
+    if Path(path).suffix.lower() == ".mcap":
+        from twin.io.rosbag import McapRecorder
+
+        return McapRecorder(path, **kw)
+    return Recorder(path, **kw)
 
 
 def _load_toml(text) -> dict:

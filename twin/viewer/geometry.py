@@ -6,15 +6,19 @@ piece is tested on its own. Lengths are in whatever unit the caller passes (the 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from twin.frames import Shape, Truth
 
 __all__ = [
     "VIRIDIS",
+    "FrameScene",
     "camera_distance",
     "colorbar_stops",
     "colormap",
+    "frame_scene",
     "interp_curve",
     "latest_usable",
     "local_error",
@@ -216,11 +220,32 @@ def interp_curve(s_new, s, points) -> np.ndarray:
     return np.stack([np.interp(s_new, s, pts[:, k]) for k in range(3)], axis=-1)
 
 
-def local_error(points, truth_polyline) -> np.ndarray:
-    """Exact distance from each point (n, 3) to the truth polyline (k, 3), same unit (n,)."""
+def local_error(points, truth_polyline, *, return_closest: bool = False):
+    """Exact distance from each point (n, 3) to the truth polyline (k, 3), same unit (n,); with
+    ``return_closest`` also the closest point of the polyline to each (n, 3)."""
     from twin.metrics import point_to_polyline
 
-    return point_to_polyline(points, truth_polyline)
+    return point_to_polyline(points, truth_polyline, return_closest=return_closest)
+
+
+def magnification(max_error: float, target: float) -> float:
+    """The factor that shows a deviation of ``max_error`` as at most ``target`` (same unit): the largest of
+    1, 2, 5 × 10^k not above ``target / max_error`` (a round number a person can read), at least 1."""
+    if not (np.isfinite(max_error) and max_error > 0):
+        return 1.0
+    ratio = target / max_error * (1 + 1e-6)  # an error a hair above a round one (rounding) keeps its factor
+    if ratio <= 1:
+        return 1.0
+    decade = 10.0 ** np.floor(np.log10(ratio))
+    return float(max(m * decade for m in (1.0, 2.0, 5.0) if m * decade <= ratio))
+
+
+def nice_ceiling(value: float) -> float:
+    """The smallest of 1, 2, 5 × 10^k at or above ``value`` > 0 (an axis' end)."""
+    if not (np.isfinite(value) and value > 0):
+        return 1.0
+    decade = 10.0 ** np.floor(np.log10(value))
+    return float(min(m * decade for m in (1.0, 2.0, 5.0, 10.0) if m * decade >= value * (1 - 1e-12)))
 
 
 def _check_pose(base_pose) -> tuple[np.ndarray, np.ndarray]:
@@ -273,6 +298,92 @@ def latest_usable(shapes: Shape, flags: np.ndarray, n: int) -> int | None:
     ok[:m] &= (flags[:m] & int(FrameFlag.UNUSABLE)) == 0
     idx = np.flatnonzero(ok)
     return int(idx[-1]) if idx.size else None
+
+
+@dataclass(frozen=True, eq=False)
+class FrameScene:
+    """One frame as every live display shows it (the browser viewer, Foxglove), in world coordinates, m.
+
+    Attributes
+    ----------
+    R, p, how :
+        The placement of the fibre's base frame (:func:`placement`).
+    world : ndarray (n, 3)
+        The reconstruction's points.
+    mode : {"error", "curvature"}
+        What ``values`` are: the local error against the truth (m), else |curvature| (1/m), at each point.
+    values : ndarray (n,)
+    errors : dict or None
+        ``max``, ``mean``, ``tip`` error against the truth, m (None without a truth).
+    truth : ndarray (k, 3) or None
+        The truth's finite points.
+    truth_ok : ndarray of bool or None
+        Which truth samples those are.
+    nearest : ndarray (n, 3) or None
+        The truth's closest point to each reconstructed point (None without a truth).
+    markers : ndarray (g, 3)
+        The gratings.
+    vendor : ndarray (N, 3) or None
+        The interrogator's own shape, registered onto the reconstruction and placed like it.
+    vendor_errors : dict or None
+        ``max``, ``mean``, ``tip`` distance between the two, m.
+    """
+
+    R: np.ndarray
+    p: np.ndarray
+    how: str
+    world: np.ndarray
+    mode: str
+    values: np.ndarray
+    errors: dict | None
+    truth: np.ndarray | None
+    truth_ok: np.ndarray | None
+    nearest: np.ndarray | None
+    markers: np.ndarray
+    vendor: np.ndarray | None
+    vendor_errors: dict | None
+
+
+def frame_scene(shape: Shape, truth: Truth | None = None, vendor=None, base_pose=None,
+                vendor_sensor: int = 0) -> FrameScene:
+    """Place one reconstruction in the world and compute what is shown with it (:class:`FrameScene`).
+
+    ``vendor``: a tuple of VendorSensor (sensor ``vendor_sensor`` is shown) or one VendorSensor, or None.
+    """
+    if shape.positions.ndim != 2:
+        raise ValueError(f"one shape expected, got a batch of shape {shape.batch_shape}; index it")
+    if not np.all(np.isfinite(shape.positions)):
+        raise ValueError("the shape has NaN points (an unusable frame)")
+    R, p, how = placement(shape, truth, base_pose)
+    world = shape.positions @ R.T + p
+    truth_pts = ok = errors = nearest = None
+    if truth is not None:
+        ts, tp = np.asarray(truth.s, dtype=np.float64), np.asarray(truth.positions, dtype=np.float64)
+        ok = np.all(np.isfinite(tp), axis=1)
+        truth_pts, ts = tp[ok], ts[ok]
+        values, nearest = local_error(world, truth_pts, return_closest=True)
+        tip = float(np.linalg.norm(world[-1] - interp_curve(shape.s[-1:], ts, truth_pts)[0]))
+        errors = {"max": float(values.max()), "mean": float(values.mean()), "tip": tip}
+        mode = "error"
+    else:
+        mode = "curvature"
+        k = np.linalg.norm(np.asarray(shape.curvature, dtype=np.float64), axis=-1)
+        good = np.isfinite(k)
+        values = np.interp(shape.s, shape.grating_s[good], k[good]) if good.any() else np.full(len(world), np.nan)
+    vendor_pts = vendor_errors = None
+    block = vendor[vendor_sensor] if isinstance(vendor, tuple | list) and len(vendor) > vendor_sensor else (
+        None if isinstance(vendor, tuple | list) else vendor)
+    if block is not None:
+        from twin.io.illumisense.vendor import vendor_in_base
+
+        moved = vendor_in_base(shape.positions, shape.s, block.positions, block.s)
+        if moved is not None:  # else no overlap, or NaN points: nothing to show or report
+            base, e = moved
+            vendor_errors = {"max": float(e.max), "mean": float(e.mean), "tip": float(e.tip)}
+            vendor_pts = base @ R.T + p
+    markers = interp_curve(shape.grating_s, shape.s, world)
+    return FrameScene(R, p, how, world, mode, values, errors, truth_pts, ok, nearest, markers, vendor_pts,
+                      vendor_errors)
 
 
 # ------------------------------------------------------------------------------------------------ camera

@@ -15,7 +15,7 @@ from twin.viewer.client import ViewerError
 
 if TYPE_CHECKING:  # pragma: no cover
     from twin.live import LiveStatus
-    from twin.viewer import Viewer
+    from twin.viewer.view import Viewer
 
 __all__ = ["ViewerSink"]
 
@@ -24,8 +24,10 @@ class ViewerSink:
     """A :class:`twin.live.LiveLoop` sink drawing the latest usable shape of each batch, at most ``rate`` Hz.
 
     The frame's truth is drawn when the source carries one, and the interrogator's own shape when the frame
-    carries one (:attr:`Frame.vendor`); rate and lost frames go to the overlay. A frame
-    dropped by the rate limit is kept and drawn at the next heartbeat. A stale stream turns the catheter grey.
+    carries one (:attr:`Frame.vendor`); the measured arrival rate, the source's rate, frames and lost frames go
+    to the overlay. A frame dropped by the rate limit is kept and drawn at the next heartbeat. A stale stream
+    turns the catheter grey; at the end of the run the last shape is drawn and the overlay says ``ENDED`` with
+    the final frame count (the terminal's) and the run's mean arrival rate.
     Nothing raises out of the sink (the loop would drop it): errors are counted in ``errors`` (the first one
     reported on ``stream``), and a viewer whose server is gone is left alone.
 
@@ -73,8 +75,9 @@ class ViewerSink:
             if pick is not None:
                 self._pending = (shapes[pick], frames[pick].truth, frames[pick].vendor)
         v = self.viewer
-        if v.closed or status.state == "ended":
+        if v.closed:
             return
+        ended = status.state == "ended"
         if v.broken:  # said once (counted as an error), then left alone
             if not self._gave_up:
                 self._gave_up = True
@@ -82,16 +85,21 @@ class ViewerSink:
             return
         if self._pending is not None:
             now = time.monotonic()
-            if now >= self._due:
+            if ended or now >= self._due:  # the run's last shape is drawn whatever the rate limit says
                 shape, truth, vendor = self._pending
                 self._pending = None
                 self._due = geo.next_due(self._due, now, self.period)
                 v.show(shape, truth, force=True, vendor=vendor)
                 self.frames_shown += 1
-        v.info.update(rate_hz=status.rate_hz, lost=status.lost_samples, frames=status.frames)
+        # what arrived, measured (over the last 2 s; at the end, over the run, as the terminal's summary says),
+        # beside the source's own rate: a source behind real time shows as such
+        arrival = status.frames / status.elapsed if ended and status.elapsed > 0 else status.arrival_hz
+        v.info.update(arrival_hz=arrival, rate_hz=status.rate_hz, lost=status.lost_samples, frames=status.frames)
         detail = ""
         if status.state == "stale" and np.isfinite(status.last_valid_age):
             detail = f"no data for {status.last_valid_age:.0f} s"
+        elif ended:
+            detail = f"{status.frames} frames in {status.elapsed:.1f} s"
         v.set_state(status.state, detail)
 
     def close(self) -> None:
