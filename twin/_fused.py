@@ -8,8 +8,10 @@ samples, and the chain (:mod:`twin._kernels`). Outputs are preallocated by the c
 frame. A frame that lost a grating needs another interpolation operator (one per pattern of valid gratings); the
 kernel marks it and leaves it to :func:`integrate`, called with the operators of those patterns.
 
-The solver data is one tuple ``op`` = (p, ds, weights, scale, needed, rcond, paper), from
-:meth:`twin.strain.CurvatureSolver.fused_operator`.
+Everything constant for a reconstructor — the reference wavelengths, the window, the solver
+(:meth:`twin.strain.CurvatureSolver.fused_operator`), the interpolation operator, the step — travels as one flat
+array made by :func:`pack`: numba checks the type of every argument on every call (~0.15 µs an array), which
+for a single frame is a measurable share of the whole reconstruction.
 """
 
 from __future__ import annotations
@@ -19,14 +21,46 @@ from numba import njit
 
 from twin._kernels import exp_curve, rk4_curve
 
-__all__ = ["integrate", "reconstruct"]
+__all__ = ["integrate", "pack", "reconstruct"]
+
+_HEADER = 8  # window, h, rcond, m, rk4, paper, n_q, (spare)
+
+
+def pack(lam0, window, solver, basis, m, h, rk4) -> np.ndarray:
+    """The constants of :func:`reconstruct` as one float64 array: ``lam0`` (n_g, n_c) nm, ``window`` (|e| bound,
+    0: none), ``solver`` = (p, ds, weights, scale, needed, rcond, paper) from ``fused_operator``, ``basis``
+    (n_g, n_steps · m), ``m`` samples per step, ``h`` step (m), ``rk4``."""
+    p, ds, weights, scale, needed, rcond, paper = solver
+    header = np.array([window, h, rcond, m, float(rk4), float(paper), basis.shape[1], 0.0])
+    return np.concatenate([header, *(np.asarray(a, dtype=np.float64).ravel()
+                                     for a in (lam0, p, ds, weights, scale, needed, basis))])
 
 
 @njit(cache=True, nogil=True)
-def _solve_frame(e, op, k, valid):
+def _unpack(const, n_g, n_c):
+    """The views of :func:`pack`'s array."""
+    n_q = int(const[6])
+    o = _HEADER
+    lam0 = const[o:o + n_g * n_c].reshape((n_g, n_c))
+    o += n_g * n_c
+    p = const[o:o + n_g * 2 * n_c].reshape((n_g, 2, n_c))
+    o += n_g * 2 * n_c
+    ds = const[o:o + n_g * n_c * 3].reshape((n_g, n_c, 3))
+    o += n_g * n_c * 3
+    weights = const[o:o + n_g * n_c].reshape((n_g, n_c))
+    o += n_g * n_c
+    scale = const[o:o + 3]
+    o += 3
+    needed = const[o:o + n_c]
+    o += n_c
+    basis = const[o:o + n_g * n_q].reshape((n_g, n_q))
+    return lam0, p, ds, weights, scale, needed, basis
+
+
+@njit(cache=True, nogil=True)
+def _solve_frame(e, p, ds, weights, scale, needed, rcond, paper, k, valid):
     """Curvature (k_x, k_y) at every grating of one frame from its strain ``e`` (n_g, n_c), NaN or ±inf = missing,
     into ``k`` (n_g, 2) and ``valid`` (n_g,). Returns the number of valid gratings."""
-    p, ds, weights, scale, needed, rcond, paper = op
     n_g, n_c = e.shape
     n_valid = 0
     for n in range(n_g):
@@ -49,7 +83,7 @@ def _solve_frame(e, op, k, valid):
             ky = 0.0
             for c in range(n_c):
                 if not np.isfinite(e[n, c]):
-                    if needed[c]:
+                    if needed[c] != 0.0:
                         ok = False
                 else:
                     kx += p[n, 0, c] * e[n, c]
@@ -111,19 +145,16 @@ def _chain(k, valid, basis, rates, r0, h, rk4, pos, frames, store_frames):
 
 
 @njit(cache=True, nogil=True)
-def reconstruct(x, lam0, window, is_wavelength, op, basis, m, h, rk4, k, valid, pos, frames, store_frames,
-                pending):
+def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames, pending):
     """The fused path over a batch.
 
     Parameters
     ----------
     x : (F, n_g, n_c) wavelengths, nm (``is_wavelength``), or optical strain with NaN for missing peaks.
-    lam0 : (n_g, n_c) reference wavelengths, nm (wavelengths only).
-    window : physical window |e| ≤ window (a peak beyond it is missing); ≤ 0: none (wavelengths only).
-    op : the solver tuple (module docstring).
-    basis : (n_g, n_steps · m) interpolation operator of the full set of gratings, columns = samples in step
-        order.
-    m : samples per step; h : step, m; rk4 : RK4 (m = 3) instead of the exponential chain.
+    const : :func:`pack`'s array: the reference wavelengths (used for wavelengths only), the physical window
+        |e| ≤ window (a peak beyond it is missing; 0: none), the solver, the interpolation operator of the full
+        set of gratings (n_g, n_steps · m; columns = samples in step order), m samples per step, the step h (m),
+        and RK4 (m = 3) instead of the exponential chain.
     k : (F, n_g, 2), valid : (F, n_g), pos : (F, n_steps + 1, 3), frames : (F, n_steps + 1, 3, 3) or (1, 1, 3, 3)
         when not ``store_frames``: outputs.
     pending : (F,) bool output: frames that lost a grating (k and valid filled, positions left to
@@ -135,6 +166,9 @@ def reconstruct(x, lam0, window, is_wavelength, op, basis, m, h, rk4, k, valid, 
         The number of frames pending, or −1 when a wavelength is ±inf (outputs then incomplete).
     """
     n_f, n_g, n_c = x.shape
+    window, h, rcond = const[0], const[1], const[2]
+    m, rk4, paper = int(const[3]), const[4] != 0.0, const[5] != 0.0
+    lam0, p, ds, weights, scale, needed, basis = _unpack(const, n_g, n_c)
     n_steps = pos.shape[1] - 1
     e = np.empty((n_g, n_c))
     rates = np.empty((2, n_steps, m))
@@ -151,9 +185,9 @@ def reconstruct(x, lam0, window, is_wavelength, op, basis, m, h, rk4, k, valid, 
                     if window > 0 and abs(v) > window:
                         v = np.nan  # outside the physical window: missing
                     e[n, c] = v
-            n_valid = _solve_frame(e, op, k[f], valid[f])
+            n_valid = _solve_frame(e, p, ds, weights, scale, needed, rcond, paper, k[f], valid[f])
         else:
-            n_valid = _solve_frame(x[f], op, k[f], valid[f])
+            n_valid = _solve_frame(x[f], p, ds, weights, scale, needed, rcond, paper, k[f], valid[f])
         if n_valid < n_g:
             pending[f] = True
             n_pending += 1

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import functools
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -394,15 +393,25 @@ class Shape:
                 frozen(getattr(self, f.name))
 
     @classmethod
-    def _trusted(cls, **fields) -> Shape:
-        """A Shape built without the dataclass machinery (private, for the reconstructor's hot path): the arrays
-        are frozen, fields not given take their defaults; nothing is checked."""
+    def _trusted(cls, s, positions, frames, curvature, grating_s, valid) -> Shape:
+        """A Shape built without the dataclass machinery (private, for the reconstructor's hot path, where the
+        dataclass's init cost as much as the arithmetic): ``positions``, ``frames`` (or None), ``curvature`` and
+        ``valid`` are new arrays of the documented shapes and get frozen here; ``s`` and ``grating_s`` are read-only
+        already; other fields take their defaults. Nothing is checked."""
         obj = object.__new__(cls)
-        obj.__dict__.update(_shape_defaults())
-        obj.__dict__.update(fields)
-        for value in fields.values():
-            if isinstance(value, np.ndarray):
-                value.setflags(write=False)
+        d = obj.__dict__
+        d.update(_SHAPE_DEFAULTS)
+        d["s"] = s
+        d["positions"] = positions
+        d["frames"] = frames
+        d["curvature"] = curvature
+        d["grating_s"] = grating_s
+        d["valid"] = valid
+        positions.setflags(write=False)
+        curvature.setflags(write=False)
+        valid.setflags(write=False)
+        if frames is not None:
+            frames.setflags(write=False)
         return obj
 
     @property
@@ -465,7 +474,5 @@ class Shape:
         )
 
 
-@functools.cache
-def _shape_defaults() -> dict:
-    """The defaults of Shape's optional fields, for :meth:`Shape._trusted`."""
-    return {f.name: f.default for f in dataclasses.fields(Shape) if f.default is not dataclasses.MISSING}
+#: the defaults of Shape's optional fields, for :meth:`Shape._trusted`
+_SHAPE_DEFAULTS = {f.name: f.default for f in dataclasses.fields(Shape) if f.default is not dataclasses.MISSING}

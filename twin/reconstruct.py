@@ -189,6 +189,7 @@ class Reconstructor:
     def _set_calibration(self, calibration: Calibration) -> None:
         self.calibration = calibration
         self._lam0 = np.ascontiguousarray(calibration.reference_for(self.fiber), dtype=np.float64)
+        self._const = None  # the fused kernel's constants, packed on first use (they depend on the calibration)
         self._solver = CurvatureSolver(
             calibration.design_for(self.fiber), method=self.inversion, central_core=self.fiber.central_core,
         )
@@ -324,10 +325,11 @@ class Reconstructor:
         pos = np.empty((n_f, n_p, 3))
         fr = np.empty((n_f, n_p, 3, 3)) if want_frames else self._no_frames
         pending = np.empty(n_f, bool)
-        rk4 = self.integrator == "rk4"
-        n_pending = _fused.reconstruct(xf, self._lam0, self.peak_window or 0.0, is_wavelength,
-                                       self._solver.fused_operator(), self._full["b_fused"], self._m, self.h, rk4,
-                                       k, valid, pos, fr, want_frames, pending)
+        const = self._const
+        if const is None:
+            const = self._const = _fused.pack(self._lam0, self.peak_window or 0.0, self._solver.fused_operator(),
+                                              self._full["b_fused"], self._m, self.h, self.integrator == "rk4")
+        n_pending = _fused.reconstruct(xf, const, is_wavelength, k, valid, pos, fr, want_frames, pending)
         if n_pending < 0:
             raise ValueError(_INF)
         if n_pending:
@@ -336,7 +338,7 @@ class Reconstructor:
             patterns, which = np.unique(valid[sel], axis=0, return_inverse=True)
             bases = np.stack([self._prepare(p)["b_fused"] if p.any() else self._full["b_fused"] for p in patterns])
             which = np.where(patterns.any(axis=1)[which.ravel()], which.ravel(), -1)
-            _fused.integrate(k, valid, which, bases, sel, self.h, rk4, pos, fr, want_frames)
+            _fused.integrate(k, valid, which, bases, sel, self.h, self.integrator == "rk4", pos, fr, want_frames)
         return Shape._trusted(
             s=self.s,
             positions=pos.reshape(batch + pos.shape[1:]),
