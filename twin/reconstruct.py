@@ -84,7 +84,7 @@ class Reconstructor:
     (``Shape.frames`` None), saving their memory (72 bytes a point) when only positions are wanted.
 
     The common case — the material method without twist, a linear interpolant (spline, linear, knn), any
-    integrator, either inversion — runs as one compiled call per batch (:mod:`twin._fused`, docs/math.md §3.7);
+    integrator, either inversion — runs as one compiled call per batch (:mod:`twin._fused`, docs/math.md §3.8);
     the attribute ``fused`` tells whether this reconstructor does. The paper's Frenet pipeline, PCHIP and the
     twist of a spun fibre take the general path of numpy steps.
 
