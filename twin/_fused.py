@@ -24,6 +24,8 @@ from twin._kernels import exp_curve, rk4_curve
 __all__ = ["integrate", "pack", "reconstruct"]
 
 _HEADER = 8  # window, h, rcond, m, rk4, paper, n_q, (spare)
+#: frames interpolated by one matrix product in :func:`reconstruct`
+BLOCK = 32
 
 
 def pack(lam0, window, solver, basis, m, h, rk4) -> np.ndarray:
@@ -170,9 +172,16 @@ def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames, pe
     m, rk4, paper = int(const[3]), const[4] != 0.0, const[5] != 0.0
     lam0, p, ds, weights, scale, needed, basis = _unpack(const, n_g, n_c)
     n_steps = pos.shape[1] - 1
+    n_q = n_steps * m
     e = np.empty((n_g, n_c))
-    rates = np.empty((2, n_steps, m))
     r0 = np.eye(3)
+    # complete frames are interpolated BLOCK at a time, as one matrix product (BLAS) of their (k_x, k_y) rows
+    # with the operator, then chained one by one
+    block = min(BLOCK, n_f)
+    kt = np.empty((2 * block, n_g))
+    rates = np.empty((2 * block, n_q))
+    which = np.empty(block, np.int64)
+    filled = 0
     n_pending = 0
     for f in range(n_f):
         if is_wavelength:
@@ -193,8 +202,32 @@ def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames, pe
             n_pending += 1
             continue
         pending[f] = False
-        _chain(k[f], valid[f], basis, rates, r0, h, rk4, pos[f], frames[f if store_frames else 0], store_frames)
+        which[filled] = f
+        kt[2 * filled] = k[f, :, 0]
+        kt[2 * filled + 1] = k[f, :, 1]
+        filled += 1
+        if filled == block:
+            _chain_block(kt, basis, rates, which, filled, r0, h, m, rk4, pos, frames, store_frames)
+            filled = 0
+    if filled:
+        _chain_block(kt[:2 * filled], basis, rates[:2 * filled], which, filled, r0, h, m, rk4, pos, frames,
+                     store_frames)
     return n_pending
+
+
+@njit(cache=True, nogil=True)
+def _chain_block(kt, basis, rates, which, n, r0, h, m, rk4, pos, frames, store_frames):
+    """Rates of ``n`` frames at once, ``rates`` (2n, n_q) = ``kt`` (2n, n_g) @ ``basis`` (n_g, n_q), then the
+    chain of each from ``r0`` into ``pos[which[i]]`` and ``frames[which[i]]``."""
+    np.dot(kt, basis, rates)
+    n_steps = rates.shape[1] // m
+    for i in range(n):
+        f = which[i]
+        r = rates[2 * i:2 * i + 2].reshape((2, n_steps, m))
+        if rk4:
+            rk4_curve(r, False, h, r0, pos[f], frames[f if store_frames else 0], store_frames)
+        else:
+            exp_curve(r, False, h, r0, pos[f], frames[f if store_frames else 0], store_frames)
 
 
 @njit(cache=True, nogil=True)
