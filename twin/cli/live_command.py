@@ -7,15 +7,16 @@
 Prints a status line about once a second (state, frame rate, lost samples, framing errors, reconnects,
 partial/unusable frames, tip position in mm; on stderr with ``--json``) and a summary at the end; ``--json``
 prints the summary as one JSON object on stdout. Ctrl-C ends the run cleanly: the recording is flushed and
-marked complete, and the summary is printed. Exit status 0, or 1 when a sink failed (e.g. the recording could
-not be written) or the source failed for good (a damaged recording: ``replay://FILE?salvage=1`` replays the
-frames before the damage instead).
+marked complete, and the summary is printed. Exit status 0; 130 when Ctrl-C cut a run with ``--duration`` or
+``--frames`` short (without a bound, Ctrl-C is how a run ends: 0); 1 when a sink failed (e.g. the recording
+could not be written) or the source failed for good (a damaged recording: ``replay://FILE?salvage=1`` replays
+the frames before the damage instead).
 
 ``--viewer`` shows the shapes live in a browser (meshcat, :mod:`twin.viewer`; the URL to open is printed on
 stderr): the latest shape at most ``--viewer-rate`` times a second (30), the truth beside it when the source
 carries one (the simulator), the interrogator's own shape when the frames carry one (ILLumiSense sensor blocks,
 live or replayed), grey when the stream is stale. The viewer's server stops when the run ends, or
-with ``--keep-open`` stays until Ctrl-C.
+with ``--keep-open`` stays until Ctrl-C (not after a Ctrl-C that cut a bounded run short: that ends the command).
 
 ``--igtl [HOST:]PORT`` serves the shapes over OpenIGTLink for 3D Slicer (:mod:`twin.igtl`; 127.0.0.1 unless a
 host is given; the address is printed on stderr): POLYDATA ``CatheterShape``, TRANSFORM ``CatheterTip`` and,
@@ -39,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -123,8 +125,12 @@ def run(args: argparse.Namespace) -> int:
     first = open_source(args.url, **options)
     pending = [first]
 
+    # a reopening inside the live loop must not block it for start_wait s (the first opening waits for the
+    # interrogator to come up; a driver that lost it reconnects by itself)
+    reopen = {**options, "start_wait": 0.0} if scheme in HARDWARE else options
+
     def factory():
-        return pending.pop() if pending else open_source(args.url, **options)
+        return pending.pop() if pending else open_source(args.url, **reopen)
 
     sinks: list = []
     viewer_sink = igtl_sink = foxglove_sink = None
@@ -138,6 +144,11 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
         calibration = Calibration.load(args.calibration) if args.calibration else getattr(first, "calibration", None)
         rec = Reconstructor(fiber, calibration, method=args.method)
+        uncertainty = None  # the confidence tube for the viewer and OpenIGTLink (the default pipeline's)
+        if rec.method == "material" and not rec.twist:
+            from twin.uncertainty import Uncertainty
+
+            uncertainty = Uncertainty(rec)
         if not args.quiet:
             sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate))
         for path in args.record or ():
@@ -154,13 +165,19 @@ def run(args: argparse.Namespace) -> int:
             from twin.viewer import Viewer, ViewerConfig, ViewerSink
 
             viewer = Viewer(ViewerConfig(max_fps=args.viewer_rate), calibration=calibration_label(args, calibration))
-            viewer_sink = ViewerSink(viewer, rate=args.viewer_rate, close_viewer=not args.keep_open)
+            viewer_sink = ViewerSink(viewer, rate=args.viewer_rate, close_viewer=not args.keep_open,
+                                     uncertainty=uncertainty)
             sinks.append(viewer_sink)
         if args.igtl is not None:
             from twin.igtl import IgtlServer, IgtlSink, parse_address
 
-            server = IgtlServer(*parse_address(args.igtl))
-            igtl_sink = IgtlSink(server, rate=args.igtl_rate)
+            host, port = parse_address(args.igtl)
+            try:
+                server = IgtlServer(host, port)
+            except OSError as exc:  # "[Errno 98] … ('127.0.0.1', 18944)" named neither the option nor the protocol
+                reason = os.strerror(exc.errno).lower() if exc.errno else str(exc)
+                raise OSError(f"--igtl {args.igtl}: cannot serve OpenIGTLink on {host}:{port}: {reason}") from None
+            igtl_sink = IgtlSink(server, rate=args.igtl_rate, uncertainty=uncertainty)
             sinks.append(igtl_sink)
             print(f"twin live: OpenIGTLink on {server.address[0]}:{server.address[1]}", file=sys.stderr, flush=True)
         if args.foxglove is not None:
@@ -219,11 +236,19 @@ def run(args: argparse.Namespace) -> int:
         print(jsonout.dumps(out))
     else:
         print(format_summary(summary, out))
-    if viewer_sink is not None and args.keep_open:
-        from twin.viewer import keep_open
+    from twin.cli import interrupted_status
 
-        keep_open(viewer_sink.viewer)
-    return 1 if summary.sink_errors or summary.reason == "source failed" else 0
+    # Ctrl-C is how an open-ended run ends (0); a run with --duration/--frames it cut short ends the command (130)
+    cut_short = interrupted_status(summary.reason == "interrupted",
+                                   args.duration is not None or args.frames is not None)
+    if viewer_sink is not None and args.keep_open:
+        if cut_short:
+            viewer_sink.viewer.close()
+        else:
+            from twin.viewer import keep_open
+
+            keep_open(viewer_sink.viewer)
+    return 1 if summary.sink_errors or summary.reason == "source failed" else cut_short
 
 
 def calibration_label(args: argparse.Namespace, calibration: Calibration | None) -> str | None:
@@ -253,6 +278,9 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
     ]
     if s.tip is not None:
         lines.append("  last tip (" + ", ".join(f"{1e3 * x:.2f}" for x in s.tip) + ") mm")
+    source = s.source
+    if source.get("warnings"):  # e.g. the simulator's MuJoCo start-up notes, collected and explained by the source
+        lines.append(f"  source warnings: {source['warnings']} ({source.get('warnings_note', 'see --json')})")
     if "vendor_distance_max_mm" in out:
         lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): max "
                      f"{out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")

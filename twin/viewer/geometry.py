@@ -18,6 +18,7 @@ __all__ = [
     "camera_distance",
     "colorbar_stops",
     "colormap",
+    "envelope",
     "frame_scene",
     "interp_curve",
     "latest_usable",
@@ -100,15 +101,15 @@ def _transported_normals(points: np.ndarray, tangents: np.ndarray) -> np.ndarray
     return n
 
 
-def tube_mesh(points, radius: float, sides: int = 12, normals=None) -> tuple[np.ndarray, np.ndarray]:
+def tube_mesh(points, radius, sides: int = 12, normals=None) -> tuple[np.ndarray, np.ndarray]:
     """Triangle mesh of a tube swept along a centreline, closed by flat caps.
 
     Parameters
     ----------
     points : array_like, shape (n, 3)
         Centreline, n >= 2.
-    radius : float
-        Tube radius, same unit.
+    radius : float or array_like, shape (n,)
+        Tube radius, same unit: one for the whole tube, or one per point (a confidence tube, :func:`envelope`).
     sides : int
         Vertices per cross-section.
     normals : array_like, shape (n, 3), optional
@@ -129,6 +130,11 @@ def tube_mesh(points, radius: float, sides: int = 12, normals=None) -> tuple[np.
         raise ValueError(f"tube_mesh: points must have shape (n >= 2, 3), got {p.shape}")
     if not np.all(np.isfinite(p)):
         raise ValueError("tube_mesh: points contain NaN or inf")
+    r = np.asarray(radius, dtype=np.float64)
+    if r.ndim and r.shape != (p.shape[0],):
+        raise ValueError(f"tube_mesh: radius must be one number or one per point ({p.shape[0]}), got {r.shape}")
+    if not np.all(np.isfinite(r) & (r >= 0)):
+        raise ValueError("tube_mesh: radii must be finite and >= 0")
     t = _tangents(p)
     if normals is None:
         u = _transported_normals(p, t)
@@ -144,7 +150,7 @@ def tube_mesh(points, radius: float, sides: int = 12, normals=None) -> tuple[np.
     w = np.cross(t, u)
     phi = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
     ring = np.cos(phi)[None, :, None] * u[:, None, :] + np.sin(phi)[None, :, None] * w[:, None, :]
-    rings = p[:, None, :] + radius * ring
+    rings = p[:, None, :] + (r[:, None, None] if r.ndim else r) * ring
     n = p.shape[0]
     vertices = np.concatenate([rings.reshape(-1, 3), p[:1], rings[0], p[-1:], rings[-1]])
     i = np.arange(n - 1)[:, None]
@@ -161,6 +167,13 @@ def tube_mesh(points, radius: float, sides: int = 12, normals=None) -> tuple[np.
     end = np.stack([np.full(sides, c1), c1 + 1 + jj, c1 + 1 + (jj + 1) % sides], -1)
     faces = np.concatenate([side_faces, start, end]).astype(np.uint32)
     return vertices, faces
+
+
+def envelope(shape: Shape, level: float, wall: float) -> np.ndarray:
+    """Radius of the confidence envelope of a catheter of radius ``wall`` at each point of ``shape``:
+    ``wall`` + the level-% tube radius of its centreline (:meth:`Shape.confidence`), where the catheter's wall
+    lies with that confidence (the lateral error moves the whole cross-section)."""
+    return wall + shape.confidence(level)
 
 
 def tube_colors(ring_colors, sides: int) -> np.ndarray:

@@ -61,6 +61,10 @@ class ViewerConfig:
         Scene units per metre.
     truth_color, fixture_color, stale_color, marker_color, scale_color, vendor_color : int
     fixture_opacity : float
+    confidence_level, confidence_color, confidence_opacity : float, int, float
+        The confidence envelope drawn around the tube when a shape carries its uncertainty
+        (:class:`twin.uncertainty.Uncertainty`): the catheter's wall lies inside it with this probability
+        (:func:`twin.viewer.geometry.envelope`); translucent.
     show_vendor : bool
         Whether the interrogator's own shape starts visible when a frame carries one (the page's scene controls
         toggle it).
@@ -96,6 +100,9 @@ class ViewerConfig:
     truth_color: int = 0xFF00FF
     fixture_color: int = 0xFFFFFF
     fixture_opacity: float = 0.2
+    confidence_level: float = 0.95
+    confidence_color: int = 0x4DA6FF
+    confidence_opacity: float = 0.2
     stale_color: int = 0x8C8C8C
     marker_color: int = 0x000000
     scale_color: int = 0x202020
@@ -132,7 +139,9 @@ class ViewerConfig:
             lo, hi = getattr(self, name)
             if not hi > lo:
                 raise ValueError(f"ViewerConfig.{name} must be increasing, got {(lo, hi)}")
-        for name in ("shape_opacity", "fixture_opacity"):
+        if not 0 < self.confidence_level < 1:
+            raise ValueError(f"ViewerConfig.confidence_level must lie in (0, 1), got {self.confidence_level}")
+        for name in ("shape_opacity", "fixture_opacity", "confidence_opacity"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"ViewerConfig.{name} must lie in [0, 1], got {getattr(self, name)}")
 
@@ -172,6 +181,7 @@ class Viewer:
         self.errors: dict[str, float] | None = None
         self.vendor_errors: dict[str, float] | None = None
         self._vendor_shown = False
+        self._confidence_shown = False
         self._magnified_shown = False
         self.magnification: float | None = None
         self._profile: dict | None = None
@@ -351,6 +361,7 @@ class Viewer:
         self._last = {"verts": verts, "faces": faces, "colors": geo.tube_colors(ring_colors, cfg.sides),
                       "markers": sc.markers}
         self._draw_reconstruction()
+        self._draw_confidence(shape, world[keep], (shape.frames[:, :, 0] @ R.T)[keep], keep)
         if truth_pts is not None and len(truth_pts) >= 2:
             tk = geo.subsample(len(truth_pts), cfg.max_rings)
             normals = None if truth.frames is None else np.asarray(truth.frames)[ok][tk, :, 0]
@@ -390,6 +401,21 @@ class Viewer:
         mat = cmd.material("MeshBasicMaterial", color, depthTest=False, transparent=True)
         self._send(cmd.set_object(path, cmd.mesh(verts, faces, mat, render_order=render_order)))
         return True
+
+    def _draw_confidence(self, shape: Shape, points: np.ndarray, normals: np.ndarray, keep: np.ndarray) -> None:
+        """The translucent confidence envelope around the tube, or none when the shape has no uncertainty."""
+        cfg = self.config
+        if shape.covariance is None:
+            if self._confidence_shown:
+                self._send(cmd.delete("/twin/confidence"))
+                self._confidence_shown = False
+            return
+        radii = geo.envelope(shape, cfg.confidence_level, cfg.radius)[keep]
+        verts, faces = tube_mesh(points, radii, cfg.sides, normals=normals)
+        mat = cmd.material("MeshPhongMaterial", cfg.confidence_color, opacity=cfg.confidence_opacity,
+                           depthWrite=False)
+        self._send(cmd.set_object("/twin/confidence", cmd.mesh(verts, faces, mat, render_order=1)))
+        self._confidence_shown = True
 
     def _draw_vendor(self, points: np.ndarray | None) -> None:
         # like the truth: unlit, over the translucent tube (under the truth and the gratings)
