@@ -219,7 +219,18 @@ def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames, pe
 def _chain_block(kt, basis, rates, which, n, r0, h, m, rk4, pos, frames, store_frames):
     """Rates of ``n`` frames at once, ``rates`` (2n, n_q) = ``kt`` (2n, n_g) @ ``basis`` (n_g, n_q), then the
     chain of each from ``r0`` into ``pos[which[i]]`` and ``frames[which[i]]``."""
-    np.dot(kt, basis, rates)
+    if n >= 4:
+        np.dot(kt, basis, rates)
+    else:  # BLAS would copy the whole operator for a product this small: sum it here, grating by grating
+        n_g, n_q = basis.shape
+        rates[:] = 0.0
+        for g in range(n_g):
+            for i in range(2 * n):
+                a = kt[i, g]
+                row = rates[i]
+                b = basis[g]
+                for q in range(n_q):
+                    row[q] += b[q] * a
     n_steps = rates.shape[1] // m
     for i in range(n):
         f = which[i]
