@@ -147,7 +147,7 @@ def _chain(k, valid, basis, rates, r0, h, rk4, pos, frames, store_frames):
 
 
 @njit(cache=True, nogil=True)
-def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames, pending):
+def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames):
     """The fused path over a batch.
 
     Parameters
@@ -159,13 +159,12 @@ def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames, pe
         and RK4 (m = 3) instead of the exponential chain.
     k : (F, n_g, 2), valid : (F, n_g), pos : (F, n_steps + 1, 3), frames : (F, n_steps + 1, 3, 3) or (1, 1, 3, 3)
         when not ``store_frames``: outputs.
-    pending : (F,) bool output: frames that lost a grating (k and valid filled, positions left to
-        :func:`integrate`).
 
     Returns
     -------
     int
-        The number of frames pending, or −1 when a wavelength is ±inf (outputs then incomplete).
+        The number of frames pending — frames that lost a grating: ``k`` and ``valid`` filled, the positions
+        left to :func:`integrate` — or −1 when a wavelength is ±inf (outputs then incomplete).
     """
     n_f, n_g, n_c = x.shape
     window, h, rcond = const[0], const[1], const[2]
@@ -198,10 +197,8 @@ def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames, pe
         else:
             n_valid = _solve_frame(x[f], p, ds, weights, scale, needed, rcond, paper, k[f], valid[f])
         if n_valid < n_g:
-            pending[f] = True
             n_pending += 1
             continue
-        pending[f] = False
         which[filled] = f
         kt[2 * filled] = k[f, :, 0]
         kt[2 * filled + 1] = k[f, :, 1]

@@ -168,6 +168,7 @@ class Reconstructor:
         self._no_frames = np.empty((1, 1, 3, 3))  # the kernels' frames argument when frames are not wanted
         self._full = self._prepare(np.ones(fiber.n_gratings, bool))
         self.s.setflags(write=False)  # shared by every Shape
+        self._dims = (fiber.n_gratings, fiber.n_cores, self.s.size)
 
     def __repr__(self) -> str:
         return (
@@ -316,37 +317,31 @@ class Reconstructor:
 
     def _fused_shapes(self, x: np.ndarray, is_wavelength: bool, want_frames: bool) -> Shape:
         """The fused compiled path (:mod:`twin._fused`) on wavelengths or strain (..., n_gratings, n_cores)."""
-        n_g, n_c = self.fiber.n_gratings, self.fiber.n_cores
+        n_g, n_c, n_p = self._dims
         batch = x.shape[:-2]
         xf = np.ascontiguousarray(x).reshape(-1, n_g, n_c)
-        n_f, n_p = xf.shape[0], self.s.size
+        n_f = xf.shape[0]
         k = np.empty((n_f, n_g, 2))
         valid = np.empty((n_f, n_g), bool)
         pos = np.empty((n_f, n_p, 3))
         fr = np.empty((n_f, n_p, 3, 3)) if want_frames else self._no_frames
-        pending = np.empty(n_f, bool)
         const = self._const
         if const is None:
             const = self._const = _fused.pack(self._lam0, self.peak_window or 0.0, self._solver.fused_operator(),
                                               self._full["b_fused"], self._m, self.h, self.integrator == "rk4")
-        n_pending = _fused.reconstruct(xf, const, is_wavelength, k, valid, pos, fr, want_frames, pending)
+        n_pending = _fused.reconstruct(xf, const, is_wavelength, k, valid, pos, fr, want_frames)
         if n_pending < 0:
             raise ValueError(_INF)
         if n_pending:
             # frames that lost a grating: one interpolation operator per pattern of valid gratings
-            sel = np.flatnonzero(pending)
+            sel = np.flatnonzero(~valid.all(axis=1))
             patterns, which = np.unique(valid[sel], axis=0, return_inverse=True)
             bases = np.stack([self._prepare(p)["b_fused"] if p.any() else self._full["b_fused"] for p in patterns])
             which = np.where(patterns.any(axis=1)[which.ravel()], which.ravel(), -1)
             _fused.integrate(k, valid, which, bases, sel, self.h, self.integrator == "rk4", pos, fr, want_frames)
-        return Shape._trusted(
-            s=self.s,
-            positions=pos.reshape(batch + pos.shape[1:]),
-            frames=fr.reshape(batch + fr.shape[1:]) if want_frames else None,
-            curvature=k.reshape(batch + k.shape[1:]),
-            grating_s=self.fiber.grating_s,
-            valid=valid.reshape(batch + valid.shape[1:]),
-        )
+        return Shape._trusted(self.s, pos.reshape(*batch, n_p, 3),
+                              fr.reshape(*batch, n_p, 3, 3) if want_frames else None,
+                              k.reshape(*batch, n_g, 2), self.fiber.grating_s, valid.reshape(*batch, n_g))
 
     def _general(self, sol, want_frames: bool) -> Shape:
         """The general path: numpy steps around the compiled chain, for every mode."""
