@@ -6,7 +6,7 @@ precomputed pseudo-inverse when every core is present; the weighted normal equat
 the same conditioning test, when some are missing), the linear interpolation of (k_x, k_y) to the integrator's
 samples, and the chain (:mod:`twin._kernels`). Outputs are preallocated by the caller; nothing is allocated per
 frame. A frame that lost a grating needs another interpolation operator (one per pattern of valid gratings); the
-kernel marks it and leaves it to :func:`integrate`, called with the operators of those patterns.
+kernel counts it and leaves its positions to :func:`integrate`, called with the operators of those patterns.
 
 Everything constant for a reconstructor — the reference wavelengths, the window, the solver
 (:meth:`twin.strain.CurvatureSolver.fused_operator`), the interpolation operator, the step — travels as one flat
@@ -174,8 +174,8 @@ def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames):
     n_q = n_steps * m
     e = np.empty((n_g, n_c))
     r0 = np.eye(3)
-    # complete frames are interpolated BLOCK at a time, as one matrix product (BLAS) of their (k_x, k_y) rows
-    # with the operator, then chained one by one
+    # complete frames are interpolated BLOCK at a time, as one matrix product of their (k_x, k_y) rows with the
+    # operator, then chained one by one
     block = min(BLOCK, n_f)
     kt = np.empty((2 * block, n_g))
     rates = np.empty((2 * block, n_q))
