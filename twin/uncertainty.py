@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,32 +110,19 @@ class ModelError:
         k''_n is the second divided difference of the measured curvature over the valid neighbours (the end
         gratings take their neighbour's), so for gratings h apart σ_n = c |Δ²k_n| / √2, and next to a lost
         grating (a piece of 2h) about 3.8 times that."""
-        k = np.where(valid[..., None], np.nan_to_num(curvature), np.nan)
-        n = k.shape[-2]
-        idx = np.broadcast_to(np.arange(n), valid.shape)
-        # previous / next valid grating of each grating (−1 / n where there is none), batch-first
-        prev = np.maximum.accumulate(np.where(valid, idx, -1), axis=-1)
-        prev = np.concatenate([np.full((*valid.shape[:-1], 1), -1), prev[..., :-1]], axis=-1)
-        nxt = np.flip(np.minimum.accumulate(np.flip(np.where(valid, idx, n), axis=-1), axis=-1), axis=-1)
-        nxt = np.concatenate([nxt[..., 1:], np.full((*valid.shape[:-1], 1), n)], axis=-1)
-        s_ext = np.concatenate([[np.nan], grating_s, [np.nan]])
-        k_ext = np.concatenate([np.full((*k.shape[:-2], 1, 2), np.nan), k, np.full((*k.shape[:-2], 1, 2), np.nan)],
-                               axis=-2)
-        sp, sn = s_ext[prev + 1], s_ext[nxt + 1]
-        kp = np.take_along_axis(k_ext, (prev + 1)[..., None], axis=-2)
-        kn = np.take_along_axis(k_ext, (nxt + 1)[..., None], axis=-2)
-        hm, hp = grating_s - sp, sn - grating_s  # the pieces before and after (NaN where there is none)
-        d2 = 2 * ((kn - k) / hp[..., None] - (k - kp) / hm[..., None]) / (hm + hp)[..., None]
-        d2 = np.hypot(d2[..., 0], d2[..., 1])  # |k''| (..., n), NaN at the ends and invalid gratings
-        # the end gratings (no second difference) take their valid neighbour's
-        first, last = ~np.isfinite(hm) & valid, ~np.isfinite(hp) & valid
-        d2 = np.where(first, np.take_along_axis(np.nan_to_num(d2), np.minimum(nxt, n - 1), axis=-1), d2)
-        d2 = np.where(last, np.take_along_axis(np.nan_to_num(d2), np.maximum(prev, 0), axis=-1), d2)
-        h3 = np.nan_to_num(hm) ** 6 + np.nan_to_num(hp) ** 6
-        w = 0.5 * (np.nan_to_num(hm) + np.nan_to_num(hp))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            sig = self.interpolation * np.nan_to_num(d2) * np.sqrt(0.5 * h3) / w / np.sqrt(2.0)
-        return np.where(valid & (w > 0), sig, 0.0)
+        k = np.nan_to_num(curvature)
+        valid = np.broadcast_to(valid, k.shape[:-1])
+        flat_k, flat_v = k.reshape(-1, *k.shape[-2:]), valid.reshape(-1, valid.shape[-1])
+        out = np.zeros(flat_v.shape)
+        # one operator per pattern of valid gratings (a handful in a batch), not per frame
+        patterns, which = np.unique(flat_v, axis=0, return_inverse=True)
+        which = which.ravel()
+        for j, pattern in enumerate(patterns):
+            op, gain = _second_difference(np.asarray(grating_s, np.float64).tobytes(), pattern.tobytes())
+            rows = which == j if len(patterns) > 1 else slice(None)
+            d2 = op @ flat_k[rows]  # (f, n, 2)
+            out[rows] = np.hypot(d2[..., 0], d2[..., 1]) * gain
+        return self.interpolation * out.reshape(valid.shape)
 
     def replace(self, **changes) -> ModelError:
         return dataclasses.replace(self, **changes)
@@ -358,6 +346,35 @@ class Uncertainty:
         if not all_valid:
             out[~vf.any(axis=-1)] = np.nan
         return out.reshape((*shape.positions.shape[:-1], 3, 3))
+
+
+@functools.lru_cache(maxsize=256)
+def _second_difference(grating_s: bytes, pattern: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """The interpolation term's operator for one pattern of valid gratings (:meth:`ModelError.interpolation_sigma`):
+    L (n, n) giving k''_n, the second divided difference over each valid grating's valid neighbours (the end
+    gratings' rows are their neighbour's; zero rows for invalid gratings and with fewer than 3 valid), and the
+    factor √(½ Σ H⁶) / (w_n √2) per grating (0 where invalid), m."""
+    s = np.frombuffer(grating_s, np.float64)
+    valid = np.frombuffer(pattern, bool)
+    n = s.size
+    op = np.zeros((n, n))
+    gain = np.zeros(n)
+    nodes = np.flatnonzero(valid)
+    if nodes.size < 2:
+        return op, gain
+    h = np.diff(s[nodes])
+    hm = np.concatenate([[0.0], h])  # the piece before and after each valid grating (0 where none)
+    hp = np.concatenate([h, [0.0]])
+    gain[nodes] = np.sqrt(0.5 * (hm**6 + hp**6)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
+    if nodes.size < 3:
+        return op, gain
+    for i in range(1, nodes.size - 1):  # once per pattern: a handful of gratings
+        a, b, c = nodes[i - 1 : i + 2]
+        f = 2.0 / (hm[i] + hp[i])
+        op[b, a], op[b, b], op[b, c] = f / hm[i], -f * (1 / hm[i] + 1 / hp[i]), f / hp[i]
+    op[nodes[0]] = op[nodes[1]]
+    op[nodes[-1]] = op[nodes[-2]]
+    return op, gain
 
 
 def _quadrature(rec: Reconstructor) -> dict:
