@@ -114,9 +114,13 @@ class ModelError:
         valid = np.broadcast_to(valid, k.shape[:-1])
         flat_k, flat_v = k.reshape(-1, *k.shape[-2:]), valid.reshape(-1, valid.shape[-1])
         out = np.zeros(flat_v.shape)
-        # one operator per pattern of valid gratings (a handful in a batch), not per frame
-        patterns, which = np.unique(flat_v, axis=0, return_inverse=True)
-        which = which.ravel()
+        # one operator per pattern of valid gratings (a handful in a batch), not per frame; np.unique over rows
+        # costs more than the rest for one frame, so a single pattern skips it
+        if flat_v.shape[0] == 1 or flat_v.all():
+            patterns, which = flat_v[:1], np.zeros(flat_v.shape[0], np.int64)
+        else:
+            patterns, which = np.unique(flat_v, axis=0, return_inverse=True)
+            which = which.ravel()
         for j, pattern in enumerate(patterns):
             op, gain = _second_difference(np.asarray(grating_s, np.float64).tobytes(), pattern.tobytes())
             rows = which == j if len(patterns) > 1 else slice(None)
