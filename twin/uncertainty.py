@@ -124,8 +124,8 @@ class ModelError:
         for j, pattern in enumerate(patterns):
             op, gain = _second_difference(np.asarray(grating_s, np.float64).tobytes(), pattern.tobytes())
             rows = which == j if len(patterns) > 1 else slice(None)
-            d2 = op @ flat_k[rows]  # (f, n, 2)
-            out[rows] = np.hypot(d2[..., 0], d2[..., 1]) * gain
+            d2 = np.swapaxes(flat_k[rows], -1, -2) @ op.T  # (f, 2, n)
+            out[rows] = np.hypot(d2[:, 0], d2[:, 1]) * gain
         return self.interpolation * out.reshape(valid.shape)
 
     def replace(self, **changes) -> ModelError:
