@@ -119,8 +119,7 @@ class ModelError:
         if flat_v.shape[0] == 1 or flat_v.all():
             patterns, which = flat_v[:1], np.zeros(flat_v.shape[0], np.int64)
         else:
-            patterns, which = np.unique(flat_v, axis=0, return_inverse=True)
-            which = which.ravel()
+            patterns, which = _patterns(flat_v)
         for j, pattern in enumerate(patterns):
             op, gain = _second_difference(np.asarray(grating_s, np.float64).tobytes(), pattern.tobytes())
             rows = which == j if len(patterns) > 1 else slice(None)
@@ -337,9 +336,8 @@ class Uncertainty:
         if all_valid:
             bases, which = self._full_basis, np.zeros(n_f, np.int64)
         else:
-            patterns, which = np.unique(vf, axis=0, return_inverse=True)
+            patterns, which = _patterns(vf)
             bases = np.stack([self._basis(p) for p in patterns])
-            which = which.ravel().astype(np.int64)
             # an invalid grating is not interpolated through: its column of the basis is zero already
         out = np.empty((n_f, n_p, 3, 3))
         q = self._quad
@@ -350,6 +348,17 @@ class Uncertainty:
         if not all_valid:
             out[~vf.any(axis=-1)] = np.nan
         return out.reshape((*shape.positions.shape[:-1], 3, 3))
+
+
+def _patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of ``valid`` (F, n) bool and each row's index among them (F,) int64: as np.unique over
+    rows, but with a row packed into one integer where it fits (~20 times faster than sorting rows)."""
+    if valid.shape[-1] >= 63:
+        patterns, which = np.unique(valid, axis=0, return_inverse=True)
+        return patterns, which.ravel().astype(np.int64)
+    key = valid @ (np.int64(1) << np.arange(valid.shape[-1], dtype=np.int64))
+    _, first, which = np.unique(key, return_index=True, return_inverse=True)
+    return valid[first], which.ravel().astype(np.int64)
 
 
 @functools.lru_cache(maxsize=256)
