@@ -10,9 +10,10 @@ Three sources are propagated:
     every grating, so it enters the positions as a low-rank term with its correlation along the fibre;
 (c) **the model error** (:class:`ModelError`): what the reconstruction's model leaves — interpolating between
     gratings, the grating's length, the catheter's twist, drift of the reference — as a white per-grating
-    curvature error of 1σ ``curvature`` + ``relative``·|k| per component (and optionally an error of the base
-    frame's angle, and a factor on the stated parameter errors), calibrated on shapes of known truth with
-    :func:`fit_model_error`.
+    curvature error of 1σ ``curvature`` + ``relative``·|k| per component, the interpolation error between
+    gratings estimated per frame from the measured curvature's second differences (``interpolation``; a lost
+    grating's gap widens it), and optionally an error of the base frame's angle and a factor on the stated
+    parameter errors, calibrated on shapes of known truth with :func:`fit_model_error`.
 
 A curvature error δk(s) rotates everything beyond s about p(s) by R(s) δu(s) ds, δu = (−δk_y, δk_x, 0), so to
 first order δp(s_j) = ∫_0^{s_j} (R δu)(s) × (p(s_j) − p(s)) ds, with δk(s) the interpolation basis applied to
@@ -106,7 +107,7 @@ class ModelError:
         by e(s) = k''/2 (s − s_a)(s − s_b) for a quadratic profile, so the piece's angle is off by
         ∫e ds = −k'' H³/12. Each piece's angle error is shared half-and-half (in variance) by its two end
         gratings and represented by a white error of the grating, whose angle is σ_n w_n with w_n the half-sum of
-        its pieces (the basis' integral): σ_n = c |k''_n| √(½ Σ H³²) / w_n · (1/√2 per component), c = 1/12.
+        its pieces (the basis' integral): σ_n = c |k''_n| √(½ Σ H⁶) / w_n · (1/√2 per component), c = 1/12.
         k''_n is the second divided difference of the measured curvature over the valid neighbours (the end
         gratings take their neighbour's), so for gratings h apart σ_n = c |Δ²k_n| / √2, and next to a lost
         grating (a piece of 2h) about 3.8 times that."""
