@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,21 +110,12 @@ class ModelError:
         k''_n is the second divided difference of the measured curvature over the valid neighbours (the end
         gratings take their neighbour's), so for gratings h apart σ_n = c |Δ²k_n| / √2, and next to a lost
         grating (a piece of 2h) about 3.8 times that."""
-        k = np.nan_to_num(curvature)
-        valid = np.broadcast_to(valid, k.shape[:-1])
-        flat_k, flat_v = k.reshape(-1, *k.shape[-2:]), valid.reshape(-1, valid.shape[-1])
-        out = np.zeros(flat_v.shape)
-        # one operator per pattern of valid gratings (a handful in a batch), not per frame; np.unique over rows
-        # costs more than the rest for one frame, so a single pattern skips it
-        if flat_v.shape[0] == 1 or flat_v.all():
-            patterns, which = flat_v[:1], np.zeros(flat_v.shape[0], np.int64)
-        else:
-            patterns, which = _patterns(flat_v)
-        for j, pattern in enumerate(patterns):
-            op, gain = _second_difference(np.asarray(grating_s, np.float64).tobytes(), pattern.tobytes())
-            rows = which == j if len(patterns) > 1 else slice(None)
-            d2 = np.swapaxes(flat_k[rows], -1, -2) @ op.T  # (f, 2, n)
-            out[rows] = np.hypot(d2[:, 0], d2[:, 1]) * gain
+        k = np.asarray(curvature, dtype=np.float64)
+        valid = np.broadcast_to(np.asarray(valid, bool), k.shape[:-1])
+        flat_k = np.ascontiguousarray(k.reshape(-1, *k.shape[-2:]))
+        flat_v = np.ascontiguousarray(valid.reshape(-1, valid.shape[-1]))
+        out = np.empty(flat_v.shape)
+        _interpolation_kernel(flat_k, flat_v, np.ascontiguousarray(grating_s, dtype=np.float64), out)
         return self.interpolation * out.reshape(valid.shape)
 
     def replace(self, **changes) -> ModelError:
@@ -362,33 +352,55 @@ def _patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return valid[first], which.ravel().astype(np.int64)
 
 
-@functools.lru_cache(maxsize=256)
-def _second_difference(grating_s: bytes, pattern: bytes) -> tuple[np.ndarray, np.ndarray]:
-    """The interpolation term's operator for one pattern of valid gratings (:meth:`ModelError.interpolation_sigma`):
-    L (n, n) giving k''_n, the second divided difference over each valid grating's valid neighbours (the end
-    gratings' rows are their neighbour's; zero rows for invalid gratings and with fewer than 3 valid), and the
-    factor √(½ Σ H⁶) / (w_n √2) per grating (0 where invalid), m."""
-    s = np.frombuffer(grating_s, np.float64)
-    valid = np.frombuffer(pattern, bool)
-    n = s.size
-    op = np.zeros((n, n))
-    gain = np.zeros(n)
-    nodes = np.flatnonzero(valid)
-    if nodes.size < 2:
-        return op, gain
-    h = np.diff(s[nodes])
-    hm = np.concatenate([[0.0], h])  # the piece before and after each valid grating (0 where none)
-    hp = np.concatenate([h, [0.0]])
-    gain[nodes] = np.sqrt(0.5 * (hm**6 + hp**6)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
-    if nodes.size < 3:
-        return op, gain
-    for i in range(1, nodes.size - 1):  # once per pattern: a handful of gratings
-        a, b, c = nodes[i - 1 : i + 2]
-        f = 2.0 / (hm[i] + hp[i])
-        op[b, a], op[b, b], op[b, c] = f / hm[i], -f * (1 / hm[i] + 1 / hp[i]), f / hp[i]
-    op[nodes[0]] = op[nodes[1]]
-    op[nodes[-1]] = op[nodes[-2]]
-    return op, gain
+@njit(cache=True, nogil=True)
+def _interpolation_kernel(k, valid, s, out):  # pragma: no cover (compiled)
+    """|k''_n| √(½ Σ H⁶) / (w_n √2) per frame and grating (:meth:`ModelError.interpolation_sigma` without c):
+    k (F, n, 2), valid (F, n), s (n,), out (F, n); k''_n the second divided difference over the valid
+    neighbours, the end gratings taking their neighbour's; 0 at invalid gratings, and k'' = 0 with fewer than 3
+    valid."""
+    n_f, n = valid.shape
+    prev = np.empty(n, np.int64)
+    nxt = np.empty(n, np.int64)
+    d2 = np.zeros(n)
+    for f in range(n_f):
+        last = -1
+        for i in range(n):
+            prev[i] = last
+            if valid[f, i]:
+                last = i
+        last = n
+        for i in range(n - 1, -1, -1):
+            nxt[i] = last
+            if valid[f, i]:
+                last = i
+        first_v, last_v, count = -1, -1, 0
+        for i in range(n):
+            d2[i] = 0.0
+            out[f, i] = 0.0
+            if not valid[f, i]:
+                continue
+            count += 1
+            if first_v < 0:
+                first_v = i
+            last_v = i
+            a, b = prev[i], nxt[i]
+            if a >= 0 and b < n:
+                hm, hp = s[i] - s[a], s[b] - s[i]
+                c = 2.0 / (hm + hp)
+                x = c * ((k[f, b, 0] - k[f, i, 0]) / hp - (k[f, i, 0] - k[f, a, 0]) / hm)
+                y = c * ((k[f, b, 1] - k[f, i, 1]) / hp - (k[f, i, 1] - k[f, a, 1]) / hm)
+                d2[i] = np.sqrt(x * x + y * y)
+        if count >= 3:  # the end gratings take their neighbour's
+            d2[first_v] = d2[nxt[first_v]]
+            d2[last_v] = d2[prev[last_v]]
+        if count < 2:
+            continue
+        for i in range(n):
+            if not valid[f, i]:
+                continue
+            hm = s[i] - s[prev[i]] if prev[i] >= 0 else 0.0
+            hp = s[nxt[i]] - s[i] if nxt[i] < n else 0.0
+            out[f, i] = d2[i] * np.sqrt(0.5 * (hm**6 + hp**6)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
 
 
 def _quadrature(rec: Reconstructor) -> dict:
