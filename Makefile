@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 PYTEST_ARGS ?=
 
-.PHONY: demo test test-slow test-all bench lint clean
+.PHONY: demo test test-slow test-all bench lint results clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -34,6 +34,11 @@ test-all: $(VENV)/.installed-test
 
 bench: $(VENV)/.installed
 	$(BIN)/twin bench
+
+# README's results tables: rerun every command they cite (tens of minutes of physics), keep their JSON in
+# docs/results/ and rewrite the tables (scenarios/results_tables.py; tests/test_readme.py checks they match)
+results: $(VENV)/.installed
+	$(BIN)/python -m scenarios.results_tables --rerun --write README.md
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check .

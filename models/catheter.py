@@ -50,6 +50,7 @@ the rod are one description of one body; each piece is meaningless without the o
 from __future__ import annotations
 
 import math
+import weakref
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -668,15 +669,35 @@ def _vertex_dofadr(model: mujoco.MjModel, name: str) -> np.ndarray:
     return np.array(out, dtype=np.int64)
 
 
-def collect_warnings() -> list[str]:
-    """Collect MuJoCo's solver warnings in the returned list instead of letting it print them mid-line.
+class Warnings(list):
+    """MuJoCo's warnings caught since :func:`collect_warnings` made this list (a list that can be weakly held)."""
+
+
+_collectors: weakref.WeakValueDictionary[int, Warnings] = weakref.WeakValueDictionary()  # by id: lists compare equal
+
+
+def _caught(msg) -> None:
+    text = str(msg).strip()
+    for collector in list(_collectors.values()):
+        collector.append(text)
+
+
+#: what the warnings mean, for the commands that report them
+WARNINGS_NOTE = "expected at the flex rod's start-up, results unaffected (docs/simulation.md §1)"
+
+
+def collect_warnings() -> Warnings:
+    """Collect MuJoCo's solver warnings in the returned list instead of letting MuJoCo print them mid-line and
+    write ``MUJOCO_LOG.TXT`` into the current folder.
 
     The flex rod's "ill-conditioned stiffness" and "inertia matrix is too close to singular" notes when a scene is
     built or first stepped are expected (docs/simulation.md §1: results are unaffected); callers report how many
-    there were.
+    there were (:data:`WARNINGS_NOTE`). Every list made here gets every warning from then on (a command and the
+    simulated sources it opens each count theirs), for as long as it is referenced.
     """
-    caught: list[str] = []
-    mujoco.set_mju_user_warning(lambda msg: caught.append(str(msg).strip()))
+    caught = Warnings()
+    _collectors[id(caught)] = caught
+    mujoco.set_mju_user_warning(_caught)
     return caught
 
 

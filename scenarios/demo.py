@@ -9,6 +9,9 @@
    is printed; ``--no-viewer`` for a headless run).
 4. A live line shows the rate, lost samples and the current error; at the end, a table of errors against the
    truth, which the server side keeps by sequence number (the wire carries no truth, as with hardware).
+
+Ctrl-C during the run ends it cleanly: the table covers the frames received and says the run was cut short, and
+the exit status is 130. After a complete run the viewer's page stays served until Ctrl-C (exit status 0).
 """
 
 from __future__ import annotations
@@ -191,15 +194,24 @@ def run(args: argparse.Namespace) -> int:
     print(file=sys.stderr)
     result = _result(errors, summary, fiber, cal, url, time.monotonic() - t_start, true)
     result["mujoco_warnings"] = len(mujoco_warnings)
+    result["run_s"] = round(summary.duration, 1)
+    result["planned_s"] = duration
+    result["cut_short"] = summary.reason == "interrupted"  # by Ctrl-C (the run always has a duration)
     if args.json:
         print(jsonout.dumps(result, indent=2))
     else:
         print(report(result))
-    if viewer is not None:
-        from twin.viewer import keep_open
+    from twin.cli import interrupted_status
 
-        keep_open(viewer)  # the page stays live until Ctrl-C
-    return 0
+    status = interrupted_status(result["cut_short"], bounded=True)
+    if viewer is not None:
+        if status:  # Ctrl-C cut the run short: it ends the command, no page kept
+            viewer.close()
+        else:
+            from twin.viewer import keep_open
+
+            keep_open(viewer)  # the page stays live until Ctrl-C (exit 0: nothing is cut short)
+    return status
 
 
 def _result(errors: ErrorSink, summary, fiber, cal, url, wall, true) -> dict:
@@ -236,7 +248,8 @@ def _result(errors: ErrorSink, summary, fiber, cal, url, wall, true) -> dict:
 def report(r: dict) -> str:
     lines = [
         "",
-        f"twin demo: {r['scenario']}",
+        f"twin demo: {r['scenario']}"
+        + (f" — cut short by Ctrl-C after {r['run_s']:.1f} s of {r['planned_s']:g} s" if r.get("cut_short") else ""),
         f"  {r['frames']} frames over ILLumiSense ({r['frames_per_s']:.1f} Hz), {r['lost_samples']} lost, "
         f"{r['framing_errors']} framing errors, {r['frames_partial']} with gratings dropped (lost peaks)",
         f"  calibration: Δθ = {r['identified']['delta_theta']:.4f} rad (twin's true {r['true']['delta_theta']:.4f}), "

@@ -1,6 +1,6 @@
 """`twin run real-jig`: the twin of the AMIRo needle beside the real jig table it must reproduce.
 
-The real table (tests/data/amiro/poses.csv, SOURCE.md beside it) is JHU AMIRo's needle_3CH_4AA_v2 in its
+The real table (twin/data/jig/amiro/poses.csv, SOURCE.md beside it) is JHU AMIRo's needle_3CH_4AA_v2 in its
 calibration jig: 4 rotations, 7 grooves (0–4 1/m), 3 trials each. The twin (``twin run jig --sensor amiro``,
 :data:`sim_interrogator.needle_jig.AMIRO`) simulates that needle in that jig. Both tables are judged the same way
 (:func:`twin.calibration.jig.leave_one_rotation_out`, physical model, the gratings in the groove):
@@ -35,13 +35,15 @@ from twin import FiberModel, jsonout
 from twin.calibration.jig import fit, leave_one_rotation_out, read_poses, validate
 from twin.calibration.jig.nuisance import DEFAULT_TERMS, TERMS
 from twin.calibration.jig.score import ALL_LEVELS, CLINICAL
+from twin.data import jig_dir
 
 __all__ = ["DATA", "EFFECTS", "FACTOR", "KEYS", "REAL_TABLES", "VARIANTS", "budget", "compare", "model_scores",
            "model_study", "real_statistics"]
 
 #: The real table and its fibre model.
-DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "amiro"
-#: Both real jig tables: (poses, fibre model, gratings in the groove); SOURCE.md beside each.
+DATA = jig_dir("amiro")  # package data (twin/data/jig/SENSOR): there after a non-editable install too
+#: Both real jig tables (package data beside each other): (poses, fibre model, gratings in the groove); SOURCE.md
+#: beside each.
 REAL_TABLES = {
     "needle_3CH_4AA_v2": (DATA / "poses.csv", DATA / "needle.toml", (0, 1, 2)),
     "needle_3CH_3AA": (DATA.parent / "amiro-3aa" / "poses.csv", DATA.parent / "amiro-3aa" / "needle.toml", (0, 1)),
@@ -163,9 +165,9 @@ def _figures(d: dict) -> dict:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--poses", metavar="POSES.csv", default=str(DATA / "poses.csv"),
-                        help="the real jig table (default tests/data/amiro/poses.csv)")
+                        help="the real jig table (default twin/data/jig/amiro/poses.csv)")
     parser.add_argument("--fiber", metavar="FIBER.toml", default=str(DATA / "needle.toml"),
-                        help="its fibre model (default tests/data/amiro/needle.toml)")
+                        help="its fibre model (default twin/data/jig/amiro/needle.toml)")
     parser.add_argument("--gratings", default="0,1,2",
                         help="gratings in the groove, comma-separated (default 0,1,2: the tip grating is at the "
                         "groove's end)")

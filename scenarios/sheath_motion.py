@@ -20,6 +20,11 @@ literal transcription (calibration ``lab`` unless ``--calibration`` says otherwi
 * against the sheath's centreline (ICP onto the part of the sheath the sensed region is in, at 2 Hz): what an
   experimenter with the sheath's CAD model measures; it adds the clearance (≤ 0.17 mm) and corner cutting.
 
+The default pipeline's 95 % confidence tube (:mod:`twin.uncertainty`) is checked against the catheter, placed
+with the tracked base and no registration (:mod:`scenarios._common.coverage`; the model error fitted on the lab's
+identification shapes): ``coverage_95`` is the fraction of the catheter's points (s > 0, every frame) inside it,
+``mean_sigma_mm`` its mean 1σ lateral radius.
+
 Lost peaks are counted per frame and marked in the error plot. Frames are classed by the sharpest bend of the
 sheath under the sensed region: ``sharp`` (≥ 100 1/m: an 8 mm bend) and ``gentle`` (< 50 1/m).
 """
@@ -31,7 +36,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from scenarios._common import entry
+from scenarios._common import coverage, entry
 from scenarios._common import sheath_experiments as common
 from scenarios._common.calibration import calibration_for
 from scenarios._common.calibration import label as calibration_label
@@ -154,6 +159,7 @@ class Result:
     wall_s: float = 0.0
     calibration: dict = field(default_factory=dict)
     shapes: dict = field(default_factory=dict, repr=False)
+    uncertainty: dict = field(default_factory=dict)
 
     @property
     def sharp(self) -> np.ndarray:
@@ -199,6 +205,7 @@ class Result:
             "sharp_frames": int(self.sharp.sum()),
             "rod_curvature_at_lost_1_m": float(self.rod_curvature[lost].max()) if lost.any() else None,
             "max_bore_offset_mm": float(np.nanmax(self.bore) * 1e3) if np.isfinite(self.bore).any() else None,
+            **{k: self.uncertainty[k] for k in ("coverage_95", "mean_sigma_mm") if k in self.uncertainty},
         }
 
     def to_dict(self) -> dict:
@@ -214,7 +221,8 @@ class Result:
         return {"experiment": "sheath-motion", "params": asdict(self.params), "calibration": self.calibration,
                 "setup": self.setup,
                 "summary": self.summary(), "lost_peaks_per_grating": per_grating.tolist(),
-                "timeline_2hz": timeline, "settle_s": self.settle_s, "wall_s": self.wall_s}
+                "timeline_2hz": timeline, "settle_s": self.settle_s, "wall_s": self.wall_s,
+                "uncertainty": self.uncertainty}
 
 
 def _mean_mm(x: np.ndarray) -> float | None:
@@ -293,9 +301,14 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     for mode, shape in shapes.items():
         curvature[mode] = shape.curvature[pick]
         curvature[f"{mode}_valid"] = shape.valid[pick]
+    # the 95 % tube of every frame against the catheter, placed with the tracked base (no registration)
+    truth = coverage.truth_in_base(ser.truth_s, ser.truth_positions, ser.base_frames, ser.base_positions,
+                                   shapes["default"].s)
+    tube = coverage.run_coverage(sim.fiber, sim.optics.config, used.calibration, shapes["default"], ser.wavelengths,
+                                 truth, progress)
     result = Result(params, sim.describe(), t, max_e, mean_e, tip_e, sheath_e, analysed, ser.lost_peaks, lost_g,
                     sheath_k, rod_k, run.hub[:, 0], tips, curvature, run.bore, float(setup.settle_result.time),
-                    run.wall_s, used.to_dict(), snapshots(shapes, ser, max_e["default"]))
+                    run.wall_s, used.to_dict(), snapshots(shapes, ser, max_e["default"]), tube)
     if progress:
         s = result.summary()
         progress(f"sheath-motion: mean max error {s['mean_max_error_mm']:.2f} mm, max {s['max_error_mm']:.2f} mm at "

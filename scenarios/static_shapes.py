@@ -13,7 +13,10 @@ compared
 
 Summary (``--json``: ``summary``): over all shapes and repetitions, default mode, against the rod:
 ``max_error_mm`` is the largest per-frame max distance, ``mean_error_mm`` the mean of the per-frame mean
-distances; ``paper_…`` the same for the paper's pipeline.
+distances; ``paper_…`` the same for the paper's pipeline. ``coverage_95`` is the fraction of the rod's points
+(s > 0, every frame) inside the default pipeline's 95 % confidence tube, the truth placed with the base pose and
+no registration, and ``mean_sigma_mm`` the tube's mean 1σ lateral radius (:mod:`scenarios._common.coverage`;
+the model error fitted on the other fold's shapes, as the calibration is).
 
 Calibration (``--calibration``, :mod:`scenarios._common.calibration`): ``lab`` (default) as a lab makes it — the
 two-step calibration in the twin, then [Δθ, g] identified against the fixtures' geometry on shapes *other* than
@@ -37,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scenarios._common import entry
+from scenarios._common import coverage, entry
 from scenarios._common.calibration import (
     LAB_SHAPES,
     UsedCalibration,
@@ -58,6 +61,8 @@ from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
 from twin import FiberModel, Reconstructor, shapes
+from twin.uncertainty import Uncertainty
+from twin.uncertainty import inside as inside_tube
 
 FIXTURES = ("connect", "tube", "paper")
 #: The paper's static results after identification (hardware, its pipeline), mm.
@@ -105,9 +110,10 @@ class Result:
     shapes: tuple[ShapeResult, ...]
     calibration: dict = field(default_factory=dict)
     curves: dict = field(default_factory=dict, repr=False)
+    uncertainty: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
-        out = {}
+        out = {k: self.uncertainty[k] for k in ("coverage_95", "mean_sigma_mm") if k in self.uncertainty}
         for mode, prefix in (("default", ""), ("paper", "paper_"), ("paper-literal", "paper_literal_")):
             rod = [r.errors[mode]["rod"] for r in self.shapes]
             out[f"{prefix}max_error_mm"] = float(max(np.max(e["max"]) for e in rod) * 1e3)
@@ -127,7 +133,7 @@ class Result:
                 }
             rows.append(row)
         return {"experiment": "static-shapes", "params": asdict(self.params), "calibration": self.calibration,
-                "shapes": rows, "summary": self.summary()}
+                "shapes": rows, "summary": self.summary(), "uncertainty": self.uncertainty}
 
 
 def record(directory: Path, name: str, sim: SimInterrogator, frames, cal, which: str) -> None:
@@ -236,7 +242,42 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
             viewer.show(recs["default"](frames[-1]), frames[-1].truth, label=name, force=True, reframe=True)
         e = results[-1].errors["default"]["rod"]
         say(f"    {name}: default max {np.max(e['max']) * 1e3:.3f} mm, mean {np.mean(e['mean']) * 1e3:.3f} mm")
-    return Result(params, tuple(results), used, curves)
+    return Result(params, tuple(results), used, curves, tube_coverage(params, fiber, settled, per_shape, say))
+
+
+def tube_coverage(params: Params, fiber: FiberModel, settled: list, per_shape: list, say) -> dict:
+    """The default pipeline's 95 % tube against the rod, per shape and overall. The model error of each fold
+    (the shapes sharing a calibration, or every other shape when one calibration serves all) is fitted on the
+    other fold's shapes; a single shape uses the fit on the lab's identification shapes
+    (:mod:`scenarios._common.coverage`)."""
+    groups: dict[int, list[int]] = {}
+    for j, cal in enumerate(per_shape):
+        groups.setdefault(id(cal), []).append(j)
+    if len(groups) == 1 and len(settled) >= 2:  # one calibration for all: two folds all the same for the model error
+        groups = {0: list(range(0, len(settled), 2)), 1: list(range(1, len(settled), 2))}
+    inside, sigma, rows, models = [], [], {}, []
+    for idx in groups.values():
+        cal = per_shape[idx[0]]
+        others = [j for j in range(len(settled)) if j not in idx]
+        if others:
+            names = ", ".join(settled[j][0] for j in others)
+            me = coverage.fit_on_frames(fiber, cal, [settled[j][3] for j in others], f"fitted on the rods of {names}")
+        else:
+            me = coverage.lab_model_error(fiber, optics_config(params.optics), cal, progress=say)
+        models.append({"reported": [settled[j][0] for j in idx], **me.to_dict()})
+        unc = Uncertainty(Reconstructor(fiber, cal), model_error=me)
+        for j in idx:
+            frames = settled[j][3]
+            out = unc(frames)
+            truth = coverage.truth_of_frames(frames, out.s)
+            rows[settled[j][0]] = coverage.summary(out, truth)
+            inside.append(inside_tube(out, truth, coverage.LEVEL)[:, out.s > 0].ravel())
+            sigma.append(out.sigma[:, out.s > 0].ravel())
+    total = {"coverage_95": float(np.mean(np.concatenate(inside))), "mean_sigma_mm": float(np.mean(np.concatenate(
+        sigma)) * 1e3)}
+    say(f"    95 % tube: {total['coverage_95']:.1%} of the rod's points inside, mean 1σ "
+        f"{total['mean_sigma_mm']:.3f} mm")
+    return {**total, "model_error": models, "shapes": rows}
 
 
 def calibrations(params: Params, fiber: FiberModel, settled: list, say) -> tuple[dict, list]:

@@ -23,7 +23,10 @@ no registration is needed or done):
 * ``common_mode_pm`` — the central core's Bragg shift over the run (mean over gratings): what the central core
   removes; ``uncompensated_tip_variation_mm`` — the tip variation when that removal is defeated (the central
   core's reading held at its first window), to show what the common mode would do;
-* ``shape_error_max_mm`` — the largest shape error against the rod over the run (Kabsch, the algorithm's error).
+* ``shape_error_max_mm`` — the largest shape error against the rod over the run (Kabsch, the algorithm's error);
+* ``coverage_95``, ``mean_sigma_mm`` — the default pipeline's 95 % confidence tube against the rod (no
+  registration; the white noise shrunk by the window's averaging; :mod:`scenarios._common.coverage`): the
+  fraction of the rod's points (s > 0, every window) inside it and its mean 1σ lateral radius.
 
 Calibration: ``true`` (default) reconstructs with the twin's true fibre parameters (as-built λ0 at the reference
 temperature, intrinsic twist, Δθ, g); ``lambda0`` with the as-built λ0 only (nominal Δθ, g, no twist);
@@ -45,7 +48,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.distance import pdist
 
-from scenarios._common import entry
+from scenarios._common import coverage, entry
 from scenarios._common.calibration import calibration_field, calibration_for, check_calibration
 from scenarios._common.calibration import label as calibration_label
 from scenarios._common.entry import option
@@ -128,6 +131,8 @@ class BathRun:
         The fibre's base frame in the world.
     truth : Truth
         The rod's centreline (world) at the first frame.
+    uncertainty : dict
+        The default pipeline's 95 % tube against the rod (:func:`scenarios._common.coverage.run_coverage`).
     """
 
     mismatch: float
@@ -147,6 +152,7 @@ class BathRun:
     shapes: dict = field(repr=False, default_factory=dict)
     base_pose: tuple = field(repr=False, default=())
     truth: Truth | None = field(repr=False, default=None)
+    uncertainty: dict = field(default_factory=dict)
 
 
 def mismatch_response(rec: Reconstructor, w_ref: np.ndarray, lambda0: np.ndarray, s_t: float,
@@ -217,6 +223,7 @@ class Result:
                "paper_pipeline_tip_variation_mm": tip_stats(r.tips["paper"])["variation"] * 1e3,
                "paper_literal_tip_variation_mm": tip_stats(r.tips["paper-literal"])["variation"] * 1e3,
                "temperature_change_k": float(r.bath_celsius[0] - r.bath_celsius[-1])}
+        out.update({k: r.uncertainty[k] for k in ("coverage_95", "mean_sigma_mm") if k in r.uncertainty})
         out["predicted_mismatch_effect_mm"] = predicted_effect(r) * 1e3
         out["expected_mismatch_effect_mm"] = expected_effect(r) * 1e3
         effect = self.mismatch_effect(r)
@@ -235,7 +242,7 @@ class Result:
                    "uncompensated_tip_variation_mm": tip_stats(r.uncompensated_tips)["variation"] * 1e3,
                    "true_tip_variation_mm": tip_stats(r.true_tip)["variation"] * 1e3,
                    "predicted_mismatch_effect_mm": predicted_effect(r) * 1e3,
-                   "expected_mismatch_effect_mm": expected_effect(r) * 1e3}
+                   "expected_mismatch_effect_mm": expected_effect(r) * 1e3, "uncertainty": r.uncertainty}
             for mode in MODES:
                 st = tip_stats(r.tips[mode])
                 row[mode] = {"tip_variation_mm": st["variation"] * 1e3, "tip_range_mm": st["range"] * 1e3,
@@ -323,12 +330,16 @@ def run_bath(params: Params, mismatch: float, fiber: FiberModel,
                                  float(np.mean(nominal_s_t)), temp[-1] - temp[0])
     truth = Truth(s=series.truth_s, positions=series.truth_positions[0], curvature=series.truth_curvature[0],
                   fixture=series.fixture)
+    # the 95 % tube of each window against the rod at the window's middle frame, in the (fixed) base frame
+    tube = coverage.run_coverage(fiber, cfg, cal, shp["default"], w, coverage.truth_in_base(
+        series.truth_s, series.truth_positions[mid], series.base_frames[mid], series.base_positions[mid],
+        shp["default"].s), say, averaged=n_avg)
     return BathRun(mismatch=mismatch, s_t_deviation=s_t / nominal_s_t - 1.0, t=t,
                    bath_celsius=temp.mean(axis=1) + params.room_celsius, tips=tips, true_tip=true_tip,
                    shape_error=errors, curvature=curv, true_curvature=series.truth_curvature[0],
                    common_mode=common, uncompensated_tips=recs["default"](frozen).tip, mismatch_response=response,
                    lost_peaks=int(series.lost_peaks.sum()), wall_s=time.perf_counter() - t_wall, shapes=shp,
-                   base_pose=(rot, pos), truth=truth)
+                   base_pose=(rot, pos), truth=truth, uncertainty=tube)
 
 
 def run_experiment(params: Params, progress: Callable[[str], None] | None = None, viewer=None) -> Result:

@@ -37,7 +37,7 @@ def needle_fiber() -> FiberModel:
 
 
 def amiro_fiber() -> FiberModel:
-    """JHU AMIRo's needle_3CH_4AA_v2 as tests/data/amiro/needle.toml describes it (kept identical; a test checks)."""
+    """JHU AMIRo's needle_3CH_4AA_v2 as twin/data/jig/amiro/needle.toml describes it (kept identical; a test checks)."""
     return FiberModel(
         name="AMIRo needle_3CH_4AA_v2: 3 single-core fibres, 4 gratings",
         handedness=1,
@@ -155,7 +155,7 @@ class JigParams:
 
 
 #: The AMIRo needle in its jig, as the real table of 2021-03-20 shows it (docs/jig.md, "A twin of the AMIRo needle";
-#: each magnitude is justified there from tests/data/amiro/poses.csv).
+#: each magnitude is justified there from twin/data/jig/amiro/poses.csv).
 AMIRO = JigParams(
     curvatures=(0.0, 0.5, 1.6, 2.0, 2.5, 3.2, 4.0),
     orientations_deg=(0.0, 90.0, 180.0, 270.0),

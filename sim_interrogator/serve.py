@@ -16,7 +16,8 @@ What it prints on stdout, one line per endpoint, flushed at once (scripts may pa
     twin serve: hyperion commands on tcp://127.0.0.1:51971, peak stream on tcp://127.0.0.1:51972
     twin serve: fispec core 0 on /dev/pts/7
 
-then serves until Ctrl-C (or SIGTERM, ``--duration``, or the end of the source) and prints a summary.
+then serves until Ctrl-C (or SIGTERM, ``--duration``, or the end of the source) and prints a summary. Exit
+status 0; 130 when Ctrl-C cut a ``--duration`` short; 1 when the source failed.
 """
 
 from __future__ import annotations
@@ -107,9 +108,6 @@ def run(args: argparse.Namespace) -> int:
     except BaseException:
         source.close()
         raise
-    for line in lines:
-        print(line, flush=True)
-    print(f"twin serve: serving {url}; Ctrl-C to stop", flush=True)
     stop = threading.Event()
     reason = ["interrupted"]
 
@@ -117,9 +115,14 @@ def run(args: argparse.Namespace) -> int:
         reason[0] = "interrupted" if signum == signal.SIGINT else "terminated"
         stop.set()
 
+    # the handlers are in place before the lines that say the server is up: a Ctrl-C right after them stops it
+    # cleanly (with the summary) instead of interrupting it
     previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     t0 = time.monotonic()
     try:
+        for line in lines:
+            print(line, flush=True)
+        print(f"twin serve: serving {url}; Ctrl-C to stop", flush=True)
         while not stop.wait(0.1):
             if server.pump.ended.is_set():
                 reason[0] = "source failed" if server.pump.error else "source ended"
@@ -134,9 +137,16 @@ def run(args: argparse.Namespace) -> int:
     stats = ", ".join(f"{k} {v}" for k, v in server.stats().items())
     print(f"twin serve: stopped ({reason[0]}) after {time.monotonic() - t0:.1f} s: {stats}", flush=True)
     if warnings:
-        print(f"twin serve: {len(warnings)} MuJoCo solver warning(s), expected at the flex rod's start-up "
-              f"(docs/simulation.md §1); the first: {warnings[0]}", flush=True)
-    return 1 if reason[0] == "source failed" else 0
+        from models.catheter import WARNINGS_NOTE
+
+        print(f"twin serve: {len(warnings)} MuJoCo solver warning(s), {WARNINGS_NOTE}; the first: {warnings[0]}",
+              flush=True)
+    if reason[0] == "source failed":
+        return 1
+    from twin.cli import interrupted_status
+
+    # Ctrl-C is how an open-ended server stops (0); a --duration it cut short is 130
+    return interrupted_status(reason[0] == "interrupted", args.duration is not None)
 
 
 def _start(args: argparse.Namespace, source):

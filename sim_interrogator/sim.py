@@ -19,6 +19,7 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
+from models.catheter import WARNINGS_NOTE, collect_warnings
 from models.rod_state import RodReader
 from sim_interrogator.frame_path import FramePath
 from sim_interrogator.optics import Optics, OpticsConfig
@@ -62,6 +63,9 @@ class SimInterrogator(Source):
         self.realtime = realtime
         self.with_truth = truth
         self.url = f"sim://{setup.name}"
+        # MuJoCo's start-up notes on the flex rod are collected and reported by stats(), not printed raw (nor
+        # written to MUJOCO_LOG.TXT in the user's folder)
+        self.warnings = collect_warnings()
         self.model, self.data = setup.build()
         setup.prepare(self.model, self.data, progress)
         self.reader = RodReader(self.model, setup.rod_name)
@@ -189,8 +193,11 @@ class SimInterrogator(Source):
         return {"url": self.url, "rate_hz": self.rate, **self.setup.describe(), **self.optics.describe()}
 
     def stats(self) -> dict:
-        return {"frames": self._k, "sim_time_s": self.time, "physics_wall_s": self.physics_time,
-                "optics_wall_s": self.optics_time, "truth_wall_s": self.truth_time}
+        out = {"frames": self._k, "sim_time_s": self.time, "physics_wall_s": self.physics_time,
+               "optics_wall_s": self.optics_time, "truth_wall_s": self.truth_time, "warnings": len(self.warnings)}
+        if self.warnings:  # what a command prints beside the count (twin live's summary)
+            out["warnings_note"] = f"MuJoCo solver warnings, {WARNINGS_NOTE}; the first: {self.warnings[0]}"
+        return out
 
     def close(self) -> None:
         self._closed = True

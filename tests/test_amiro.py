@@ -1,4 +1,4 @@
-"""The real jig table of JHU AMIRo's needle_3CH_4AA_v2 (tests/data/amiro, SOURCE.md there) and its twin.
+"""The real jig table of JHU AMIRo's needle_3CH_4AA_v2 (twin/data/jig/amiro, SOURCE.md there) and its twin.
 
 The measured figures below are those SOURCE.md and docs/jig.md state; the bounds are their rounding (the table
 is data, so the figures must come back to that precision, not to a tolerance that hides a change).
@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,10 +17,11 @@ from sim_interrogator.needle_jig import AMIRO, amiro_fiber, loro
 from twin import Calibration, FiberModel
 from twin.calibration import jig
 from twin.cli import main
+from twin.data import jig_dir
 
-DATA = Path(__file__).parent / "data" / "amiro"
+DATA = jig_dir("amiro")  # package data (twin/data/jig/amiro)
 POSES, NEEDLE, CALIBRATION = DATA / "poses.csv", DATA / "needle.toml", DATA / "calibration.toml"
-DATA_3AA = Path(__file__).parent / "data" / "amiro-3aa"
+DATA_3AA = jig_dir("amiro-3aa")  # package data (twin/data/jig/amiro-3aa)
 GRATINGS = [0, 1, 2]
 LEVELS = [0.0, 0.5, 1.6, 2.0, 2.5, 3.2, 4.0]
 #: Measured on the table: in-sample RMS strain residual, LORO |Δκ| (1/m), LORO |Δdir| (deg).
@@ -164,7 +164,7 @@ def test_jig_validate_leave_one_rotation_out_command(capsys):
 
 
 def test_second_needle_table_loads_as_described():
-    """tests/data/amiro-3aa (SOURCE.md there): needle_3CH_3AA, 81 rows (3 trials per groove but two folders of
+    """twin/data/jig/amiro-3aa (SOURCE.md there): needle_3CH_3AA, 81 rows (3 trials per groove but two folders of
     270°), the same grooves and rotations, its own reference per rotation, std columns from 6 samples."""
     fiber = FiberModel.load(DATA_3AA / "needle.toml")
     poses = jig.read_poses(DATA_3AA / "poses.csv", fiber=fiber)

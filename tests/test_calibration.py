@@ -83,7 +83,12 @@ def test_guard_rails(straight, bend, message):
 def test_missing_peaks_in_calibration_frames():
     bend = pose(arc(), n=10)
     bend[:2, 4, 2] = np.nan  # occasional loss: averaged over
-    two_step(FIBER, pose(np.zeros((18, 2)), n=10), bend)
+    cal, report = two_step(FIBER, pose(np.zeros((18, 2)), n=10), bend)
+    # the frames are noise-free copies, so the 8 frames left at that peak carry the exact wavelength: the result
+    # is the noise-free one (test_recovers_reference_and_twist_exactly_without_noise), to float rounding
+    np.testing.assert_allclose(cal.lambda0, FIBER.lambda0 + SPREAD, atol=1e-12)
+    np.testing.assert_allclose(cal.twist, PHI - PHI[0], atol=1e-10)
+    assert report.n_straight == 10
     bend[:, 4, 2] = np.nan  # always lost: refused, naming the grating and core
     with pytest.raises(CalibrationError, match=r"grating 4 \(s = 40.0 mm\) core 2 lost its peak in 100%"):
         two_step(FIBER, pose(np.zeros((18, 2)), n=10), bend)
@@ -145,8 +150,9 @@ def test_a_wrong_type_in_a_calibration_file_names_file_and_field(tmp_path, line,
 
 def test_calibration_files_round_trip_exactly(tmp_path):
     awkward = np.array([0.1 + 0.2, 1 / 3, 1e-300, 5e-324, -0.0, 1510.1080899999997, 2.0**-30, 1e16 + 2])
-    cal = Calibration(lambda0=np.abs(awkward[:, None]) + 1500.0, twist=awkward, delta_theta=1 / 3, gain=2.9e-5 / 3,
-                      provenance={"note": "round trip"})
+    # lambda0 within the Bragg range (200–3000 nm, issue 23 B16), its digits still awkward
+    cal = Calibration(lambda0=np.abs(awkward[:, None]) % 1000 + 1500.0, twist=awkward, delta_theta=1 / 3,
+                      gain=2.9e-5 / 3, provenance={"note": "round trip"})
     cal.save(tmp_path / "cal.toml")
     back = Calibration.load(tmp_path / "cal.toml")
     for name in ("lambda0", "twist"):
@@ -172,3 +178,40 @@ def test_two_step_lambda0_carries_the_mean_not_its_summation_error(tmp_path):
     values = re.findall(r"\b1[5-6]\d\d\.(\d+)", (tmp_path / "cal.toml").read_text())
     assert len(values) == 72 and max(len(v) for v in values) <= 9  # no 1510.1080899999997
     assert Calibration.load(tmp_path / "cal.toml").lambda0.tobytes() == cal.lambda0.tobytes()
+
+
+def test_a_calibration_in_micrometres_fails_in_one_line(tmp_path):
+    """Issue 23 B16: `lambda0` had no range check; a calibration in µm ran, exit 0, every frame unusable."""
+    import subprocess
+    import sys
+
+    import tomli_w
+    from io_helpers import synthetic_frames
+
+    from twin.io.record import Recorder
+
+    data = Calibration(lambda0=FIBER.lambda0).to_dict()
+    data["lambda0"] = (np.asarray(data["lambda0"]) * 1e-3).tolist()  # µm
+    (tmp_path / "um.toml").write_text(tomli_w.dumps(data))
+    with pytest.raises(ValueError, match=rf"^{tmp_path / 'um.toml'}: Calibration.lambda0: grating 0 core 0 has "
+                                         r"1.51 nm; expected a Bragg wavelength in nm \(200–3000\)"):
+        Calibration.load(tmp_path / "um.toml")
+    rec = tmp_path / "r.h5"
+    with Recorder(rec, fiber=FiberModel.paper()) as r:
+        r.append(synthetic_frames(5))
+    proc = subprocess.run([sys.executable, "-m", "twin.cli", "replay", str(rec), "--calibration",
+                           str(tmp_path / "um.toml")], capture_output=True, text=True, timeout=100)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "um.toml" in proc.stderr, proc.stderr
+
+
+def test_a_spun_fiber_of_one_grating_fails_naming_the_field(tmp_path):
+    """Issue 23, also seen: numpy's bare "Singular matrix" (the spin-rate fit of a one-grating spun fibre)."""
+    from twin.calibration import CalibrationError
+    from twin.io.synthetic import SyntheticSource
+
+    FIBER.replace(grating_s=[0.05], lambda0=FIBER.lambda0[:1], spin_rate=10.0).save(tmp_path / "one.toml")
+    one = FiberModel.load(tmp_path / "one.toml")
+    bend = np.stack([f.wavelengths for f in SyntheticSource(fiber=one, pace=False, frames=20, kappa_amp=0, spin=0)])
+    with pytest.raises(CalibrationError, match=rf"^{tmp_path / 'one.toml'}: FiberModel.grating_s: a spun fibre's "
+                                               "spin rate .* needs 2 or more; this one has 1"):
+        two_step(one, one.lambda0[None] + np.zeros((5, 1, 4)), bend)

@@ -9,13 +9,16 @@ of the value (exactly ``float(f"{w:.4f}")``, hence within 5e-5 nm); FiSpec carri
 float64 resolution of an epoch time being ≈ 0.24 µs).
 
 Fuzzing asserts that a decoder raises nothing but its documented FramingError, and — through a plain
-reference reading of the spec written here, independent of the codec — that whatever it does decode is what
-the bytes say: a corrupted record may decode only to the record the corrupted bytes spell.
+reference reading of the spec written here, independent of the codec (``reference_fispec``,
+``reference_hyperion_peaks``, ``reference_hyperion_stream``) — that it refuses exactly what the reference refuses
+and that whatever it does decode is what the bytes say: a corrupted record may decode only to the record the
+corrupted bytes spell.
 """
 
 from __future__ import annotations
 
 import math
+import re
 import struct
 
 import numpy as np
@@ -240,21 +243,97 @@ def test_fispec_peaks_round_trip_at_1e_4_nm(w, temp):
     assert r.device_temperature == round(temp * 100) / 100
 
 
+_PRINTABLE = re.compile(rb"[\x20-\x7e]*")
+
+
+def reference_fispec(kind: str, reply: bytes, n: int):
+    """Plain reading of docs/protocols.md §2.2, independent of the codec: what a reply says, or None when it is not
+    a well-formed reply of that kind.
+
+    Binary replies have exactly their length and end in ``Ende``. ``P>``: a wavelength of 0 is a missing peak
+    (§2.3), and so is a negative one (no wavelength is negative), its amplitude then missing too. ``p?>``:
+    printable ASCII, ``#``-separated items; an item with a ``_`` is ``Name_<int>[_…]``, the integer after the
+    first ``_`` (an optional minus, decimal digits); ``Pixel`` must be among them. ``?>``: printable ASCII
+    starting with ``FiSpec`` once the trailing CR, LF, NUL and spaces are removed.
+    """
+    size = {"s": 2 * n + 4, "WLL": 4 * n + 4, "P": 8 * n + 12, "OBB1": 8 * n + 12}.get(kind)
+    if size is not None and (len(reply) != size or reply[-4:] != b"Ende"):
+        return None
+    if kind == "s":
+        return [float(v) for v in struct.unpack(f"<{n}H", reply[: 2 * n])]
+    if kind == "WLL":
+        return [v / 1e4 for v in struct.unpack(f"<{n}I", reply[: 4 * n])]
+    if kind in ("P", "OBB1"):
+        values = struct.unpack(f"<{2 * n}i", reply[: 8 * n])
+        temperature = struct.unpack_from("<h", reply, 8 * n)[0] / 100
+        pairs = list(zip(values[0::2], values[1::2], strict=True))
+        if kind == "OBB1":
+            return [v / 1e4 for v, _ in pairs], [a / 100 for _, a in pairs], temperature
+        return ([v / 1e4 if v > 0 else math.nan for v, _ in pairs],
+                [float(a) if v > 0 else math.nan for v, a in pairs], temperature)
+    if kind == "params":
+        if not _PRINTABLE.fullmatch(reply):
+            return None
+        out = {}
+        for item in reply.decode("ascii").split("#"):
+            if "_" in item:
+                m = re.fullmatch(r"([^_]*)_(-?[0-9]+)(?:_.*)?", item, re.DOTALL)
+                if m is None:
+                    return None
+                out[m.group(1)] = int(m.group(2))
+        return out if "Pixel" in out else None
+    if kind == "identity":
+        text = reply.rstrip(b"\r\n\x00 ")
+        return text.decode("ascii") if text.startswith(b"FiSpec") and _PRINTABLE.fullmatch(text) else None
+    raise AssertionError(kind)
+
+
+def _fispec_decoded(kind: str, reply: bytes, n: int):
+    """The codec's reading in the reference's form, or None when it raised its FramingError."""
+    try:
+        if kind == "s":
+            return [float(v) for v in fispec.decode_spectrum(reply, n)]
+        if kind == "WLL":
+            return [float(v) for v in fispec.decode_pixel_wavelengths(reply, n)]
+        if kind in ("P", "OBB1"):
+            r = fispec.decode_peaks(reply, n, onboard=kind == "OBB1")
+            return [float(v) for v in r.first], [float(v) for v in r.second], r.device_temperature
+        if kind == "params":
+            return fispec.decode_parameters(reply)
+        return fispec.decode_identity(reply)
+    except FramingError:
+        return None
+
+
+def _same(a, b) -> bool:
+    """Equal, NaN equal to NaN (nested lists and tuples of floats, dicts, strings)."""
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    return a == b
+
+
+_PARAM_TEXT = st.text(alphabet="Pixel_Kanalanzahl#tInt_0123456789-x²\x00 ", max_size=60)
+
+
 @FUZZ
-@given(st.binary(max_size=300), st.integers(0, 40))
-def test_fuzz_fispec_reply_decoders(data, n):
-    for decode in (
-        lambda: fispec.decode_spectrum(data, n),
-        lambda: fispec.decode_pixel_wavelengths(data, n),
-        lambda: fispec.decode_peaks(data, n),
-        lambda: fispec.decode_peaks(data, n, onboard=True),
-        lambda: fispec.decode_parameters(data),
-        lambda: fispec.decode_identity(data),
-    ):
-        try:
-            decode()
-        except FramingError:
-            pass
+@given(st.binary(max_size=300), st.integers(0, 40), _PARAM_TEXT, st.integers(0, 7))
+def test_fuzz_fispec_reply_decoders(data, n, text, cut):
+    """Every decoder on random bytes, on well-formed replies with random content (random body of the exact
+    length, then ``Ende``) and those one byte short or long, and on random item text: it raises nothing but its
+    FramingError, refuses exactly what the reference refuses, and decodes exactly what the reference reads."""
+    replies = {"params": [data, text.encode("utf-8"), b"Pixel_" + text.encode("utf-8")],
+               "identity": [data, b"FiSpec" + text.encode("utf-8"), b"FiSpec" + data[:cut] + b"\r\n"]}
+    for kind, width in (("s", 2), ("WLL", 4), ("P", 8), ("OBB1", 8)):
+        body = (data * (1 + width * n // max(len(data), 1)))[: width * n + (8 if kind in ("P", "OBB1") else 0)]
+        body = body.ljust(width * n + (8 if kind in ("P", "OBB1") else 0), b"\x00")
+        well_formed = body + b"Ende"
+        replies[kind] = [data, well_formed, well_formed[:-1], well_formed + b"\x00", well_formed[1:] + b"E"]
+    for kind, candidates in replies.items():
+        for reply in candidates:
+            ours, ref = _fispec_decoded(kind, reply, n), reference_fispec(kind, reply, n)
+            assert _same(ours, ref), (kind, reply, ours, ref)
 
 
 @FUZZ
@@ -475,22 +554,102 @@ def test_fuzz_hyperion_corrupted_peaks_and_requests(i, b, request_garbage):
         assert hyperion.encode_request(r.command, r.argument, options=r.options) == data
 
 
+def reference_hyperion_stream(data: bytes, max_content: int = 4096, max_channels: int = 128):
+    """Plain reading of a peak stream (docs/protocols.md §3.1, §3.2, §3.4): (frames, failed). A frame is a response
+    (``<BBHI`` header, ASCII message, content) with status 0 whose content is peak content; each frame is
+    (serial, seconds, nanoseconds, peaks per channel). The stream fails at the first response that is not one
+    (a content length over ``max_content``, a non-ASCII message, a non-zero status, inconsistent peak content,
+    nanoseconds ≥ 1e9, a peak that is not a wavelength in 200–3000 nm); an incomplete last response is pending.
+    (The reserved u32 of the peak header is left unread here as by the codec: see
+    test_hyperion_peak_header_with_reserved_bits_set_is_refused.)"""
+    frames, pos = [], 0
+    while len(data) - pos >= 8:
+        status, _, n_msg, n_content = struct.unpack_from("<BBHI", data, pos)
+        if n_content > max_content:
+            return frames, True
+        end = pos + 8 + n_msg + n_content
+        if len(data) < end:
+            return frames, False
+        message, content = data[pos + 8: pos + 8 + n_msg], data[pos + 8 + n_msg: end]
+        if any(b > 0x7F for b in message) or status != 0:
+            return frames, True
+        try:
+            serial, sec, ns, channels = reference_hyperion_peaks(content)
+        except (ValueError, struct.error):
+            return frames, True
+        n_channels = (struct.unpack_from("<H", content)[0] - 24) // 2
+        if n_channels > max_channels or ns >= 1_000_000_000 or not all(
+                200.0 <= v <= 3000.0 for c in channels for v in c):
+            return frames, True
+        frames.append((serial, sec, ns, channels))
+        pos = end
+    return frames, False
+
+
+@st.composite
+def peak_streams(draw) -> bytes:
+    """Responses of peak content, mostly well formed, some with one field wrong, sometimes a flipped byte."""
+    out = b""
+    for _ in range(draw(st.integers(0, 4))):
+        counts = draw(st.lists(st.integers(0, 3), max_size=4))
+        values = draw(st.lists(st.one_of(st.floats(1500.0, 1600.0), st.floats(allow_nan=True)),
+                               min_size=sum(counts), max_size=sum(counts)))
+        header_length = 24 + 2 * len(counts) + draw(st.sampled_from([0, 0, 0, 0, 1, 2, -2]))
+        ns = draw(st.sampled_from([0, 250_000_000, 999_999_999, 1_000_000_000]))
+        content = (struct.pack("<HHIQII", max(header_length, 0), 1, 0, draw(st.integers(0, 2**64 - 1)),
+                               draw(st.integers(0, 2**32 - 1)), ns)
+                   + struct.pack(f"<{len(counts)}h", *counts) + struct.pack(f"<{len(values)}d", *values))
+        message = draw(st.sampled_from([b"", b"", b"", b"ok", b"\xff"]))
+        status = draw(st.sampled_from([0, 0, 0, 0, 1]))
+        out += struct.pack("<BBHI", status, 0, len(message), len(content)) + message + content
+    if out and draw(st.booleans()):
+        i = draw(st.integers(0, len(out) - 1))
+        out = out[:i] + bytes([out[i] ^ draw(st.integers(1, 255))]) + out[i + 1:]
+    return out + draw(st.binary(max_size=draw(st.sampled_from([0, 0, 8, 40]))))
+
+
 @FUZZ
-@given(st.binary(max_size=400), st.lists(st.integers(1, 64), max_size=10))
+@given(st.one_of(st.binary(max_size=400), peak_streams()), st.lists(st.integers(1, 64), max_size=10))
 def test_fuzz_hyperion_stream_decoders(data, cuts):
-    for dec in (hyperion.ResponseDecoder(max_content=4096), hyperion.RequestDecoder(max_argument=4096)):
-        pos = 0
-        for c in [*cuts, len(data)]:
-            try:
-                out = (
-                    dec.feed_frames(data[pos : pos + c])
-                    if isinstance(dec, hyperion.ResponseDecoder)
-                    else dec.feed(data[pos : pos + c])
-                )
-                assert isinstance(out, list)
-            except FramingError:
-                assert dec.failed
-            pos += c
+    """Fed in any chunks, the stream decoder delivers exactly the frames the reference reads, in order, and has
+    failed exactly when the reference finds a bad response (an incomplete one is pending, not an error)."""
+    expected, bad = reference_hyperion_stream(data)
+    dec = hyperion.ResponseDecoder(max_content=4096)
+    frames, pos = [], 0
+    for c in [*cuts, len(data)]:
+        try:
+            frames += dec.feed_frames(data[pos: pos + c])
+        except FramingError:
+            assert dec.failed
+        pos += c
+    assert dec.failed == bad
+    assert len(frames) == len(expected)
+    for f, (serial, sec, ns, channels) in zip(frames, expected, strict=True):
+        assert f.sequence == serial and f.timestamp == sec + ns * 1e-9
+        rows = max((len(c) for c in channels), default=0)
+        want = np.full((rows, len(channels)), np.nan)
+        for k, c in enumerate(channels):
+            want[: len(c), k] = c
+        np.testing.assert_array_equal(f.wavelengths, want)
+    # the request side: whatever decodes is the request the bytes spell (reference: §3.1's <BBHI header)
+    req = hyperion.RequestDecoder(max_argument=4096)
+    try:
+        got = req.feed(data)
+    except FramingError:
+        got = None
+    if got:
+        options, zero, n_cmd, n_arg = struct.unpack_from("<BBHI", data)
+        assert zero == 0 and n_cmd > 0
+        assert (got[0].options, got[0].command, got[0].argument) == (
+            options, data[8: 8 + n_cmd].decode("ascii"), data[8 + n_cmd: 8 + n_cmd + n_arg].decode("ascii"))
+
+
+def test_hyperion_peak_header_with_reserved_bits_set_is_refused():
+    """docs/protocols.md §3.4: the reserved fields must be 0 (the only way to notice lost framing on this stream)."""
+    content = bytearray(HYPERION_PEAKS)
+    content[4] = 1  # the reserved u32 after the version
+    with pytest.raises(FramingError):
+        hyperion.decode_peaks(bytes(content))
 
 
 def test_hyperion_half_a_frame_then_a_good_one_is_refused_whole():

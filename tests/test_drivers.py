@@ -96,6 +96,15 @@ def test_synthetic_url_options_and_errors():
         open_source("synthetic://?speed=3")
     with pytest.raises(ValueError, match="cores"):
         open_source("synthetic://?cores=9")
+    # issue 23, also seen: sizes and durations bounded before use ("Maximum allowed size exceeded", a
+    # MemoryError traceback, an OverflowError)
+    for gratings in (10**19, 10**17, 2):
+        with pytest.raises(ValueError, match=f"gratings: expected 3 to 10000, got {gratings}"):
+            open_source(f"synthetic://?gratings={gratings}")
+    for duration in ("nan", "-1"):
+        with pytest.raises(ValueError, match="duration must be a number of seconds >= 0"):
+            open_source(f"synthetic://?duration={duration}")
+    assert open_source("synthetic://?duration=1e300&rate=1e300").limit is None
 
 
 # ------------------------------------------------------------------------------------------------ ILLumiSense
@@ -148,8 +157,8 @@ def test_illumisense_driver_resyncs_reconnects_and_counts():
 def test_illumisense_open_errors_name_the_url():
     with socket.create_server(("127.0.0.1", 0)) as s:
         port = s.getsockname()[1]
-    with pytest.raises(OSError, match=rf"illumisense://127.0.0.1:{port}: cannot connect"):
-        open_source(f"illumisense://127.0.0.1:{port}")
+    with pytest.raises(OSError, match=rf"^illumisense://127.0.0.1:{port}\?start_wait=0: cannot connect .*refused$"):
+        open_source(f"illumisense://127.0.0.1:{port}?start_wait=0")  # the URL once, no "[Errno …]"
     src = open_source(f"illumisense://127.0.0.1:{port}?wait=1&retry_for=0.3")
     assert src.read(0.1) is None
     assert src.stats()["connect_failures"] >= 1 and src.stats()["state"] == "disconnected"
@@ -555,3 +564,68 @@ def test_server_log_lines_from_many_threads_never_interleave(monkeypatch):
     bad = [line for line in lines[:-1] if not pattern.fullmatch(line)]
     assert len(bad) == 0, bad[:2]
     assert len(lines) - 1 == 60
+
+
+def _free_port_pair() -> int:
+    """A port P with P + 1 free too (hyperion serves its peak stream on P + 1), for a server started later."""
+    for _ in range(50):
+        with socket.socket() as a:
+            a.bind(("127.0.0.1", 0))
+            port = a.getsockname()[1]
+            try:
+                with socket.socket() as b:
+                    b.bind(("127.0.0.1", port + 1))
+            except OSError:
+                continue
+        return port
+    raise RuntimeError("no free pair of ports")
+
+
+@pytest.mark.parametrize("protocol", ["illumisense", "hyperion"])
+def test_live_started_before_the_interrogator_waits_for_it(protocol):
+    """Issue 23 A8: a lab starts the interrogator and the tool in any order. The client starts first, says it
+    waits (one progress line naming the URL and the bound), and reads frames once the server comes up."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    port = _free_port_pair()
+    url = f"{protocol}://127.0.0.1:{port}?start_wait=120"
+    env = {**os.environ, "MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1"}
+    client = subprocess.Popen([sys.executable, "-m", "twin.cli", "live", url, "--frames", "20", "--json", "--quiet"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    server = None
+    try:
+        for line in client.stderr:  # the progress line: the client is waiting, nothing listens yet
+            if "nothing listening yet" in line:
+                break
+        else:
+            raise AssertionError(f"no progress line; exit {client.wait()}")
+        assert line.startswith(f"{url}: cannot connect") and "up to 120 s (URL option start_wait=SECONDS)" in line
+        assert line.count(url) == 1
+        server = _serve(protocol, "--port", str(port), "--rate", "200", "--quiet")
+        out, err = client.communicate(timeout=120)
+    finally:
+        for p in (client, server):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait()
+    assert client.returncode == 0, err
+    assert re.search(rf"{re.escape(url)}: connected after [\d.]+ s", err), err
+    summary = json.loads(out)
+    assert summary["frames"] == 20 and summary["reconnects"] == 0
+
+
+def test_opening_gives_up_after_start_wait_and_does_not_wait_for_what_waiting_cannot_cure():
+    with socket.create_server(("127.0.0.1", 0)) as s:
+        port = s.getsockname()[1]
+    t0 = time.monotonic()
+    with pytest.raises(OSError, match=r"refused \(tried for [\d.]+ s; the URL option start_wait=SECONDS waits"):
+        open_source(f"illumisense://127.0.0.1:{port}?start_wait=0.5")
+    assert time.monotonic() - t0 >= 0.5
+    with pytest.raises(OSError, match=r"cannot resolve host") as err:  # an unknown host: no waiting
+        open_source("illumisense://no-such-host.invalid:2055?start_wait=600")
+    assert "tried for" not in str(err.value)
+    with pytest.raises(ValueError, match="start_wait"):
+        open_source(f"illumisense://127.0.0.1:{port}?start_wait=nan")

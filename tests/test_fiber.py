@@ -52,7 +52,13 @@ def test_toml_without_central_core(tmp_path):
     ("change", "message"),
     [
         ({"core_radii": [0.0, 37.5e-6, -1e-6, 37.5e-6]}, "core_radii: expected radii >= 0 m, got -1e-06 for core 2"),
-        ({"core_radii": [0.0, 37.5e-6, 37.5e-6]}, "core_radii: expected shape (4,), got (3,)"),
+        ({"core_radii": [0.0, 37.5e-6, 37.5e-6]},
+         "FiberModel.core_radii: core_angles has 4 entries, core_radii 3: both need one per core (lambda0 has 4"),
+        # issue 23 A11: one entry removed from core_angles blamed core_radii
+        ({"core_angles": [0.0, 0.0, 1.0]},
+         "FiberModel.core_angles: core_angles has 3 entries, core_radii 4: both need one per core (lambda0 has 4"),
+        ({"core_angles": [0.0, 0.0, 1.0], "lambda0": np.full((18, 5), 1550.0)},
+         "FiberModel.core_angles, core_radii: core_angles has 3 entries, core_radii 4"),
         ({"core_radii": [0.0, 37.5, 37.5, 37.5]}, "radii are in metres"),
         ({"grating_s": [0.0, 0.02, 0.01] + [0.03 + 0.01 * i for i in range(15)]}, "strictly increasing"),
         ({"lambda0": np.full((18, 4), 1.55)}, "expected a Bragg wavelength in nm"),
@@ -64,6 +70,12 @@ def test_toml_without_central_core(tmp_path):
         ({"temperature_sensitivity": 6.6}, "expected S_T in 1/K"),
         ({"core_angles": [0.0, np.nan, 1.0, 2.0]}, "core_angles: expected finite numbers, got nan at index 1"),
         ({"length": 0.1}, "at or beyond the last grating"),
+        # issue 23 B15 and "also seen": lengths in the wrong unit, angles out of any unit
+        ({"grating_s": 1e6 * 0.01 * np.arange(18)}, "grating_s: grating 17 at 170000.0 m from the base"),
+        ({"grating_s": 1e3 * 0.01 * np.arange(18)}, "expected arc lengths in m up to 20 m"),
+        ({"length": 1e4}, "length: expected a length in m at or beyond the last grating"),
+        ({"core_angles": [0.0, 0.0, 1e300, 2.0]}, "core_angles: core 2 at 1e+300 rad; expected angles in rad"),
+        ({"core_angles": [0.0, 0.0, 60.0, 120.0]}, "core_angles: core 2 at 60.0 rad"),
     ],
 )
 def test_validation_names_field_and_expectation(change, message):
@@ -71,6 +83,15 @@ def test_validation_names_field_and_expectation(change, message):
         FiberModel.paper().replace(**change)
     assert message in str(info.value)
     assert "FiberModel." in str(info.value)
+
+
+def test_a_fiber_toml_short_of_one_core_angle_blames_core_angles_naming_the_file(tmp_path):
+    path = tmp_path / "f.toml"
+    FiberModel.paper().save(path)
+    path.write_text(path.read_text().replace("    1.0471975511965976,\n", "", 1))
+    with pytest.raises(ValueError) as info:
+        FiberModel.load(path)
+    assert str(info.value).startswith(f"{path}: FiberModel.core_angles: core_angles has 3 entries, core_radii 4")
 
 
 def test_layout_needs_two_bending_cores():
@@ -158,3 +179,38 @@ def test_a_binary_fiber_file_is_one_line_naming_the_file(tmp_path):
     with pytest.raises(ValueError, match=rf"^{path}: not valid TOML"):
         path.write_text("name = 'x\n")
         FiberModel.load(path)
+
+
+@pytest.mark.timeout(120)  # a hang guard: the model below made `twin replay` allocate 127 GiB
+@pytest.mark.parametrize(("field", "value", "message"), [
+    ("grating_s", [1e4 * 0.01 * i for i in range(18)], "grating_s: grating 17 at 1700.0 m"),
+    ("core_angles", [0.0, 0.0, 1e300, 2.0], "core_angles: core 2 at 1e+300 rad"),
+])
+def test_a_fiber_file_in_the_wrong_unit_fails_in_one_line_before_allocating(tmp_path, field, value, message):
+    """Issue 23 B15: `grating_s` off by 1e6 passed validation and `twin replay` died allocating 127 GiB."""
+    import subprocess
+    import sys
+
+    from io_helpers import synthetic_frames
+
+    from twin.io.record import Recorder
+
+    rec = tmp_path / "r.h5"
+    with Recorder(rec, fiber=FiberModel.paper()) as r:
+        r.append(synthetic_frames(5))
+    import tomli_w
+
+    d = FiberModel.paper().to_dict()
+    d[field] = value
+    (tmp_path / "bad.toml").write_text(tomli_w.dumps(d))
+    proc = subprocess.run([sys.executable, "-m", "twin.cli", "replay", str(rec), "--fiber", str(tmp_path / "bad.toml")],
+                          capture_output=True, text=True, timeout=100)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert f"{tmp_path / 'bad.toml'}: " in proc.stderr and message in proc.stderr
+
+
+def test_a_step_count_beyond_the_bound_fails_before_allocating():
+    from twin.reconstruct import Reconstructor
+
+    with pytest.raises(ValueError, match=r"step 1e-09 m over 0.17 m makes more than 100000 steps"):
+        Reconstructor(FiberModel.paper(), step=1e-9)

@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import require_module
 from io_helpers import ManualSource, wait_until
 
 from sim_interrogator.servers import FispecServer
@@ -22,7 +23,8 @@ from twin import strain
 from twin.io.synthetic import multicore_fiber
 
 os.environ.setdefault("MPLBACKEND", "Agg")
-fbg = pytest.importorskip("myFBGcommunication.myFBGcommunication")
+fbg = require_module("myFBGcommunication.myFBGcommunication",
+                     "the FiSpec third-party client (pip install -e '.[test]' installs myfbgcommunication)")
 
 CORE = 1  # an outer core: it sees bending, so a shape change moves its peaks
 

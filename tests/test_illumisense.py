@@ -325,8 +325,10 @@ def test_round_trip_at_the_protocol_quantisation(frame, sensors, single, ending)
         assert math.isnan(f.timestamp)
     else:
         assert abs(f.timestamp - frame.timestamp) <= 2e-6
-    assert len(got.sensors) == len(sensors)
-    for a, b in zip(got.sensors, sensors, strict=True):
+    # a block without gratings or shape points is absent, and so are those after it (issue 23 B4)
+    usable = next((j for j, b in enumerate(sensors) if not (b.curvature.size and b.positions.size)), len(sensors))
+    assert len(got.sensors) == usable and got.absent_sensors == len(sensors) - usable
+    for a, b in zip(got.sensors, sensors[:usable], strict=True):
         np.testing.assert_allclose(a.curvature, b.curvature, rtol=0, atol=0.5e-4 + 1e-12)  # 1e-6 1/cm
         np.testing.assert_allclose(a.angle, b.angle, rtol=0, atol=0.5e-5 + 1e-12)
         np.testing.assert_allclose(a.positions, b.positions, rtol=0, atol=1e-7)
@@ -465,8 +467,12 @@ def assert_matches_reference(rec: illumisense.Record, ref: dict) -> None:
     np.testing.assert_array_equal(f.wavelengths, lam)
     np.testing.assert_array_equal(f.powers, pw)
     np.testing.assert_array_equal(f.status, st_)
-    assert len(rec.sensors) == len(ref["sensors"]) and rec.extra_fields == ref["extra"]
-    for a, (k, ang, p) in zip(rec.sensors, ref["sensors"], strict=True):
+    # the plain reading keeps every block; a block without gratings or shape points and those after it are
+    # absent from the record (issue 23 B4)
+    usable = next((j for j, (k, _, p) in enumerate(ref["sensors"]) if not (len(k) and len(p))), len(ref["sensors"]))
+    assert len(rec.sensors) == usable and rec.absent_sensors == len(ref["sensors"]) - usable
+    assert rec.extra_fields == ref["extra"]
+    for a, (k, ang, p) in zip(rec.sensors, ref["sensors"][:usable], strict=True):
         np.testing.assert_array_equal(a.curvature, k)
         np.testing.assert_array_equal(a.angle, ang)
         np.testing.assert_array_equal(a.positions, p.reshape(-1, 3))
@@ -578,3 +584,123 @@ def test_fuzz_stream_arbitrary_bytes_never_raise(data, cuts):
         pos += c
     dec.finish()
     assert dec.pending == 0
+
+
+# ------------------------------------------------------------------------------ issue 23: faults of the attack
+
+LONG_STREAM = [illumisense.encode_record(Frame(np.full((18, 4), 1550.0) + 1e-3 * k, 0.0, k)) for k in range(60)]
+
+
+def _flip_prefix(recs: list[bytes], i: int, byte: int, xor: int) -> bytes:
+    bad = bytearray(recs[i])
+    bad[byte] ^= xor
+    return b"".join(recs[:i]) + bytes(bad) + b"".join(recs[i + 1 :])
+
+
+def _feed_chunked(dec, data: bytes, cuts) -> list:
+    out, pos = [], 0
+    for c in [*cuts, len(data)]:
+        out += dec.feed(data[pos : pos + c])
+        pos += c
+    return out
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 9), st.integers(1, 3), st.integers(1, 255), st.lists(st.integers(1, 5000), max_size=8))
+@example(5, 1, 0x0F, [])  # length + 983040: still under 1 MiB, more than the rest of the stream
+@example(5, 2, 0x40, [100, 100])
+def test_fuzz_a_corrupted_length_prefix_never_stalls_the_stream(i, byte, xor, cuts):
+    """Issue 23 B1: in sync, a prefix still under the bound made the decoder wait for bytes that the NULs of the
+    later prefixes already proved wrong; every good record after the damaged one must be delivered."""
+    data = _flip_prefix(LONG_STREAM, i, byte, xor)
+    dec = illumisense.StreamDecoder()
+    got = {f.sequence for f in _feed_chunked(dec, data, cuts)}
+    assert set(range(len(LONG_STREAM))) - {i} <= got
+    assert dec.framing_errors >= 1 and dec.in_sync and dec.pending == 0
+
+
+def test_a_long_bogus_prefix_is_refused_by_the_line_end_inside_it():
+    """Issue 23 B1: the line ends inside a would-be payload prove it wrong too (a log of payloads with LF)."""
+    payload = LONG_STREAM[1][4:]
+    data = (200_000).to_bytes(4, "big") + payload + b"".join(LONG_STREAM[2:6])
+    dec = illumisense.StreamDecoder(layout_quorum=0)
+    assert dec.feed(data[: 4 + len(payload)]) == []
+    assert not dec.in_sync and dec.framing_errors == 1 and "NUL or LF" in str(dec.last_error)
+    assert [f.sequence for f in dec.feed(data[4 + len(payload) :])] == [2, 3, 4, 5]
+
+
+def test_lost_samples_never_wrap_and_do_not_depend_on_chunking():
+    """Issue 23 B2: gaps of 2**63 - 2 samples each summed in int64 wrapped to a negative count."""
+    from twin.io.sequence import SequenceCounter
+
+    top = 2**63 - 1
+    seqs = [0, top, 0, top, 0, top, 5]
+    exact = 3 * (top - 1)  # three forward jumps; the returns to 0 and the 5 after top are resets
+    c = SequenceCounter()
+    c.count_many(seqs)
+    assert (c.lost_samples, c.sequence_gaps, c.sequence_resets) == (exact, 3, 3)
+    one = SequenceCounter()
+    for s in seqs:
+        one.count(s)
+    assert one.as_dict() == c.as_dict()
+    recs = [illumisense.encode_record(Frame(np.full((2, 2), 1550.0), 0.0, s)) for s in seqs]
+    totals = set()
+    for cuts in ([], [len(r) for r in recs], [7] * 200):
+        dec = illumisense.StreamDecoder(layout_quorum=0)
+        assert len(_feed_chunked(dec, b"".join(recs), cuts)) == len(seqs)
+        totals.add(dec.sequence.lost_samples)
+    assert totals == {exact}
+
+
+def test_a_19_digit_time_fraction_reads_as_python_reads_it():
+    """Issue 23 B3: the compiled scanner read 19 digits ≥ 2**63 into an int64 before its length check: NaN."""
+    for frac in (b"9999999999999999999", b"9223372036854775808", b"99999999999999999999999"):
+        t = b"13:45:12." + frac
+        want = illumisense.parse_timestamp(b"2024/01/31", t)
+        assert want == EXAMPLE_EPOCH - 12 + float(b"12." + frac)
+        assert illumisense.decode_record(b"2024/01/31\t" + t + b"\t1\t0\n").frame.timestamp == want
+
+
+def test_a_sensor_block_without_shape_points_is_absent_and_counted(tmp_path):
+    """Issue 23 B4: a block with 0 shape points raised IndexError in the vendor-distance sink (and could not be
+    recorded); such a block carries no shape, so the decoder leaves it (and the blocks after it) out."""
+    from io_helpers import synthetic_frames
+
+    from twin import FiberModel
+    from twin.io.illumisense.vendor import VendorDistance
+    from twin.io.record import Recorder
+    from twin.reconstruct import Reconstructor
+
+    fiber = FiberModel.paper()
+    frames = synthetic_frames(4)
+    empty = VendorSensor(np.zeros(0), np.zeros(0), np.zeros((0, 3)))
+    good = VendorSensor(np.full(3, 0.5), np.zeros(3), np.c_[np.arange(200) * 1e-3, np.zeros((200, 2))])
+    data = b"".join(illumisense.encode_record(f, sensors=[empty, good]) for f in frames[:2])
+    data += b"".join(illumisense.encode_record(f, sensors=[good, empty]) for f in frames[2:])
+    dec = illumisense.StreamDecoder(layout_quorum=0)
+    got = dec.feed_batch(data)
+    assert [f.vendor is None for f in got] == [True, True, False, False]
+    assert len(got[2].vendor) == 1 and got[2].vendor[0].positions.shape == (200, 3)
+    assert dec.sensor_blocks_absent == 2 * 2 + 2 * 1
+    rec = illumisense.decode_record(illumisense.encode_payload(frames[0], sensors=[empty]))
+    assert rec.sensors == () and rec.absent_sensors == 1 and rec.frame.vendor is None
+    shapes = Reconstructor(fiber)(np.stack([f.wavelengths for f in got]))
+    sink = VendorDistance(rate=None)
+    sink(got, shapes, None)  # raised IndexError
+    assert sink.frames_compared == 1
+    with Recorder(tmp_path / "r.h5", fiber=fiber) as recorder:  # raised on the empty block's chunk shape
+        recorder(got)
+    assert recorder.frames_written == 4
+
+
+@pytest.mark.timeout(120)  # a hang guard, not a speed limit (the decode takes about a second)
+def test_a_megabyte_of_minimal_sensor_blocks_decodes_in_one_pass():
+    """Issue 23, also seen: ~18,700 minimal sensor blocks in one 1 MiB record; the walk looked up the next label
+    among all the record's labels per block (quadratic). The record decodes, its blocks absent and counted."""
+    blk = b"\tCurvature\tCurvature angle\tShape x\t0\tShape y\t0\tShape z\t0"
+    n = (illumisense.DEFAULT_MAX_PAYLOAD - 40) // len(blk)
+    payload = b"2024/01/31\t13:45:12\t1\t0" + blk * n + b"\r\n"
+    assert n > 18_000 and len(payload) <= illumisense.DEFAULT_MAX_PAYLOAD
+    dec = illumisense.StreamDecoder(layout_quorum=0)
+    (got,) = dec.feed_records(record(payload) + EXAMPLE)[:1]
+    assert got.absent_sensors == n and got.sensors == () and dec.sensor_blocks_absent == n

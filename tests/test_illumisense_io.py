@@ -18,6 +18,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 from io_helpers import ScriptedServer, wait_until
 
 from sim_interrogator.servers import IllumisenseServer
@@ -176,3 +177,21 @@ def test_log_line_endings_header_and_decimal_comma(tmp_path):
             np.testing.assert_array_equal(r.frames().sequence, np.arange(1, 6))
             assert r.frames().wavelengths[2, 1, 1] == 1515.01  # grating 1 of channel 2, read with its comma
             assert len(r.errors) == 1 and r.errors[0].startswith("line 5:")
+
+
+@pytest.mark.parametrize(("url", "key"), [
+    ("illumisense://127.0.0.1:9?layout_wait=nan", "layout_wait='nan' is not valid; expected a number of seconds"),
+    ("illumisense://127.0.0.1:9?layout_wait=-1", "layout_wait='-1' is not valid"),
+    ("illumisense://127.0.0.1:9?resync_timeout=-1", "resync_timeout='-1' is not valid; expected a number > 0"),
+    ("illumisense://127.0.0.1:9?resync_timeout=inf", "resync_timeout='inf' is not valid"),
+    ("illumisense://127.0.0.1:9?retry_for=nan", "retry_for='nan' is not valid"),
+    ("illumisense://127.0.0.1:9?connect_timeout=0", "connect_timeout='0' is not valid"),
+    ("illumisense://[::1:2055", "not a source URL (Invalid IPv6 URL"),
+])
+def test_url_options_out_of_range_name_the_url_and_key(url, key):
+    """Issue 23, also seen: `layout_wait=nan` and `resync_timeout=-1` were accepted (a timer that never or at
+    once elapses); "Invalid IPv6 URL" named neither the URL nor the place."""
+    with pytest.raises(ValueError) as info:
+        open_source(url)
+    msg = str(info.value)
+    assert msg.startswith(repr(url) + ":") and key in msg and "\n" not in msg, msg

@@ -1,11 +1,14 @@
 """Names and registration (docs/architecture.md, "Names and registration"): one file name for one job, one
 spelling (``fiber``) in identifiers and file names, and one registration mechanism (entry points read by
-:mod:`twin.registry`)."""
+:mod:`twin.registry`). Also the one rule for independent checks whose tool is missing (tests/conftest.py)."""
 
 from __future__ import annotations
 
 import ast
 import inspect
+import os
+import subprocess
+import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -106,3 +109,24 @@ def test_an_unknown_simulated_setup_lists_the_registered_ones():
         open_sim("sim://nonesuch")
     assert "unknown simulated setup 'nonesuch'" in str(err.value)
     assert ", ".join(registry.entries("twin.sim_setups")) in str(err.value)
+
+
+CHECK = """
+from conftest import require_tool
+
+def test_needs_a_missing_tool():
+    require_tool(False, "nonesuch is not installed")
+"""
+
+
+@pytest.mark.parametrize(("ci", "outcome"), [("true", "1 failed"), ("", "1 skipped")])
+def test_a_missing_independent_tool_fails_under_ci_and_skips_outside(tmp_path, ci, outcome):
+    """tests/conftest.py's rule, run as pytest runs it: CI=true turns the skip of a missing tool into a failure."""
+    (tmp_path / "test_probe.py").write_text(CHECK)
+    env = {**os.environ, "CI": ci, "PYTHONPATH": str(ROOT / "tests")}
+    out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-o", "addopts=",
+                          str(tmp_path / "test_probe.py")], capture_output=True, text=True, cwd=tmp_path, env=env,
+                         timeout=120)
+    assert outcome in out.stdout, out.stdout + out.stderr
+    if ci:  # the failure says what is missing and why it is not a skip
+        assert "nonesuch is not installed (CI=true" in out.stdout, out.stdout

@@ -20,6 +20,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from conftest import require_tool
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -81,8 +82,7 @@ def test_readme_examples_are_there_and_consistent(capsys):
 def test_readme_session_and_python_run_as_written(tmp_path):
     shell, python = session()
     venv = ROOT / ".venv"
-    if not (venv / "bin" / "activate").exists():
-        pytest.skip("no .venv in the checkout (make test creates it)")
+    require_tool((venv / "bin" / "activate").exists(), "no .venv in the checkout (make test creates it)")
     (tmp_path / ".venv").symlink_to(venv)
     env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
     env.update(MPLBACKEND="Agg", PYTHONUNBUFFERED="1")
@@ -105,3 +105,43 @@ def test_readme_session_and_python_run_as_written(tmp_path):
     run = subprocess.run([str(venv / "bin" / "python"), str(script)], cwd=tmp_path, env=env, capture_output=True,
                          text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-4000:]
+
+
+# ----------------------------------------------------------------------------- the results tables (issue 23 D)
+def test_readme_results_tables_are_rendered_from_the_published_runs():
+    """Every table between `<!-- results: NAME -->` markers is what scenarios.results_tables renders from the
+    runs' JSON in docs/results/ (`make results` reruns them and rewrites the tables)."""
+    from scenarios.results_tables import TABLES, differences, load, readme_tables, render
+
+    text = README.read_text(encoding="utf-8")
+    assert set(readme_tables(text)) == set(TABLES)
+    assert differences(text, render(load())) == []
+
+
+def test_results_tables_are_written_between_their_markers_only():
+    from scenarios.results_tables import differences, readme_tables, write
+
+    text = ("intro\n<!-- results: a -->\n<!-- /results -->\nmiddle | not a table\n"
+            "<!-- results: b -->\n| old |\n|---|\n<!-- /results -->\nend\n")
+    tables = {"a": "| x |\n|---|\n| 1 |", "b": "| y |\n|---|\n| 2 |"}
+    out = write(text, tables)
+    assert out == ("intro\n<!-- results: a -->\n| x |\n|---|\n| 1 |\n<!-- /results -->\nmiddle | not a table\n"
+                   "<!-- results: b -->\n| y |\n|---|\n| 2 |\n<!-- /results -->\nend\n")
+    assert readme_tables(out) == tables and differences(out, tables) == []
+    assert differences(text, tables) == ["a", "b"]
+    with pytest.raises(KeyError, match="unknown tables: b"):
+        write(text, {"a": "| x |"})
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_rerunning_the_quickest_published_runs_gives_the_same_tables(tmp_path):
+    """The published figures reproduce: the two quickest runs (tendon, temperature bath) rerun now render the
+    README's tables unchanged."""
+    import shutil
+
+    from scenarios.results_tables import RESULTS, differences, load, render, rerun
+
+    shutil.copytree(RESULTS, tmp_path / "results")
+    rerun(["tendon", "temperature-bath"], tmp_path / "results", say=lambda msg: None)
+    assert differences(README.read_text(encoding="utf-8"), render(load(tmp_path / "results"))) == []

@@ -120,8 +120,14 @@ def test_missing_peaks_reconstruct_and_are_flagged(default):
     assert not shape.valid[2, 6] and shape.valid[2].sum() == 17
     assert shape.all_valid.tolist() == [True, True, False]
     np.testing.assert_allclose(shape.positions[1], shape.positions[0], atol=1e-12)
-    # dropping one of 18 gratings costs accuracy but not the shape (a few tenths of a mm here)
-    assert 1e-6 < max_error(shape[2], c) < 1e-3
+    # a dropped grating is as if the fibre had never had it: the same reconstruction as a 17-grating fibre's
+    # (another FiberModel, no NaN anywhere), to float rounding; it costs accuracy (0.02 → 0.14 mm here: the
+    # two-plane bend's curvature change falls in the 20 mm gap) but not the shape
+    keep = np.delete(np.arange(18), 6)
+    fiber17 = FIBER.replace(grating_s=FIBER.grating_s[keep], lambda0=FIBER.lambda0[keep])
+    without = Reconstructor(fiber17)(synthetic(c, fiber=fiber17))
+    np.testing.assert_allclose(shape.positions[2], without.positions, rtol=0, atol=1e-12)
+    assert max_error(shape[2], c) > 3 * max_error(shape[0], c)
     assert np.isnan(shape.curvature[2, 6]).all()
 
 
@@ -164,8 +170,10 @@ def test_positions_at_interpolates_between_points(default):
     c = shapes.get("mixed")
     shape = default(synthetic(c))
     s = np.linspace(0, 0.17, 77)
-    # cubic Hermite on 1 mm points: error O(h⁴κ³) ≪ 1 µm
-    np.testing.assert_allclose(shape.positions_at(s), default(synthetic(c)).positions_at(s))
+    # the interpolant passes through its nodes …
+    np.testing.assert_allclose(shape.positions_at(shape.s), shape.positions, rtol=0, atol=1e-15)
+    # … and between them, cubic Hermite on 1 mm points errs by O(h⁴κ³) ≪ 1 µm: against the same curve integrated
+    # at 1/7000 of the length, whose own interpolation error (h 40× smaller: 40⁴ times less) is negligible
     exact_at_points = Reconstructor(FIBER, step=0.17 / 7000)(synthetic(c))
     np.testing.assert_allclose(shape.positions_at(s), exact_at_points.positions_at(s), atol=1e-8)
     with pytest.raises(ValueError, match="must lie in"):

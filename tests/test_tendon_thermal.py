@@ -239,7 +239,7 @@ def test_scenarios_run_from_the_command_line(tmp_path, capsys):
     assert main(["run", "temperature-bath", "--end", "10"]) == 2
 
 
-def test_viewer_hook_is_called():
+def test_viewer_hook_is_called(capsys):
     """With args.viewer set, the scenarios draw frames through viewer.show(shape, truth, base_pose=…)."""
 
     class FakeViewer:
@@ -253,12 +253,17 @@ def test_viewer_hook_is_called():
             assert shape.positions.ndim == 2 and truth.positions.shape[-1] == 3
             self.calls.append((base_pose[0].shape, label))
 
-    viewer = FakeViewer()
-    result = tendon.run_experiment(tendon.Params(cycles=0.25, period=2.0, rate=5.0, calibration="true"))
-    tendon.show(viewer, result)
-    assert viewer.calls and viewer.calls[0][0] == (3, 3) and "T =" in viewer.calls[-1][1]
-    args = argparse.Namespace(viewer=None)
-    assert getattr(args, "viewer", None) is None
+    # the command's path: `twin run` hands its viewer to the scenario as args.viewer (scenarios._common.entry)
+    parser = argparse.ArgumentParser()
+    tendon.add_arguments(parser)
+    args = parser.parse_args(["--cycles", "0.25", "--period", "2", "--rate", "5", "--calibration", "true", "--json"])
+    args.viewer = FakeViewer()
+    assert tendon.run(args) == 0
+    calls, frames = args.viewer.calls, json.loads(capsys.readouterr().out)["frames"]
+    # 0.25 cycles of a 2 s period at 5 Hz: 0.5 s → frames at 0, 0.2 and 0.4 s; every frame drawn once (show()
+    # replays up to 150) with its base pose (a 3×3 rotation) and a label carrying the wire tension
+    assert frames == 3 and len(calls) == frames
+    assert all(c[0] == (3, 3) for c in calls) and all("T =" in c[1] for c in calls)
 
 
 # ------------------------------------------------------------------------------------------------ full runs

@@ -45,6 +45,20 @@ def real_array(
     return a
 
 
+#: Bragg wavelengths a fibre model or a calibration may hold, nm (anything else is in another unit: µm, m)
+BRAGG_NM = (200.0, 3000.0)
+
+
+def check_bragg_nm(lam: np.ndarray, where: str) -> None:
+    """One ValueError naming ``where`` (e.g. ``FiberModel.lambda0``), the grating and the core when a wavelength
+    of ``lam`` (n_gratings, n_cores) lies outside :data:`BRAGG_NM`."""
+    out = (lam < BRAGG_NM[0]) | (lam > BRAGG_NM[1])
+    if np.any(out):
+        g, c = (int(i) for i in np.argwhere(out)[0])
+        raise ValueError(f"{where}: grating {g} core {c} has {lam[g, c]} nm; expected a Bragg wavelength in nm "
+                         f"({BRAGG_NM[0]:g}–{BRAGG_NM[1]:g})")
+
+
 def _toml_kind(value) -> str:
     """How a value read from TOML (or given to ``from_dict``) reads in an error message."""
     import datetime

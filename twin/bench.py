@@ -34,6 +34,8 @@ GOALS: dict[tuple[str, str], tuple[str, float, str]] = {
     ("reconstruct", "latency_us_p99"): ("<=", 250.0, "µs"),
     ("reconstruct", "batch_frames_per_s"): (">=", 100_000.0, "frames/s"),
     ("reconstruct", "speedup_vs_baseline"): (">=", 100.0, "×"),
+    ("reconstruct", "uncertainty_cost_ratio"): ("<=", 2.0, "×"),
+    ("reconstruct", "uncertainty_latency_ratio"): ("<=", 2.0, "×"),
     ("sim", "realtime_factor"): (">=", 2.0, "×"),
     ("sim", "optics_overhead"): ("<=", 0.1, ""),
     ("stream", "max_frames_per_s"): (">=", 40_000.0, "frames/s"),
@@ -179,6 +181,7 @@ def bench_reconstruct(quick: bool = False) -> dict:
         times.append(time.perf_counter() - t0)
     lat_base = _latencies(lambda w: naive_baseline(fiber, w), frames, 6 if quick else 40)
     p50 = float(np.percentile(lat, 50))
+    unc_ratio, unc_latency_ratio = _uncertainty_cost(fiber, frames, batch[: n_batch // 4], quick)
     return {
         "latency_us_p50": round(p50, 2),
         "latency_us_p99": round(float(np.percentile(lat, 99)), 2),
@@ -187,11 +190,50 @@ def bench_reconstruct(quick: bool = False) -> dict:
         "baseline_latency_us_p50": round(float(np.percentile(lat_base, 50)), 1),
         "speedup_vs_baseline": round(float(np.percentile(lat_base, 50)) / p50, 1),
         "speedup_vs_paper_cpp": round(PAPER_CPP_US / p50, 1),
+        "uncertainty_cost_ratio": round(unc_ratio, 2),
+        "uncertainty_latency_ratio": round(unc_latency_ratio, 2),
         "frames_latency": n_lat,
         "frames_batch": n_batch,
         "points_per_shape": int(default.s.size),
         "step_m": default.h,
     }
+
+
+def _uncertainty_cost(fiber, frames: np.ndarray, batch: np.ndarray, quick: bool) -> tuple[float, float]:
+    """The uncertainty's own cost (:meth:`twin.uncertainty.Uncertainty.propagate` on shapes already
+    reconstructed: noise, both calibration parameters, a model error with a base angle) over the reconstruction's,
+    for a batch and for single frames (p50 over p50), measured interleaved so the machine's load hits both."""
+    from twin import Calibration, Reconstructor
+    from twin.calibration import nominal_delta_theta, nominal_gain
+    from twin.uncertainty import ModelError, Uncertainty
+
+    cal = Calibration(delta_theta=nominal_delta_theta(fiber), gain=nominal_gain(fiber), delta_theta_std=1e-3,
+                      gain_std=1e-2 * nominal_gain(fiber))
+    rec = Reconstructor(fiber, cal)
+    unc = Uncertainty(rec, model_error=ModelError(0.05, base_angle=1e-3))
+    shapes = rec(batch)
+    unc.propagate(shapes[:10], batch[:10])
+    t_rec, t_unc = [], []
+    for _ in range(2 if quick else 4):
+        t0 = time.perf_counter()
+        rec(batch)
+        t1 = time.perf_counter()
+        unc.propagate(shapes, batch)
+        t2 = time.perf_counter()
+        t_rec.append(t1 - t0)
+        t_unc.append(t2 - t1)
+    n = 300 if quick else 2000
+    single = [rec(frames[i % len(frames)]) for i in range(64)]
+    lat_rec, lat_unc = np.empty(n), np.empty(n)
+    clock = time.perf_counter_ns
+    for i in range(n):
+        w = frames[i % 64]
+        t0 = clock()
+        rec(w)
+        t1 = clock()
+        unc.propagate(single[i % 64], w)
+        lat_rec[i], lat_unc[i] = t1 - t0, clock() - t1
+    return min(t_unc) / min(t_rec), float(np.percentile(lat_unc, 50) / np.percentile(lat_rec, 50))
 
 
 # ---------------------------------------------------------------------- the report

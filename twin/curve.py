@@ -47,12 +47,20 @@ def _check(name: str, value: str, allowed: tuple[str, ...]) -> None:
         raise ValueError(f"{name} must be one of {', '.join(allowed)}; got {value!r}")
 
 
+#: most integration steps of one reconstruction (20 m in 0.2 mm steps): every frame of a batch holds a point and
+#: a frame per step, so a length or step in the wrong unit must fail here, before anything is allocated
+MAX_STEPS = 100_000
+
+
 def step_grid(s_start: float, s_end: float, step: float) -> tuple[np.ndarray, float]:
     """Output arc lengths from ``s_start`` to ``s_end`` with equal steps no longer than ``step`` (m)."""
     if not (step > 0 and np.isfinite(step)):
         raise ValueError(f"step must be a positive length in m, got {step}")
-    if not s_end > s_start:
+    if not (s_end > s_start and np.isfinite(s_end - s_start)):
         raise ValueError(f"nothing to reconstruct between {s_start} and {s_end} m")
+    if (s_end - s_start) / step > MAX_STEPS:
+        raise ValueError(f"step {step:g} m over {s_end - s_start:g} m makes more than {MAX_STEPS} steps; expected "
+                         "lengths and steps in m")
     n = max(1, int(np.ceil((s_end - s_start) / step - 1e-9)))
     h = (s_end - s_start) / n
     return s_start + h * np.arange(n + 1), h

@@ -1,7 +1,7 @@
 """Optional dependencies: which extra of ``catheter-twin`` brings which package, and one error that says so.
 
 The sensing core installs with numpy, scipy, numba, tomli-w and pyserial only. Everything else sits behind an
-extra (``pip install 'catheter-twin[sim]'``); code that needs one imports it through :func:`require` (or lets
+extra (``pip install '.[sim]'`` from a checkout); code that needs one imports it through :func:`require` (or lets
 :func:`import_optional` translate the ImportError of a module that does), so the user reads one line naming
 the extra instead of a traceback.
 """
@@ -25,6 +25,10 @@ EXTRAS: dict[str, str] = {
     "dask": "study",
     "distributed": "study",
     "pyarrow": "study",
+    "mcap": "ros",
+    "zstandard": "ros",
+    "lz4": "ros",
+    "foxglove": "ros",
 }
 
 
@@ -34,8 +38,9 @@ class MissingExtra(ImportError):
     def __init__(self, package: str, extra: str, what: str | None = None):
         self.package, self.extra = package, extra
         needs = f"{what} needs" if what else "this needs"
+        # the README installs from a checkout (the project is not on a package index): the hint says the same
         super().__init__(f"{needs} the '{extra}' extra ({package} is not installed): "
-                         f"pip install 'catheter-twin[{extra}]'", name=package)
+                         f"pip install '.[{extra}]' from a catheter-twin checkout", name=package)
 
 
 def require(package: str, what: str | None = None) -> ModuleType:

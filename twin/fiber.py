@@ -19,11 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
-from twin._validate import check_field_types, check_table, frozen, real_array
+from twin._validate import check_bragg_nm, check_field_types, check_table, frozen, real_array
 
 __all__ = ["FiberModel"]
 
 _OWNER = "FiberModel"
+
+#: longest arc length a model may hold, m: a catheter's or an endoscope's sensor is a few metres long; this
+#: leaves room and refuses lengths in mm or µm before anything is sized by them (issue 23 B15)
+MAX_LENGTH = 20.0
 
 #: what each field of a fibre file holds (checked before anything is converted)
 FIELD_KINDS = {
@@ -48,11 +52,12 @@ class FiberModel:
     Parameters
     ----------
     core_angles : array_like, shape (n_cores,)
-        Angular position of each core in the cross-section, rad (see module docstring for the sense).
+        Angular position of each core in the cross-section, rad, within ±2π (see module docstring for the sense).
     core_radii : array_like, shape (n_cores,)
         Distance of each core from the fibre's neutral axis, m; 0 for a central core.
     grating_s : array_like, shape (n_gratings,)
-        Arc length of each grating from the base (the reconstruction's origin), m, strictly increasing.
+        Arc length of each grating from the base (the reconstruction's origin), m, strictly increasing, at most
+        :data:`MAX_LENGTH` (``length`` too).
     lambda0 : array_like, shape (n_gratings, n_cores)
         Nominal Bragg wavelength of each grating in each core, unstrained at the reference temperature, nm.
     central_core : int or None
@@ -89,7 +94,13 @@ class FiberModel:
         n_c = angles.size
         if n_c < 2:
             raise ValueError(f"{_OWNER}.core_angles: expected at least 2 cores, got {n_c}")
-        radii = real_array(self.core_radii, "core_radii", shape=(n_c,), unit="m", owner=_OWNER)
+        if np.any(np.abs(angles) > 2 * np.pi + 1e-9):
+            i = int(np.argmax(np.abs(angles) > 2 * np.pi + 1e-9))
+            raise ValueError(f"{_OWNER}.core_angles: core {i} at {angles[i]} rad; expected angles in rad within "
+                             "±2π (120° is 2.0944)")
+        radii = real_array(self.core_radii, "core_radii", shape=(None,), unit="m", owner=_OWNER)
+        if radii.size != n_c:
+            raise ValueError(_core_count_mismatch(n_c, radii.size, self.lambda0))
         if np.any(radii < 0):
             i = int(np.argmax(radii < 0))
             raise ValueError(f"{_OWNER}.core_radii: expected radii >= 0 m, got {radii[i]} for core {i}")
@@ -105,6 +116,9 @@ class FiberModel:
             raise ValueError(f"{_OWNER}.grating_s: expected at least one grating")
         if np.any(s < 0):
             raise ValueError(f"{_OWNER}.grating_s: expected arc lengths >= 0 m, got {s.min()}")
+        if s[-1] > MAX_LENGTH:
+            raise ValueError(f"{_OWNER}.grating_s: grating {n_g - 1} at {s[-1]} m from the base; expected arc lengths "
+                             f"in m up to {MAX_LENGTH:g} m (170 mm is 0.17)")
         if np.any(np.diff(s) <= 0):
             i = int(np.argmax(np.diff(s) <= 0))
             raise ValueError(
@@ -112,12 +126,7 @@ class FiberModel:
                 f"at gratings {i}, {i + 1}"
             )
         lam = real_array(self.lambda0, "lambda0", shape=(n_g, n_c), unit="nm", owner=_OWNER)
-        if np.any((lam < 200) | (lam > 3000)):
-            bad = np.argwhere((lam < 200) | (lam > 3000))[0]
-            raise ValueError(
-                f"{_OWNER}.lambda0: grating {bad[0]} core {bad[1]} has {lam[tuple(bad)]} nm; expected a Bragg "
-                "wavelength in nm (200–3000)"
-            )
+        check_bragg_nm(lam, f"{_OWNER}.lambda0")
         central = self.central_core
         if central is not None:
             if isinstance(central, bool) or not isinstance(central, int | np.integer):
@@ -152,9 +161,10 @@ class FiberModel:
         length = self.length
         if length is not None:
             length = float(length)
-            if not (np.isfinite(length) and length >= s[-1] and length > 0):
+            if not (np.isfinite(length) and s[-1] <= length <= MAX_LENGTH and length > 0):
                 raise ValueError(
-                    f"{_OWNER}.length: expected a length in m at or beyond the last grating ({s[-1]} m), got {length}"
+                    f"{_OWNER}.length: expected a length in m at or beyond the last grating ({s[-1]} m) and up to "
+                    f"{MAX_LENGTH:g} m, got {length}"
                 )
         # Freeze: the model is shared by reconstructors, calibrations and the simulator.
         for name, value in (("core_angles", angles), ("core_radii", radii), ("grating_s", s), ("lambda0", lam)):
@@ -313,6 +323,19 @@ class FiberModel:
         """Read a TOML fibre model, validating every field."""
         path = Path(path)
         return cls.from_dict(read_toml(path, "fibre model"), source=str(path))
+
+
+def _core_count_mismatch(n_angles: int, n_radii: int, lambda0) -> str:
+    """The error for ``core_angles`` and ``core_radii`` of different lengths: it names both, and blames the one
+    that disagrees with ``lambda0``'s cores per grating when that settles it."""
+    shape = np.shape(lambda0) if isinstance(lambda0, list | tuple | np.ndarray) else ()
+    n_lam = shape[1] if len(shape) == 2 else None
+    both = f"core_angles has {n_angles} entries, core_radii {n_radii}: both need one per core"
+    if n_lam == n_radii:
+        return f"{_OWNER}.core_angles: {both} (lambda0 has {n_lam} cores per grating)"
+    if n_lam == n_angles:
+        return f"{_OWNER}.core_radii: {both} (lambda0 has {n_lam} cores per grating)"
+    return f"{_OWNER}.core_angles, core_radii: {both}"
 
 
 def origin(obj, default: str = "") -> str:

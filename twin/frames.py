@@ -376,6 +376,11 @@ class Shape:
         Arc length of each grating, m.
     valid : ndarray of bool, shape (..., n_gratings)
         Gratings whose curvature could be computed; invalid ones were interpolated over.
+    covariance : ndarray, shape (..., n_points, 3, 3) or None
+        Position covariance of each point, m², when the shape carries its uncertainty
+        (:class:`twin.uncertainty.Uncertainty`); see :attr:`sigma` and :meth:`confidence`.
+    curvature_covariance : ndarray, shape (..., n_gratings, 2, 2) or None
+        Covariance of the curvature vector at each grating, (1/m)², with ``covariance``.
     """
 
     s: np.ndarray
@@ -384,10 +389,14 @@ class Shape:
     curvature: np.ndarray
     grating_s: np.ndarray
     valid: np.ndarray
+    covariance: np.ndarray | None = None
+    curvature_covariance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        for name in ("s", "positions", "frames", "curvature", "grating_s", "valid"):
-            frozen(getattr(self, name))
+        for name in ("s", "positions", "frames", "curvature", "grating_s", "valid", "covariance",
+                     "curvature_covariance"):
+            if getattr(self, name) is not None:
+                frozen(getattr(self, name))
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -412,7 +421,34 @@ class Shape:
             curvature=self.curvature[idx],
             grating_s=self.grating_s,
             valid=self.valid[idx],
+            covariance=None if self.covariance is None else self.covariance[idx],
+            curvature_covariance=None if self.curvature_covariance is None else self.curvature_covariance[idx],
         )
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """1σ lateral radius of each point, m, shape (..., n_points): √(tr Σ_⊥ / 2), the per-axis standard
+        deviation of the position error in the plane normal to the curve (Σ_⊥, :meth:`confidence`). Needs
+        :attr:`covariance`."""
+        from twin.tube import lateral_eigenvalues
+
+        return np.sqrt(lateral_eigenvalues(self._covariance(), self.frames[..., :, 2]).mean(axis=-1))
+
+    def confidence(self, level: float = 0.95) -> np.ndarray:
+        """Radius of the level-% confidence tube at each point, m, shape (..., n_points).
+
+        The tube's cross-section at a point is the circle, normal to the curve, that holds ``level`` of the
+        point's lateral error: the position error projected on the normal plane, a 2-D Gaussian of covariance
+        Σ_⊥ (the linearised propagation; :func:`twin.tube.tube_radius`). The error along the tangent does
+        not move a point out of a tube, so it is left out. Needs :attr:`covariance`."""
+        from twin.tube import tube_radius
+
+        return tube_radius(self._covariance(), self.frames[..., :, 2], level)
+
+    def _covariance(self) -> np.ndarray:
+        if self.covariance is None:
+            raise ValueError("this Shape carries no uncertainty; reconstruct with twin.uncertainty.Uncertainty")
+        return self.covariance
 
     @property
     def tip(self) -> np.ndarray:

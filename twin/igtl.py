@@ -5,7 +5,10 @@ it through :class:`IgtlSink`, a :class:`twin.live.LiveLoop` sink. For each recon
 ``rate`` times a second, every connected client receives:
 
 - ``POLYDATA`` device ``CatheterShape``: the reconstructed centreline, points in mm, one polyline in the
-  LINES cell array (no vertices, polygons or attributes);
+  LINES cell array (no vertices or polygons); when the shape carries its uncertainty
+  (:class:`twin.uncertainty.Uncertainty`), two point-scalar attributes: ``Sigma`` (the 1σ lateral radius of
+  each point, mm) and ``Confidence95`` (the radius of the 95 % confidence tube, mm) — in Slicer, colour the
+  model by either, or sweep a tube of that radius;
 - ``TRANSFORM`` device ``CatheterTip``: the tip pose (material frame d1 d2 d3 as the rotation's columns,
   position in mm);
 - ``POLYDATA`` device ``CatheterTruth``: the true centreline, when the source carries a truth (the twin).
@@ -25,7 +28,10 @@ ECMA-182 (polynomial 0x42F0E1EBA9EA3693, initial value 0, no reflection, no fina
 12 big-endian float32: the upper 3×4 of the homogeneous matrix column by column (R11 R21 R31 R12 … R33, then
 TX TY TZ in mm). POLYDATA's body: 10 uint32 counts (NPOINTS, NVERTICES, SIZE_VERTICES, NLINES, SIZE_LINES,
 NPOLYGONS, SIZE_POLYGONS, NTRIANGLE_STRIPS, SIZE_TRIANGLE_STRIPS, NATTRIBUTES; sizes in bytes), the points as
-float32 x y z, then each cell array as (count, index…) uint32 words. No library is needed (pyigtl, the
+float32 x y z, then each cell array as (count, index…) uint32 words, then per attribute a 6-byte header (type
+uint8, 0 for point scalars; number of components uint8; number of values uint32), then the attributes' names,
+each NUL-terminated, with one NUL more when their total length is odd, then each attribute's values as
+big-endian float32. No library is needed (pyigtl, the
 obvious one, writes POLYDATA cell arrays in the wrong byte order).
 
 The server never slows the live loop: :meth:`IgtlServer.publish` queues a whole bundle of messages for each
@@ -138,15 +144,27 @@ def transform_body(rotation, position_mm) -> bytes:
     return np.concatenate([R.T.ravel(), p]).astype(">f4").tobytes()
 
 
-def polydata_body(points_mm) -> bytes:
-    """POLYDATA body: the points (n, 3) in mm joined by one polyline (the LINES cell array)."""
+def polydata_body(points_mm, scalars: dict[str, np.ndarray] | None = None) -> bytes:
+    """POLYDATA body: the points (n, 3) in mm joined by one polyline (the LINES cell array), with optional
+    point-scalar attributes ``{name: values (n,)}`` (ASCII names of at most 255 characters)."""
     p = np.asarray(points_mm, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 2:
         raise ValueError(f"polydata_body: expected points of shape (n >= 2, 3), got {p.shape}")
     n = len(p)
+    scalars = scalars or {}
     line = np.concatenate([[n], np.arange(n)]).astype(">u4").tobytes()
-    counts = np.array([n, 0, 0, 1, len(line), 0, 0, 0, 0, 0], dtype=">u4").tobytes()
-    return counts + p.astype(">f4").tobytes() + line
+    counts = np.array([n, 0, 0, 1, len(line), 0, 0, 0, 0, len(scalars)], dtype=">u4").tobytes()
+    heads, names, values = [], [], []
+    for name, v in scalars.items():
+        v = np.asarray(v, dtype=np.float64)
+        if v.shape != (n,):
+            raise ValueError(f"polydata_body: attribute {name!r} needs one value per point ({n}), got {v.shape}")
+        heads.append(struct.pack(">BBI", 0, 1, n))  # point scalar, one component
+        names.append(_ascii(name, 255, "attribute name") + b"\0")
+        values.append(v.astype(">f4").tobytes())
+    table = b"".join(names)
+    pad = b"\0" if len(table) % 2 else b""
+    return counts + p.astype(">f4").tobytes() + line + b"".join(heads) + table + pad + b"".join(values)
 
 
 def parse_address(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
@@ -363,10 +381,11 @@ class IgtlSink:
     """
 
     def __init__(self, server: IgtlServer, rate: float = 30.0, *, close_server: bool = True,
-                 stream: TextIO | None = None):
+                 stream: TextIO | None = None, uncertainty=None):
         if not rate > 0:
             raise ValueError(f"IgtlSink: rate must be positive, got {rate}")
         self.server, self.period, self.close_server, self.stream = server, 1.0 / rate, close_server, stream
+        self.uncertainty = uncertainty  # a twin.uncertainty.Uncertainty: the sent shape gets its tube
         self.frames_sent = 0
         self.errors = 0
         self.last_error: str | None = None
@@ -380,7 +399,10 @@ class IgtlSink:
             if frames and shapes is not None:
                 i = latest_usable(shapes, status.flags, len(frames))
                 if i is not None:
-                    self._pending = (shapes[i], frames[i].truth)
+                    shape = shapes[i]
+                    if self.uncertainty is not None and shape.covariance is None:
+                        shape = self.uncertainty.propagate(shape, frames[i])
+                    self._pending = (shape, frames[i].truth)
             now = time.monotonic()
             if self._pending is not None and now >= self._due:
                 shape, truth = self._pending
@@ -408,7 +430,10 @@ def bundle(shape: Shape, truth: Truth | None = None, timestamp: float | None = N
     world = shape.positions @ R.T + p
     tip_frame = R @ shape.frames[-1]
     t = time.time() if timestamp is None else timestamp
-    out = [message("POLYDATA", "CatheterShape", polydata_body(1e3 * world), t),
+    scalars = None
+    if shape.covariance is not None:
+        scalars = {"Sigma": 1e3 * shape.sigma, "Confidence95": 1e3 * shape.confidence(0.95)}
+    out = [message("POLYDATA", "CatheterShape", polydata_body(1e3 * world, scalars), t),
            message("TRANSFORM", "CatheterTip", transform_body(tip_frame, 1e3 * world[-1]), t)]
     if truth is not None:
         tp = np.asarray(truth.positions, dtype=np.float64)

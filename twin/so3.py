@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["exp", "exp_coefficients", "exp_entries", "log", "log_entries"]
+__all__ = ["exp", "exp_coefficients", "exp_entries", "from_quaternion", "log", "log_entries", "to_quaternion"]
 
 
 @njit(cache=True, nogil=True)
@@ -86,3 +86,49 @@ def log(matrices) -> np.ndarray:
     out = np.empty((flat.shape[0], 3))
     _log_batch(flat, out)
     return out.reshape(*r.shape[:-2], 3)
+
+
+def to_quaternion(matrices) -> np.ndarray:
+    """Unit quaternions (..., 4), scalar last (x, y, z, w) as ROS writes them, of rotation matrices (..., 3, 3).
+
+    Shepperd's method: each quaternion comes from the largest of 1 + trace and the 1 + 2 R_ii − trace, so no
+    division by a small number; w ≥ 0 (q and −q are the same rotation). Each of the four cases is computed on
+    the matrices that take it only (a few array operations per case, whatever the batch).
+    """
+    r = np.asarray(matrices, dtype=np.float64)
+    flat = r.reshape(-1, 3, 3)
+    d = np.einsum("nii->ni", flat)
+    t = np.stack([1 + d.sum(axis=1), 1 + d[:, 0] - d[:, 1] - d[:, 2], 1 - d[:, 0] + d[:, 1] - d[:, 2],
+                  1 - d[:, 0] - d[:, 1] + d[:, 2]], axis=1)
+    case = np.argmax(t, axis=1)
+    q = np.empty((len(flat), 4))
+    # (component filled by the largest term, then the three from sums/differences of off-diagonal pairs)
+    pairs = {0: ((3, (2, 1), (1, 2), -1), (0, (2, 1), (1, 2), -1), (1, (0, 2), (2, 0), -1), (2, (1, 0), (0, 1), -1)),
+             1: ((0, (0, 0), (0, 0), 0), (1, (0, 1), (1, 0), 1), (2, (0, 2), (2, 0), 1), (3, (2, 1), (1, 2), -1)),
+             2: ((1, (0, 0), (0, 0), 0), (0, (0, 1), (1, 0), 1), (2, (1, 2), (2, 1), 1), (3, (0, 2), (2, 0), -1)),
+             3: ((2, (0, 0), (0, 0), 0), (0, (0, 2), (2, 0), 1), (1, (1, 2), (2, 1), 1), (3, (1, 0), (0, 1), -1))}
+    for k, terms in pairs.items():
+        sel = np.flatnonzero(case == k)
+        if not sel.size:
+            continue
+        m, tk = flat[sel], t[sel, k]
+        half = 0.5 / np.sqrt(tk)
+        main, *rest = terms
+        q[sel, main[0]] = tk * half
+        for comp, (i, j), (u, v), sign in rest:
+            q[sel, comp] = (m[:, i, j] + sign * m[:, u, v]) * half
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 3] < 0] *= -1
+    return q.reshape(*r.shape[:-2], 4)
+
+
+def from_quaternion(quaternions) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of quaternions (..., 4), scalar last (x, y, z, w); normalised first."""
+    q = np.asarray(quaternions, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=-1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=-1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=-2)

@@ -8,6 +8,7 @@ what did not finish. The results gather into ``DIR/results.parquet`` (and ``.csv
 (per design: the distribution of each metric over seeds; failures with their errors) and ``DIR/report.md``.
 Studies: ``integration`` (the fibre-integration guidelines in the twin), ``sensor-design`` (noise, gratings,
 core-angle error, temperature; no MuJoCo) and ``selftest``. docs/studies.md says how to start a cluster.
+Ctrl-C stops the study (the finished tasks stay, a later run resumes), says how far it got and exits with 130.
 """
 
 from __future__ import annotations
@@ -44,8 +45,17 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
     study = get(args.name, **kw)
     out = args.out or os.path.join("studies", args.name)
-    result = run_study(study, out, workers=args.workers, scheduler=args.scheduler, retries=args.retries,
-                       progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    try:
+        result = run_study(study, out, workers=args.workers, scheduler=args.scheduler, retries=args.retries,
+                           progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    except KeyboardInterrupt:  # a bounded run cut short (twin.cli's rule: 130); finished tasks are on disk
+        from scenarios.studies.runner import read_rows
+        from twin.cli import EXIT_INTERRUPTED
+
+        done = sum(r["status"] == "ok" for r in read_rows(study, out))
+        print(f"twin study: interrupted: {done} of {len(study.tasks)} tasks done, kept in {out}/tasks (run the "
+              "same command again to resume)", file=sys.stderr, flush=True)
+        return EXIT_INTERRUPTED
     print(f"study {study.name}: {len(result.rows)} tasks, {result.failed} failed; table {out}/results.parquet, "
           f"report {out}/report.md", file=sys.stderr)
     if args.json:

@@ -14,7 +14,7 @@ A :class:`Study` is a list of tasks, each a JSON-ready parameter dict, and one t
    ``OUT/summary.json`` and ``OUT/report.md``.
 
 Workers import the task function by name, so on a cluster they need the project installed (``pip install
-'catheter-twin[study]'``); results travel back to the client as small dicts.
+'.[study]'`` from a checkout); results travel back to the client as small dicts.
 """
 
 from __future__ import annotations
@@ -23,7 +23,9 @@ import csv
 import hashlib
 import json
 import math
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -107,8 +109,17 @@ def _client(workers: int, scheduler: str | None):
     distributed = require("distributed", "design studies (twin study)")
     if scheduler:
         return distributed.Client(scheduler, timeout="20s"), None
-    cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=None, host="127.0.0.1", silence_logs=40)
+    # A terminal's Ctrl-C reaches the whole process group: the local workers must ignore it (they inherit SIG_IGN
+    # when they start, and asyncio then installs no handler of its own) so that this process alone stops the
+    # study and closes them, instead of each printing its traceback.
+    ignore = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if ignore else None
+    try:
+        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                           dashboard_address=None, host="127.0.0.1", silence_logs=40)
+    finally:
+        if ignore:
+            signal.signal(signal.SIGINT, previous)
     return distributed.Client(cluster), cluster
 
 

@@ -10,6 +10,8 @@
 #include "igtlClientSocket.h"
 #include "igtlMessageHeader.h"
 #include "igtlPolyDataMessage.h"
+
+#include <vector>
 #include "igtlTransformMessage.h"
 
 static void cells(const char* name, igtl::PolyDataCellArray* array) {
@@ -77,6 +79,16 @@ int main(int argc, char* argv[]) {
       cells("lines", msg->GetLines());
       cells("vertices", msg->GetVertices());
       cells("polygons", msg->GetPolygons());
+      std::printf(", \"attributes\": {");
+      for (int a = 0; a < msg->GetNumberOfAttributes(); a++) {
+        igtl::PolyDataAttribute* att = msg->GetAttribute(a);
+        std::vector<igtlFloat32> v(att->GetSize() * att->GetNumberOfComponents());
+        if (!v.empty()) att->GetData(&v[0]);
+        std::printf("%s\"%s\": {\"type\": %d, \"values\": [", a ? ", " : "", att->GetName(), (int)att->GetType());
+        for (size_t i = 0; i < v.size(); i++) std::printf("%s%.9g", i ? ", " : "", v[i]);
+        std::printf("]}");
+      }
+      std::printf("}");
     } else {
       socket->Skip(header->GetBodySizeToRead(), 0);
     }

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twin._validate import check_field_types, check_table, frozen, real_array
+from twin._validate import check_bragg_nm, check_field_types, check_table, frozen, real_array
 from twin.fiber import FiberModel, origin, read_toml
 from twin.frames import Frame
 from twin.strain import CurvatureSolver, design_matrix, optical_strain
@@ -101,8 +101,7 @@ class Calibration:
     def __post_init__(self) -> None:
         if self.lambda0 is not None:
             lam = real_array(self.lambda0, "lambda0", shape=(None, None), unit="nm", owner=_OWNER)
-            if np.any(lam <= 0):
-                raise ValueError(f"{_OWNER}.lambda0: expected positive wavelengths in nm")
+            check_bragg_nm(lam, f"{_OWNER}.lambda0")  # the fibre model's range: a calibration in µm runs unusable
             object.__setattr__(self, "lambda0", frozen(lam))
         if self.twist is not None:
             object.__setattr__(
@@ -407,6 +406,10 @@ def _fit_spin(fiber: FiberModel, base: Calibration, residual: np.ndarray, std: n
     Returns (twist rad (n_gratings,), spin rate turns/m, its 1σ turns/m).
     """
     s = fiber.grating_s
+    if s.size < 2:  # a phase and a rate from one grating: numpy's bare "Singular matrix" named nothing
+        fib = origin(fiber)
+        raise CalibrationError(f"{fib + ': ' if fib else ''}FiberModel.grating_s: a spun fibre's spin rate is fitted "
+                               f"along its gratings and needs 2 or more; this one has {s.size}")
     nominal = fiber.spin_rate if base.spin_rate is None else base.spin_rate
     w = 1.0 / np.maximum(std, 1e-6) ** 2  # a noise-free (simulated) step still weighs every grating
     a = np.stack([np.ones_like(s), s], axis=1)

@@ -81,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
     if args.frames < 2:
         raise ValueError(f"--frames must be at least 2 (noise and motion are measured), got {args.frames}")
     source = open_source(args.url)
+    step = "straight"
     try:
         fiber = FiberModel.load(args.fiber) if args.fiber else (source.fiber or FiberModel.paper())
         base = Calibration.load(args.base) if args.base else None
@@ -89,6 +90,11 @@ def run(args: argparse.Namespace) -> int:
             _pose(source, step, args)
             steps[step] = record(source, args.frames, args.timeout, step)
         truth = source.describe() if hasattr(source, "describe") else {}
+    except KeyboardInterrupt:  # a bounded run cut short: say where, write nothing (twin.cli's rule: 130)
+        from twin.cli import EXIT_INTERRUPTED
+
+        print(f"\ntwin calibrate: interrupted during the {step} step; {args.out} not written", file=sys.stderr)
+        return EXIT_INTERRUPTED
     finally:
         source.close()
     try:

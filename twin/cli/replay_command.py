@@ -34,7 +34,7 @@ from twin.io.replay import ReplaySummary, summarize
 from twin.metrics import REGISTRATIONS
 
 #: one-line help (read by `twin --help` without importing this module)
-HELP = "reconstruct a recording (twin HDF5 or ILLumiSense log) and summarise it"
+HELP = "reconstruct a recording (twin HDF5 or MCAP, ILLumiSense log) and summarise it"
 
 __all__ = ["add_arguments", "format_summary", "run"]
 

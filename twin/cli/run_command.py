@@ -6,12 +6,19 @@
 ``viewer = getattr(args, "viewer", None)`` then ``viewer.show(shape, truth, label=…)`` (``getattr``: the same
 ``run(args)`` also serves the scenario's own ``__main__``, whose parser has no viewer). A scenario that does not
 draw still runs; the viewer's server stops when the scenario returns, or with ``--keep-open`` stays until Ctrl-C.
+
+A scenario is a bounded run: Ctrl-C ends it with ``twin run: interrupted`` and exit status 130 (``twin.cli``);
+Ctrl-C on a page kept open after a finished run exits with the scenario's own status.
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
+import re
+import shutil
 import sys
+import textwrap
 
 #: one-line help (read by `twin --help` without importing this module)
 HELP = "run a scenario (an experiment of the paper, or our own)"
@@ -43,6 +50,51 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep the viewer serving after the run, until Ctrl-C (implies --viewer)")
     parser.add_argument("name", metavar="NAME", help="scenario: " + ", ".join(known) if known else "scenario name")
     parser.add_argument("options", nargs=argparse.REMAINDER, help="the scenario's own options (see NAME --help)")
+
+
+_ROLE = re.compile(r":[\w:.-]+:`(~?)([^`]+)`")  # :mod:`x.y`, :func:`~x.y.z`
+_LITERAL = re.compile(r"``(.+?)``")
+_STRONG = re.compile(r"\*\*(.+?)\*\*")
+_EMPHASIS = re.compile(r"(?<![\w*])\*(?=\S)(.+?)(?<=\S)\*(?![\w*])")
+_ITEM = re.compile(r"^(\s*)([*-]|\d+\.)\s+")
+
+
+def plain_help(doc: str, width: int | None = None) -> str:
+    """A scenario's reST docstring as terminal text for ``--help``: markup dropped (````x````, ``:mod:`x```,
+    ``**x**``), each paragraph and list item wrapped on its own, indented blocks kept as written."""
+    if width is None:
+        width = max(40, min(100, shutil.get_terminal_size().columns - 2))
+
+    def inline(text: str) -> str:
+        text = _ROLE.sub(lambda m: m.group(2).rsplit(".", 1)[-1] if m.group(1) else m.group(2), text)
+        text = _LITERAL.sub(r"\1", text)
+        return _EMPHASIS.sub(r"\1", _STRONG.sub(r"\1", text))
+
+    out: list[str] = []
+    for block in re.split(r"\n\s*\n", inspect.cleandoc(doc)):
+        lines = block.splitlines()
+        if all(line.startswith((" ", "\t")) for line in lines) and not _ITEM.match(lines[0]):
+            out.append("\n".join(inline(line).rstrip() for line in lines))  # a literal block: as written
+            continue
+        items: list[list[str]] = []
+        for line in lines:
+            if _ITEM.match(line) or not items:
+                items.append([line.strip()])
+            else:
+                items[-1].append(line.strip())
+        texts = []
+        for item in items:
+            text = inline(" ".join(item))
+            if text.endswith("::"):
+                text = text[:-1]
+            m = _ITEM.match(text)
+            if m:
+                texts.append(textwrap.fill(text, width, initial_indent="  ",
+                                           subsequent_indent="  " + " " * len(m.group(0))))
+            else:
+                texts.append(textwrap.fill(text, width))
+        out.append("\n".join(texts))
+    return "\n\n".join(out)
 
 
 def take_viewer_options(options: list[str]) -> tuple[list[str], bool, float | None, bool]:
@@ -92,7 +144,8 @@ def run(args: argparse.Namespace) -> int:
     if args.name not in known:
         raise UserError(f"no scenario {args.name!r}; known scenarios: {', '.join(known) or 'none installed'}")
     module = registry.load("twin.scenarios", args.name)
-    parser = argparse.ArgumentParser(prog=f"twin run {args.name}", description=module.__doc__, epilog=VIEWER_HELP)
+    parser = argparse.ArgumentParser(prog=f"twin run {args.name}", description=plain_help(module.__doc__ or ""),
+                                     epilog=VIEWER_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     module.add_arguments(parser)
     options, wanted, rate, keep = take_viewer_options(list(args.options))
     keep = keep or bool(getattr(args, "keep_open", False))
@@ -106,14 +159,17 @@ def run(args: argparse.Namespace) -> int:
         from twin.viewer import Viewer, ViewerConfig
 
         ns.viewer = Viewer(ViewerConfig(max_fps=rate if rate is not None else 30.0))
+    finished = False
     try:
-        return int(module.run(ns) or 0)
+        status = int(module.run(ns) or 0)
+        finished = True
+        return status
     finally:
         if ns.viewer is not None:
             if ns.viewer.frames_shown == 0:
                 print(f"twin run: scenario {args.name} drew nothing in the viewer (it does not use args.viewer)",
                       file=sys.stderr)
-            if keep:
+            if keep and finished:  # not after Ctrl-C or an error: those end the command
                 from twin.viewer import keep_open
 
                 keep_open(ns.viewer)

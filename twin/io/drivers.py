@@ -3,9 +3,14 @@
 
 Common behaviour
 ----------------
-- **Opening** connects at once and raises :class:`OSError` naming the URL and the reason when that fails (so a
-  wrong address is one clear error), unless ``wait=1`` is given: then the driver keeps trying in the background
-  of :meth:`read` like after a drop.
+- **Opening** connects at once. When nothing listens yet (connection refused or reset, a connect timeout, a
+  serial device not there yet) — a lab starts the interrogator and the tool in any order — it keeps trying for
+  up to ``start_wait`` s (URL option; :attr:`Driver.START_WAIT` by default: 30 s for the TCP drivers, 0 for
+  serial ports, where a missing device is more likely a wrong path), with the usual backoff capped at 1 s,
+  saying so on stderr once and then every 5 s. Then, or at once for an error that waiting cannot cure (an
+  unknown host, a handshake the device refuses), it raises :class:`OSError` naming the URL once and the reason.
+  With ``wait=1`` the driver does not wait in the constructor but keeps trying in the background of
+  :meth:`read` like after a drop.
 - **Reconnect policy**: after a connection drops (peer closed, reset, device gone, a protocol error that cannot
   be resynchronised), the first new attempt is immediate, then the delay doubles from 0.1 s up to 5 s
   (:class:`~twin.io.transport.Backoff`), and is reset once frames flow again. Retries go on forever unless
@@ -23,6 +28,8 @@ The protocols' drivers: :mod:`twin.io.illumisense.driver`, :mod:`twin.io.hyperio
 
 from __future__ import annotations
 
+import math
+import sys
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -34,7 +41,8 @@ from twin.io.errors import FramingError
 from twin.io.source import Source, SourceClosed
 from twin.io.transport import Backoff, ConnectionLost
 
-__all__ = ["COMMON_OPTIONS", "MISSING", "Driver", "flag", "int_list", "split_common", "url_options"]
+__all__ = ["COMMON_OPTIONS", "MISSING", "Driver", "flag", "int_list", "positive", "seconds", "split_common",
+           "url_options"]
 
 MISSING = np.uint8(PeakStatus.MISSING)
 
@@ -56,10 +64,17 @@ class Driver(Source):
         Give up (SourceClosed) after this many seconds without a connection; None retries forever.
     backoff : Backoff, optional
         Reconnect delays.
+    start_wait : float or None
+        How long opening keeps trying while nothing listens yet, s (None: :attr:`START_WAIT`; 0: fail at once).
     """
 
+    #: default ``start_wait``, s: how long opening waits for an interrogator that is not listening yet
+    START_WAIT = 30.0
+    #: errors that mean "not there yet" (waiting may cure them): refused, reset, timed out, no such device yet
+    NOT_YET = (ConnectionError, TimeoutError, FileNotFoundError)
+
     def __init__(self, url: str, *, wait: bool = False, retry_for: float | None = None,
-                 backoff: Backoff | None = None):
+                 backoff: Backoff | None = None, start_wait: float | None = None):
         self.url = url
         self.backoff = backoff or Backoff()
         self.retry_for = retry_for
@@ -80,9 +95,12 @@ class Driver(Source):
             "connect_failures": 0,
         }
         self.last_error = ""
-        if not self._attempt():
-            if not wait:
-                raise OSError(self.last_error)
+        self._last_exc: BaseException | None = None
+        if not self._attempt() and not wait:
+            limit = self.START_WAIT if start_wait is None else float(start_wait)
+            if not limit >= 0:  # NaN too
+                raise ValueError(f"{url}: start_wait must be a number of seconds >= 0, got {start_wait}")
+            self._wait_at_start(limit)
 
     # ---------------------------------------------------------------- to implement
     def _connect(self) -> None:
@@ -95,8 +113,35 @@ class Driver(Source):
         raise NotImplementedError
 
     # ---------------------------------------------------------------- machinery
+    def _wait_at_start(self, limit: float) -> None:
+        """Keep trying to connect for up to ``limit`` s while the errors say nothing listens yet (module
+        docstring); raise OSError (the last error) when that fails or the error is of another kind."""
+        t0 = time.monotonic()
+        delays = Backoff(maximum=1.0)  # start-up: keep the latency after the interrogator comes up short
+        said = None
+        while True:
+            now = time.monotonic()
+            if not isinstance(self._last_exc, self.NOT_YET) or now - t0 >= limit:
+                if said is None:
+                    raise OSError(self.last_error)
+                raise OSError(f"{self.last_error} (tried for {now - t0:.1f} s; the URL option start_wait=SECONDS "
+                              "waits longer)")
+            if said is None:
+                print(f"{self.last_error}; nothing listening yet: trying again for up to {limit:g} s (URL option "
+                      "start_wait=SECONDS) …", file=sys.stderr, flush=True)
+                said = now
+            elif now - said >= 5.0:
+                print(f"{self.url}: still waiting ({now - t0:.0f} of {limit:g} s) …", file=sys.stderr, flush=True)
+                said = now
+            time.sleep(min(delays.failed(), max(0.0, t0 + limit - now)))
+            if self._attempt():
+                self.backoff.reset()
+                print(f"{self.url}: connected after {time.monotonic() - t0:.1f} s", file=sys.stderr, flush=True)
+                return
+
     def _error(self, exc: BaseException) -> str:
-        text = str(exc)
+        # an OSError built with (errno, text) prints as "[Errno N] text": its text alone, so the URL shows once
+        text = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         return text if text.startswith(self.url) else f"{self.url}: {text}"
 
     def _attempt(self) -> bool:
@@ -106,6 +151,7 @@ class Driver(Source):
         except (OSError, FramingError, ValueError) as exc:
             self._drop()
             self.counters["connect_failures"] += 1
+            self._last_exc = exc
             self.last_error = self._error(exc)
             self._next_attempt = time.monotonic() + self.backoff.failed()
             if self._down_since is None:
@@ -248,8 +294,26 @@ def url_options(url: str, query: dict[str, str], parsers: dict[str, Callable[[st
         try:
             out[key] = parsers[key](value)
         except ValueError:
-            raise ValueError(f"{url!r}: option {key}={value!r} is not valid") from None
+            want = _EXPECTED.get(parsers[key])
+            raise ValueError(f"{url!r}: option {key}={value!r} is not valid" + (f"; expected {want}" if want else "")
+                             ) from None
     return out
+
+
+def seconds(v: str) -> float:
+    """A duration option, s: a finite number >= 0 (``nan`` or ``-1`` would never elapse, or at once)."""
+    x = float(v)
+    if not (math.isfinite(x) and x >= 0):
+        raise ValueError(v)
+    return x
+
+
+def positive(v: str) -> float:
+    """A finite number > 0 (a timeout, a rate)."""
+    x = float(v)
+    if not (math.isfinite(x) and x > 0):
+        raise ValueError(v)
+    return x
 
 
 def flag(v: str) -> bool:
@@ -264,8 +328,10 @@ def int_list(v: str) -> list[int]:
     return [int(x) for x in v.split(",") if x.strip()]
 
 
-COMMON_OPTIONS = {"wait": flag, "retry_for": float, "connect_timeout": float}
+COMMON_OPTIONS = {"wait": flag, "retry_for": seconds, "connect_timeout": positive, "start_wait": seconds}
+_EXPECTED = {seconds: "a number of seconds >= 0", positive: "a number > 0", flag: "1 or 0", int: "an integer",
+             float: "a number"}
 
 
 def split_common(opts: dict) -> dict:
-    return {k: opts.pop(k) for k in ("wait", "retry_for") if k in opts}
+    return {k: opts.pop(k) for k in ("wait", "retry_for", "start_wait") if k in opts}

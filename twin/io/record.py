@@ -17,11 +17,13 @@ log alike, and on the single frames of ``replay://`` as :attr:`Frame.vendor <twi
 ILLumiSense log files (``*.txt``, one record per line as lab loggers save the stream) are read too:
 :func:`open_recording` detects them by content and :mod:`twin.io.illumisense.log` reads them (layout, header
 lines, skipped lines, the vendor's sensor blocks). A log whose last line has no
-line end was cut: it is reported as damaged (its last record may be incomplete).
+line end was cut: it is reported as damaged, and its last record, which may be incomplete, is left out.
 """
 
 from __future__ import annotations
 
+import os
+import stat
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -41,9 +43,10 @@ from twin.io.hdf5 import (
     readable_rows,
 )
 
-__all__ = ["FORMAT", "Recorder", "RecordingReader", "chunk_rows", "open_recording"]
+__all__ = ["FORMAT", "Recorder", "RecordingReader", "chunk_rows", "open_recorder", "open_recording"]
 
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_MCAP_SIGNATURE = b"\x89MCAP0\r\n"
 
 
 # ------------------------------------------------------------------------------------------------- reading
@@ -80,6 +83,9 @@ class RecordingReader:
         self.path = Path(path)
         try:
             with open(self.path, "rb") as fh:
+                if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # /dev/zero, a pipe: would be read forever
+                    raise ValueError(f"{self.path}: not a regular file (a device or a pipe); expected a twin HDF5 "
+                                     "recording or an ILLumiSense log file")
                 head = fh.read(8)
                 fh.seek(0, 2)
                 size = fh.tell()
@@ -110,8 +116,8 @@ class RecordingReader:
             self.rate = None
             self._n = self.frames_recorded = len(self._mem)
             if last not in (b"\n", b"\r"):
-                self.damage.append("the last line has no line end: the file was cut (its last record may be "
-                                   "incomplete)")
+                self.damage.append("the last line has no line end: the file was cut (its last record, which may "
+                                   "be incomplete, is left out)")
 
     @property
     def complete(self) -> bool:
@@ -150,6 +156,7 @@ class RecordingReader:
                 self._vendor_sensors += 1
             if f"vendor/sensor{self._vendor_sensors}" in f:  # a group the writer created whole, now partial
                 self._damaged(0, f"vendor/sensor{self._vendor_sensors}: datasets missing", part="vendor")
+            self._check_layout()
             self._n = self.frames_recorded = 0
             self.refresh()
         except Exception as exc:  # anything HDF5 raises for damaged metadata: one line
@@ -157,6 +164,69 @@ class RecordingReader:
             if isinstance(exc, ValueError | OSError) and str(exc).startswith(str(self.path)):
                 raise
             raise ValueError(f"{self.path}: not a readable twin recording ({_brief(exc)})") from None
+
+    def _check_layout(self) -> None:
+        """Check every dataset's shape and type against the layout (:mod:`twin.io.hdf5`) before anything is read.
+
+        A malformed frame dataset refuses the file (ValueError naming the dataset); malformed truth or vendor
+        datasets are damage confined to them (issue 23 B7): the truth, or that sensor and those after it, are
+        left out and the damage names the dataset, the frames are kept.
+        """
+        f = self._file
+
+        def bad(name: str, want: str) -> str:
+            ds = f[name]
+            if not hasattr(ds, "shape") or ds.dtype.kind not in "biuf":
+                return f"{name}: {getattr(ds, 'dtype', 'a group')} is not a numeric dataset"
+            return f"{name}: expected shape {want}, got {ds.shape}"
+
+        def check(name: str, ndim: int, tail: tuple, want: str) -> str | None:
+            ds = f[name]
+            if not hasattr(ds, "shape") or ds.dtype.kind not in "biuf" or ds.ndim != ndim or \
+                    any(t is not None and t != got for t, got in zip(tail, ds.shape[1:], strict=False)):
+                return bad(name, want)
+            return None
+
+        if "frames/wavelengths" in f and hasattr(f["frames/wavelengths"], "shape") and \
+                f["frames/wavelengths"].ndim == 3:
+            g, c = f["frames/wavelengths"].shape[1:]
+        else:
+            g = c = None
+        for name in self._names:
+            k = name.split("/")[1]
+            why = check(name, 3, (g, c), "(n, gratings, cores)") if k in ("wavelengths", "powers", "status") \
+                else check(name, 1, (), "(n,)")
+            if why:
+                raise ValueError(f"{self.path}: not a readable twin recording ({why})")
+        if self._truth_names:
+            s = f["truth/s"]
+            m = s.shape[0] if hasattr(s, "shape") and s.ndim == 1 and s.dtype.kind == "f" else None
+            tails = {"positions": (3, (m, 3), "(n, len(truth/s), 3)"), "frames": (4, (m, 3, 3), "(n, m, 3, 3)"),
+                     "curvature": (3, (g, 2), "(n, gratings, 2)"), "twist": (2, (g,), "(n, gratings)"),
+                     "temperature": (2, (g,), "(n, gratings)")}
+            why = None if m is not None else bad("truth/s", "(m,)")
+            why = why or check("truth/present", 1, (), "(n,)")
+            for k in self._truth_names:
+                why = why or check(f"truth/{k}", *tails[k])
+            if why:
+                self._damaged(0, why, part="truth")
+                self._truth_names = []
+        for j in range(self._vendor_sensors):
+            base = f"vendor/sensor{j}"
+            sp = f[f"{base}/spacing"]
+            why = None
+            if not hasattr(sp, "shape") or sp.shape != () or sp.dtype.kind != "f" or not float(sp[()]) > 0:
+                why = f"{base}/spacing: expected a positive number, got " + (
+                    f"{sp[()]!r}" if hasattr(sp, "shape") and sp.shape == () else f"shape {getattr(sp, 'shape', None)}")
+            why = why or check(f"{base}/present", 1, (), "(n,)") or check(f"{base}/curvature", 2, (), "(n, G)")
+            if why is None:
+                gv = f[f"{base}/curvature"].shape[1]
+                why = check(f"{base}/angle", 2, (gv,), "(n, G) like the curvature") or \
+                    check(f"{base}/positions", 3, (None, 3), "(n, N, 3)")
+            if why:  # this sensor and the later ones are left out (a sensor's index keeps its meaning)
+                self._damaged(0, why, part="vendor")
+                self._vendor_sensors = j
+                break
 
     def _attr_model(self, attrs, name: str, cls):
         text = attrs.get(name)
@@ -186,21 +256,31 @@ class RecordingReader:
                 if self._swmr:
                     f[name].refresh()
             count = int(f["frames/count"][0])
-            rows = min(f[name].shape[0] for name in names)
+            held = {name: f[name].shape[0] for name in names}
             self._closed_cleanly = bool(f.attrs.get("complete", False))
         except Exception as exc:
             if self._n and not self._closed_cleanly:  # a writer caught mid-flush: try again later
                 return self._n
             raise ValueError(f"{self.path}: not a readable twin recording ({_brief(exc)})") from None
-        if count < 0 or (count > rows and self._closed_cleanly):
-            self._damaged(0, f"frames/count is {count} but the datasets hold {rows} rows")
-            count = max(0, min(count, rows))
+        if count < 0:
+            self._damaged(0, f"frames/count is {count}")
+            count = 0
         self.frames_recorded = count
         # rows every dataset has (a writer killed mid-flush may have resized some datasets but not others),
-        # no more than the committed count, and only those whose chunks are inside the file
-        n = min(rows, count)
-        size = _size(self.path)
+        # no more than the committed count, and only those whose chunks are inside the file. In a file closed
+        # cleanly a short dataset is damage from its last row on: of the frames, or only of their truth or
+        # vendor blocks (the frames kept)
+        n = min(count, *(held[name] for name in self._names))
         ok_rows = {None: n, "truth": n, "vendor": n}  # rows readable: frames, truth, vendor blocks
+        for name, rows in held.items():
+            part = name.split("/")[0] if name.startswith(("truth/", "vendor/")) else None
+            if rows < count and self._closed_cleanly:
+                self._damaged(rows, f"{name} holds {rows} rows, frames/count says {count}", part=part)
+            if part is not None and not self._closed_cleanly:
+                n = min(n, rows)  # a writer mid-flush: wait for the truth and vendor rows too
+            ok_rows[part] = min(ok_rows[part], rows)
+        ok_rows = {p: min(v, n) for p, v in ok_rows.items()}
+        size = _size(self.path)
         for name in names:
             part = name.split("/")[0] if name.startswith(("truth/", "vendor/")) else None
             want = ok_rows[part]
@@ -211,7 +291,7 @@ class RecordingReader:
             if ok < want:
                 self._damaged(ok, why, part=part)
                 ok_rows = {p: min(v, ok) for p, v in ok_rows.items()} if part is None else {**ok_rows, part: ok}
-        self._n = min(ok_rows[None], self._first_bad)
+        self._n = min(n, ok_rows[None], self._first_bad)
         return self._n
 
     def _damaged(self, row: int, why: str, part: str | None = None) -> None:
@@ -404,8 +484,30 @@ def _number(v) -> float:
 
 
 def open_recording(path: str | Path, **kw) -> RecordingReader:
-    """Open a twin HDF5 recording or an ILLumiSense log file for reading (see :class:`RecordingReader`)."""
+    """Open a twin HDF5 recording, a twin MCAP recording (:class:`twin.io.rosbag.McapRecording`, the same
+    interface) or an ILLumiSense log file for reading (see :class:`RecordingReader`); the kind is told by the
+    file's first bytes."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    except OSError:
+        head = b""  # RecordingReader says what is wrong, in its words
+    if head == _MCAP_SIGNATURE:
+        from twin.io.rosbag import McapRecording
+
+        return McapRecording(path)
     return RecordingReader(path, **kw)
+
+
+def open_recorder(path: str | Path, **kw):
+    """A recorder for ``path`` chosen by its extension: ``.mcap`` a rosbag2-compatible MCAP file
+    (:class:`twin.io.rosbag.McapRecorder`), anything else twin HDF5 (:class:`Recorder`). Keywords: ``fiber``,
+    ``calibration``, ``source_url``, ``rate``."""
+    if Path(path).suffix.lower() == ".mcap":
+        from twin.io.rosbag import McapRecorder
+
+        return McapRecorder(path, **kw)
+    return Recorder(path, **kw)
 
 
 def _load_toml(text) -> dict:

@@ -222,6 +222,7 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
                 notes.append(truth_note or "truth present but no complete frame to compare")
         if reader.errors:
             notes.append(f"{len(reader.errors)} line(s) skipped, first: {reader.errors[0]}")
+        notes.extend(getattr(reader, "notes", ()))  # what a reader had to assume (an MCAP recording's)
         if books.c["reconstruct_errors"]:
             notes.append(f"reconstruction failed on {books.c['reconstruct_errors']} batch(es): their frames are "
                          "counted unusable")

@@ -56,7 +56,9 @@ class SequenceCounter:
         lost, gaps, resets, last = _count(seq, -1 if self.last is None else self.last, self.last is None)
         if last >= 0:
             self.sequence_gaps += gaps
-            self.lost_samples += int(lost.sum())
+            # each gap fits int64 but their sum may not: add the high and low 32 bits separately (exact, and
+            # the same whatever batches the numbers came in)
+            self.lost_samples += (int((lost >> 32).sum()) << 32) + int((lost & 0xFFFFFFFF).sum())
             self.sequence_resets += resets
             self.last = last
         return lost

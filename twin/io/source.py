@@ -79,7 +79,10 @@ class Source:
 
 def parse_url(url: str) -> tuple[str, str, dict[str, str]]:
     """Split ``scheme://rest?key=value&…`` into (scheme, rest without the query, options)."""
-    parts = urlsplit(url)
+    try:
+        parts = urlsplit(url)
+    except ValueError as exc:  # urllib's own words ("Invalid IPv6 URL") name neither the URL nor the place
+        raise ValueError(f"{url!r}: not a source URL ({exc}; an IPv6 host goes in brackets: [::1]:2055)") from None
     if not parts.scheme:
         raise ValueError(f"{url!r}: a source URL starts with a scheme: {', '.join(s + '://' for s in schemes())}")
     rest = url.split("://", 1)[1].split("?", 1)[0] if "://" in url else parts.path

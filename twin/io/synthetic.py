@@ -71,8 +71,8 @@ def multicore_fiber(cores: int = 7, gratings: int = 18, spacing: float = 0.01, r
     """
     if not 3 <= int(cores) <= 7:
         raise ValueError(f"cores: expected 3 to 7 (central core + outer cores of a 7-core MCF), got {cores}")
-    if int(gratings) < 3:
-        raise ValueError(f"gratings: expected at least 3, got {gratings}")
+    if not 3 <= int(gratings) <= 10_000:  # bounded before anything is sized by it (10^19 overflowed numpy)
+        raise ValueError(f"gratings: expected 3 to 10000, got {gratings}")
     cores, gratings = int(cores), int(gratings)
     pitch_nm = min(5.0, 85.0 / (gratings - 1))
     lam = np.repeat((1510.0 + pitch_nm * np.arange(gratings))[:, None], cores, axis=1)
@@ -188,8 +188,11 @@ class SyntheticSource(Source):
         self.seed = int(seed)
         limit = None if frames is None else int(frames)
         if duration is not None:
-            by_time = round(float(duration) * self.rate)
-            limit = by_time if limit is None else min(limit, by_time)
+            if not (np.isfinite(float(duration)) and float(duration) >= 0):
+                raise ValueError(f"synthetic: duration must be a number of seconds >= 0, got {duration}")
+            by_time = float(duration) * self.rate
+            if by_time < 2.0**62:  # beyond: longer than any run (and round() of inf would raise)
+                limit = round(by_time) if limit is None else min(limit, round(by_time))
         self.limit = limit
         self.with_truth = bool(truth)
         self.truth_s = step_grid(0.0, self.fiber.sensed_length, 1e-3)[0]

@@ -11,6 +11,7 @@ reports them as one line.
 
 from __future__ import annotations
 
+import os
 import socket
 import time
 from dataclasses import dataclass
@@ -252,4 +253,9 @@ def open_serial(url: str, *, baudrate: int = 115200, timeout: float = 0.05, labe
     try:
         return serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, write_timeout=1.0)
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise OSError(f"{prefix}cannot open serial port {url!r}: {exc}") from None
+        # pyserial's text repeats the errno and the path ("[Errno 2] could not open port P: [Errno 2] … 'P'")
+        errno = getattr(exc, "errno", None)
+        reason = os.strerror(errno).lower() if isinstance(errno, int) and errno > 0 else str(exc)
+        if errno:  # OSError(errno, text) keeps the kind (FileNotFoundError, PermissionError, …)
+            raise OSError(errno, f"{prefix}cannot open serial port {url!r}: {reason}") from None
+        raise OSError(f"{prefix}cannot open serial port {url!r}: {reason}") from None

@@ -6,15 +6,20 @@ piece is tested on its own. Lengths are in whatever unit the caller passes (the 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from twin.frames import Shape, Truth
 
 __all__ = [
     "VIRIDIS",
+    "FrameScene",
     "camera_distance",
     "colorbar_stops",
     "colormap",
+    "envelope",
+    "frame_scene",
     "interp_curve",
     "latest_usable",
     "local_error",
@@ -96,15 +101,15 @@ def _transported_normals(points: np.ndarray, tangents: np.ndarray) -> np.ndarray
     return n
 
 
-def tube_mesh(points, radius: float, sides: int = 12, normals=None) -> tuple[np.ndarray, np.ndarray]:
+def tube_mesh(points, radius, sides: int = 12, normals=None) -> tuple[np.ndarray, np.ndarray]:
     """Triangle mesh of a tube swept along a centreline, closed by flat caps.
 
     Parameters
     ----------
     points : array_like, shape (n, 3)
         Centreline, n >= 2.
-    radius : float
-        Tube radius, same unit.
+    radius : float or array_like, shape (n,)
+        Tube radius, same unit: one for the whole tube, or one per point (a confidence tube, :func:`envelope`).
     sides : int
         Vertices per cross-section.
     normals : array_like, shape (n, 3), optional
@@ -125,6 +130,11 @@ def tube_mesh(points, radius: float, sides: int = 12, normals=None) -> tuple[np.
         raise ValueError(f"tube_mesh: points must have shape (n >= 2, 3), got {p.shape}")
     if not np.all(np.isfinite(p)):
         raise ValueError("tube_mesh: points contain NaN or inf")
+    r = np.asarray(radius, dtype=np.float64)
+    if r.ndim and r.shape != (p.shape[0],):
+        raise ValueError(f"tube_mesh: radius must be one number or one per point ({p.shape[0]}), got {r.shape}")
+    if not np.all(np.isfinite(r) & (r >= 0)):
+        raise ValueError("tube_mesh: radii must be finite and >= 0")
     t = _tangents(p)
     if normals is None:
         u = _transported_normals(p, t)
@@ -140,7 +150,7 @@ def tube_mesh(points, radius: float, sides: int = 12, normals=None) -> tuple[np.
     w = np.cross(t, u)
     phi = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
     ring = np.cos(phi)[None, :, None] * u[:, None, :] + np.sin(phi)[None, :, None] * w[:, None, :]
-    rings = p[:, None, :] + radius * ring
+    rings = p[:, None, :] + (r[:, None, None] if r.ndim else r) * ring
     n = p.shape[0]
     vertices = np.concatenate([rings.reshape(-1, 3), p[:1], rings[0], p[-1:], rings[-1]])
     i = np.arange(n - 1)[:, None]
@@ -157,6 +167,13 @@ def tube_mesh(points, radius: float, sides: int = 12, normals=None) -> tuple[np.
     end = np.stack([np.full(sides, c1), c1 + 1 + jj, c1 + 1 + (jj + 1) % sides], -1)
     faces = np.concatenate([side_faces, start, end]).astype(np.uint32)
     return vertices, faces
+
+
+def envelope(shape: Shape, level: float, wall: float) -> np.ndarray:
+    """Radius of the confidence envelope of a catheter of radius ``wall`` at each point of ``shape``:
+    ``wall`` + the level-% tube radius of its centreline (:meth:`Shape.confidence`), where the catheter's wall
+    lies with that confidence (the lateral error moves the whole cross-section)."""
+    return wall + shape.confidence(level)
 
 
 def tube_colors(ring_colors, sides: int) -> np.ndarray:
@@ -294,6 +311,92 @@ def latest_usable(shapes: Shape, flags: np.ndarray, n: int) -> int | None:
     ok[:m] &= (flags[:m] & int(FrameFlag.UNUSABLE)) == 0
     idx = np.flatnonzero(ok)
     return int(idx[-1]) if idx.size else None
+
+
+@dataclass(frozen=True, eq=False)
+class FrameScene:
+    """One frame as every live display shows it (the browser viewer, Foxglove), in world coordinates, m.
+
+    Attributes
+    ----------
+    R, p, how :
+        The placement of the fibre's base frame (:func:`placement`).
+    world : ndarray (n, 3)
+        The reconstruction's points.
+    mode : {"error", "curvature"}
+        What ``values`` are: the local error against the truth (m), else |curvature| (1/m), at each point.
+    values : ndarray (n,)
+    errors : dict or None
+        ``max``, ``mean``, ``tip`` error against the truth, m (None without a truth).
+    truth : ndarray (k, 3) or None
+        The truth's finite points.
+    truth_ok : ndarray of bool or None
+        Which truth samples those are.
+    nearest : ndarray (n, 3) or None
+        The truth's closest point to each reconstructed point (None without a truth).
+    markers : ndarray (g, 3)
+        The gratings.
+    vendor : ndarray (N, 3) or None
+        The interrogator's own shape, registered onto the reconstruction and placed like it.
+    vendor_errors : dict or None
+        ``max``, ``mean``, ``tip`` distance between the two, m.
+    """
+
+    R: np.ndarray
+    p: np.ndarray
+    how: str
+    world: np.ndarray
+    mode: str
+    values: np.ndarray
+    errors: dict | None
+    truth: np.ndarray | None
+    truth_ok: np.ndarray | None
+    nearest: np.ndarray | None
+    markers: np.ndarray
+    vendor: np.ndarray | None
+    vendor_errors: dict | None
+
+
+def frame_scene(shape: Shape, truth: Truth | None = None, vendor=None, base_pose=None,
+                vendor_sensor: int = 0) -> FrameScene:
+    """Place one reconstruction in the world and compute what is shown with it (:class:`FrameScene`).
+
+    ``vendor``: a tuple of VendorSensor (sensor ``vendor_sensor`` is shown) or one VendorSensor, or None.
+    """
+    if shape.positions.ndim != 2:
+        raise ValueError(f"one shape expected, got a batch of shape {shape.batch_shape}; index it")
+    if not np.all(np.isfinite(shape.positions)):
+        raise ValueError("the shape has NaN points (an unusable frame)")
+    R, p, how = placement(shape, truth, base_pose)
+    world = shape.positions @ R.T + p
+    truth_pts = ok = errors = nearest = None
+    if truth is not None:
+        ts, tp = np.asarray(truth.s, dtype=np.float64), np.asarray(truth.positions, dtype=np.float64)
+        ok = np.all(np.isfinite(tp), axis=1)
+        truth_pts, ts = tp[ok], ts[ok]
+        values, nearest = local_error(world, truth_pts, return_closest=True)
+        tip = float(np.linalg.norm(world[-1] - interp_curve(shape.s[-1:], ts, truth_pts)[0]))
+        errors = {"max": float(values.max()), "mean": float(values.mean()), "tip": tip}
+        mode = "error"
+    else:
+        mode = "curvature"
+        k = np.linalg.norm(np.asarray(shape.curvature, dtype=np.float64), axis=-1)
+        good = np.isfinite(k)
+        values = np.interp(shape.s, shape.grating_s[good], k[good]) if good.any() else np.full(len(world), np.nan)
+    vendor_pts = vendor_errors = None
+    block = vendor[vendor_sensor] if isinstance(vendor, tuple | list) and len(vendor) > vendor_sensor else (
+        None if isinstance(vendor, tuple | list) else vendor)
+    if block is not None:
+        from twin.io.illumisense.vendor import vendor_in_base
+
+        moved = vendor_in_base(shape.positions, shape.s, block.positions, block.s)
+        if moved is not None:  # else no overlap, or NaN points: nothing to show or report
+            base, e = moved
+            vendor_errors = {"max": float(e.max), "mean": float(e.mean), "tip": float(e.tip)}
+            vendor_pts = base @ R.T + p
+    markers = interp_curve(shape.grating_s, shape.s, world)
+    return FrameScene(R, p, how, world, mode, values, errors, truth_pts, ok, nearest, markers, vendor_pts,
+                      vendor_errors)
 
 
 # ------------------------------------------------------------------------------------------------ camera

@@ -40,13 +40,17 @@ class ViewerSink:
         Close the viewer when the loop closes the sink (False for ``--keep-open``).
     stream : text file
         Where the first error is reported (stderr).
+    uncertainty : twin.uncertainty.Uncertainty, optional
+        Draw the confidence envelope: the shape drawn (one per heartbeat, not every frame) gets its uncertainty
+        propagated when it does not carry one already.
     """
 
     def __init__(self, viewer: Viewer, rate: float = 30.0, *, close_viewer: bool = True,
-                 stream: TextIO | None = None):
+                 stream: TextIO | None = None, uncertainty=None):
         if not rate > 0:
             raise ValueError(f"ViewerSink: rate must be positive, got {rate}")
         self.viewer = viewer
+        self.uncertainty = uncertainty
         self.period = 1.0 / rate
         self.close_viewer = close_viewer
         self.stream = stream
@@ -54,7 +58,7 @@ class ViewerSink:
         self.last_error: str | None = None
         self.frames_received = 0
         self.frames_shown = 0
-        self._pending: tuple[Shape, Truth | None, tuple | None] | None = None
+        self._pending: tuple[Shape, Truth | None, tuple | None, Frame] | None = None
         self._due = -float("inf")
         self._gave_up = False
 
@@ -73,7 +77,7 @@ class ViewerSink:
         if frames and shapes is not None:
             pick = geo.latest_usable(shapes, status.flags, len(frames))
             if pick is not None:
-                self._pending = (shapes[pick], frames[pick].truth, frames[pick].vendor)
+                self._pending = (shapes[pick], frames[pick].truth, frames[pick].vendor, frames[pick])
         v = self.viewer
         if v.closed:
             return
@@ -86,9 +90,11 @@ class ViewerSink:
         if self._pending is not None:
             now = time.monotonic()
             if ended or now >= self._due:  # the run's last shape is drawn whatever the rate limit says
-                shape, truth, vendor = self._pending
+                shape, truth, vendor, frame = self._pending
                 self._pending = None
                 self._due = geo.next_due(self._due, now, self.period)
+                if self.uncertainty is not None and shape.covariance is None:
+                    shape = self.uncertainty.propagate(shape, frame)
                 v.show(shape, truth, force=True, vendor=vendor)
                 self.frames_shown += 1
         # what arrived, measured (over the last 2 s; at the end, over the run, as the terminal's summary says),

@@ -23,7 +23,7 @@ from twin.frames import Shape, Truth
 from twin.viewer import commands as cmd
 from twin.viewer import geometry as geo
 from twin.viewer.client import SceneClient, ViewerError
-from twin.viewer.geometry import placement, tube_mesh
+from twin.viewer.geometry import tube_mesh
 
 __all__ = ["CAMERA_FOV_DEG", "Viewer", "ViewerConfig", "keep_open"]
 
@@ -61,6 +61,10 @@ class ViewerConfig:
         Scene units per metre.
     truth_color, fixture_color, stale_color, marker_color, scale_color, vendor_color : int
     fixture_opacity : float
+    confidence_level, confidence_color, confidence_opacity : float, int, float
+        The confidence envelope drawn around the tube when a shape carries its uncertainty
+        (:class:`twin.uncertainty.Uncertainty`): the catheter's wall lies inside it with this probability
+        (:func:`twin.viewer.geometry.envelope`); translucent.
     show_vendor : bool
         Whether the interrogator's own shape starts visible when a frame carries one (the page's scene controls
         toggle it).
@@ -96,6 +100,9 @@ class ViewerConfig:
     truth_color: int = 0xFF00FF
     fixture_color: int = 0xFFFFFF
     fixture_opacity: float = 0.2
+    confidence_level: float = 0.95
+    confidence_color: int = 0x4DA6FF
+    confidence_opacity: float = 0.2
     stale_color: int = 0x8C8C8C
     marker_color: int = 0x000000
     scale_color: int = 0x202020
@@ -132,7 +139,9 @@ class ViewerConfig:
             lo, hi = getattr(self, name)
             if not hi > lo:
                 raise ValueError(f"ViewerConfig.{name} must be increasing, got {(lo, hi)}")
-        for name in ("shape_opacity", "fixture_opacity"):
+        if not 0 < self.confidence_level < 1:
+            raise ValueError(f"ViewerConfig.confidence_level must lie in (0, 1), got {self.confidence_level}")
+        for name in ("shape_opacity", "fixture_opacity", "confidence_opacity"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"ViewerConfig.{name} must lie in [0, 1], got {getattr(self, name)}")
 
@@ -172,6 +181,7 @@ class Viewer:
         self.errors: dict[str, float] | None = None
         self.vendor_errors: dict[str, float] | None = None
         self._vendor_shown = False
+        self._confidence_shown = False
         self._magnified_shown = False
         self.magnification: float | None = None
         self._profile: dict | None = None
@@ -325,36 +335,21 @@ class Viewer:
         if not np.all(np.isfinite(shape.positions)):
             raise ValueError("Viewer.show: the shape has NaN points (an unusable frame)")
         cfg = self.config
-        R, p, how = placement(shape, truth, base_pose)
-        self.placement = how
-        world = shape.positions @ R.T + p
+        sc = geo.frame_scene(shape, truth, vendor, base_pose, cfg.vendor_sensor)
+        R, world, truth_pts, ok = sc.R, sc.world, sc.truth, sc.truth_ok
+        self.placement, self.errors, self._mode = sc.how, sc.errors, sc.mode
         keep = geo.subsample(len(world), cfg.max_rings)
-        truth_pts = None
-        if truth is not None:
-            ts, tp = np.asarray(truth.s, dtype=np.float64), np.asarray(truth.positions, dtype=np.float64)
-            ok = np.all(np.isfinite(tp), axis=1)
-            truth_pts, ts = tp[ok], ts[ok]
-            d, nearest = geo.local_error(world, truth_pts, return_closest=True)
-            tip = float(np.linalg.norm(world[-1] - geo.interp_curve(shape.s[-1:], ts, truth_pts)[0]))
-            self.errors = {"max": float(d.max()), "mean": float(d.mean()), "tip": tip}
-            self._mode = "error"
-            ring_colors = geo.colormap(d[keep], *cfg.error_range)
-            self._profile = _profile(shape.s, d, cfg.profile_points)
-            magnified = self._magnified(world[keep], nearest[keep], float(d.max()))
+        ring_colors = geo.colormap(sc.values[keep], *(cfg.error_range if sc.mode == "error" else cfg.curvature_range))
+        if sc.mode == "error":
+            self._profile = _profile(shape.s, sc.values, cfg.profile_points)
+            magnified = self._magnified(world[keep], sc.nearest[keep], float(sc.values.max()))
         else:
-            self.errors = None
             self._profile = None
             magnified = None
             self.magnification = None
-            self._mode = "curvature"
-            k = np.linalg.norm(np.asarray(shape.curvature, dtype=np.float64), axis=-1)
-            good = np.isfinite(k)
-            k_at = np.interp(shape.s[keep], shape.grating_s[good], k[good]) if good.any() else np.full(len(keep),
-                                                                                                      np.nan)
-            ring_colors = geo.colormap(k_at, *cfg.curvature_range)
         if fixture is None and truth is not None:
             fixture = truth.fixture
-        vendor_pts = self._vendor_world(shape, vendor, R, p)
+        vendor_pts, self.vendor_errors = sc.vendor, sc.vendor_errors
         if not self._framed or reframe:
             sensed = np.concatenate([c for c in (world, truth_pts, vendor_pts) if c is not None])
             self._frame(sensed)
@@ -363,10 +358,10 @@ class Viewer:
         if fixture is not None:
             self._draw_fixture(np.asarray(fixture, dtype=np.float64))
         verts, faces = tube_mesh(world[keep], cfg.radius, cfg.sides, normals=(shape.frames[:, :, 0] @ R.T)[keep])
-        markers = geo.interp_curve(shape.grating_s, shape.s, world)
         self._last = {"verts": verts, "faces": faces, "colors": geo.tube_colors(ring_colors, cfg.sides),
-                      "markers": markers}
+                      "markers": sc.markers}
         self._draw_reconstruction()
+        self._draw_confidence(shape, world[keep], (shape.frames[:, :, 0] @ R.T)[keep], keep)
         if truth_pts is not None and len(truth_pts) >= 2:
             tk = geo.subsample(len(truth_pts), cfg.max_rings)
             normals = None if truth.frames is None else np.asarray(truth.frames)[ok][tk, :, 0]
@@ -407,25 +402,20 @@ class Viewer:
         self._send(cmd.set_object(path, cmd.mesh(verts, faces, mat, render_order=render_order)))
         return True
 
-    def _vendor_world(self, shape: Shape, vendor, R: np.ndarray, p: np.ndarray) -> np.ndarray | None:
-        """The interrogator's shape registered onto ``shape`` and placed like it (world, m), or None."""
-        self.vendor_errors = None
-        if vendor is None:
-            return None
-        block = vendor
-        if isinstance(vendor, tuple | list):
-            k = self.config.vendor_sensor
-            block = vendor[k] if len(vendor) > k else None
-        if block is None:
-            return None
-        from twin.io.illumisense.vendor import vendor_in_base
-
-        moved = vendor_in_base(shape.positions, shape.s, block.positions, block.s)
-        if moved is None:  # no overlap, or NaN points: nothing to show or report
-            return None
-        base, e = moved
-        self.vendor_errors = {"max": float(e.max), "mean": float(e.mean), "tip": float(e.tip)}
-        return base @ R.T + p
+    def _draw_confidence(self, shape: Shape, points: np.ndarray, normals: np.ndarray, keep: np.ndarray) -> None:
+        """The translucent confidence envelope around the tube, or none when the shape has no uncertainty."""
+        cfg = self.config
+        if shape.covariance is None:
+            if self._confidence_shown:
+                self._send(cmd.delete("/twin/confidence"))
+                self._confidence_shown = False
+            return
+        radii = geo.envelope(shape, cfg.confidence_level, cfg.radius)[keep]
+        verts, faces = tube_mesh(points, radii, cfg.sides, normals=normals)
+        mat = cmd.material("MeshPhongMaterial", cfg.confidence_color, opacity=cfg.confidence_opacity,
+                           depthWrite=False)
+        self._send(cmd.set_object("/twin/confidence", cmd.mesh(verts, faces, mat, render_order=1)))
+        self._confidence_shown = True
 
     def _draw_vendor(self, points: np.ndarray | None) -> None:
         # like the truth: unlit, over the translucent tube (under the truth and the gratings)

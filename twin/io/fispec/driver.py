@@ -22,7 +22,7 @@ import numpy as np
 
 from twin.fiber import FiberModel
 from twin.frames import Frame
-from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, int_list, split_common, url_options
+from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, int_list, positive, split_common, url_options
 from twin.io.errors import FramingError
 from twin.io.fispec import codec as fispec
 from twin.io.source import parse_url
@@ -101,6 +101,8 @@ class FispecSource(Driver):
     url, wait, retry_for, backoff
         See :class:`Driver`.
     """
+
+    START_WAIT = 0.0  #: a serial device that is not there is more likely a wrong path: fail at once by default
 
     def __init__(self, ports: Sequence[str], *, rate: float = 100.0, fiber: FiberModel | None = None,
                  cores: Sequence[int] | None = None, window: float = 3.0, baudrate: int = fispec.BAUDRATE,
@@ -231,13 +233,13 @@ class FispecSource(Driver):
 
 
 def open_fispec(url: str, **options) -> FispecSource:
-    """``fispec://PORT[,PORT…]?rate=HZ&cores=0,1,2,3&window=NM&baudrate=N&wait=0|1&retry_for=S``."""
+    """``fispec://PORT[,PORT…]?rate=HZ&cores=0,1,2,3&window=NM&baudrate=N&wait=0|1&retry_for=S&start_wait=S``."""
     _, rest, query = parse_url(url)
     ports = [p for p in rest.split(",") if p]
     if not ports:
         raise ValueError(f"{url!r}: expected fispec://PORT (a device, a pty path or a pyserial URL)")
-    opts = url_options(url, query, {**COMMON_OPTIONS, "rate": float, "cores": int_list, "window": float,
-                                    "baudrate": int, "reply_timeout": float})
+    opts = url_options(url, query, {**COMMON_OPTIONS, "rate": positive, "cores": int_list, "window": positive,
+                                    "baudrate": int, "reply_timeout": positive})
     opts.pop("connect_timeout", None)
     kw = split_common(opts)
     kw.update(opts)

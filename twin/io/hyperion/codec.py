@@ -511,6 +511,8 @@ def decode_peaks_header(content: bytes, *, max_channels: int = 128) -> tuple[Pea
         raise FramingError(
             f"timestamp nanoseconds {h.timestamp_ns}", offset=20, expected="below 1e9", protocol=PROTOCOL
         )
+    if h.reserved != 0:  # docs/protocols.md §3.4: with no sync marker, the zero fields are what shows lost framing
+        raise FramingError(f"peak header reserved field {h.reserved}", offset=4, expected="0", protocol=PROTOCOL)
     counts = np.frombuffer(content, dtype="<i2", count=n_ch2 // 2, offset=PEAK_HEADER_SIZE).astype(np.int64)
     if np.any(counts < 0):
         k = int(np.argmax(counts < 0))

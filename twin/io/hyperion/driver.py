@@ -203,7 +203,7 @@ class HyperionSource(Driver):
 
 
 def open_hyperion(url: str, **options) -> HyperionSource:
-    """``hyperion://HOST[:PORT]?stream_port=P&channels=1,2,3,4&wait=0|1&retry_for=S``."""
+    """``hyperion://HOST[:PORT]?stream_port=P&channels=1,2,3,4&wait=0|1&retry_for=S&start_wait=S``."""
     _, rest, query = parse_url(url)
     host, port = parse_host_port(rest, hyperion.COMMAND_PORT, what=url)
     opts = url_options(url, query, {**COMMON_OPTIONS, "stream_port": int, "channels": int_list})

@@ -52,8 +52,10 @@ of arrays until a caller asks for Records (:func:`decode_many`) or frames; the s
 Stream (:class:`StreamDecoder`): the payload is printable text with no NUL and no LF before its end, and the
 length prefix of any payload under 16 MiB starts with a NUL byte. After an error the decoder hunts: it skips
 to the next NUL byte, reads a candidate length, rejects it at once when it is out of bounds or when the bytes
-already received for it hold a NUL or an early LF, and accepts it only when the payload decodes. Every loss
-of sync counts once in :attr:`StreamDecoder.framing_errors`; skipped bytes in ``bytes_discarded``. The channel
+already received for it hold a NUL or an early LF, and accepts it only when the payload decodes. In sync, a
+record still waiting for the rest of its payload is checked the same way as its bytes arrive, so a corrupted
+prefix that is still in bounds does not make the decoder wait for bytes the later prefixes prove wrong. Every
+loss of sync counts once in :attr:`StreamDecoder.framing_errors`; skipped bytes in ``bytes_discarded``. The channel
 layout is learned from a consensus (:class:`LayoutConsensus`), not from the first record alone: records of
 another layout are counted in ``odd_records`` and dropped, and a new layout that persists is re-learned.
 
@@ -170,6 +172,9 @@ class Record:
         Fields after the last recognised block (ignored).
     layout : tuple
         The channel layout (channel numbers, grating counts): what :class:`LayoutConsensus` votes on.
+    absent_sensors : int
+        Sensor blocks left out of :attr:`sensors`: from the first block without gratings or shape points on
+        (such a block carries no shape; a sensor's index keeps its meaning, as in :attr:`Frame.vendor`).
     """
 
     frame: Frame
@@ -182,6 +187,7 @@ class Record:
     time: str
     extra_fields: int = 0
     layout: tuple = ()
+    absent_sensors: int = 0
 
 
 # --------------------------------------------------------------------------------------------------- encode
@@ -477,8 +483,8 @@ def _walk(t: _Tokens, channels_as: str, n_cores: int | None, max_cells: int) -> 
             lab = _label(t.raw(pos))
             if lab is None or lab[0] != "curvature":
                 break
-            nxt = text[text > pos]
-            q = int(nxt[0]) if nxt.size else n
+            k_next = int(np.searchsorted(text, pos, side="right"))  # not text[text > pos]: quadratic in blocks
+            q = int(text[k_next]) if k_next < text.size else n
             g_s = q - pos - 1
             t.numbers(pos + 1, q)
             lab2 = _label(t.raw(q)) if q < n else None
@@ -564,8 +570,15 @@ class _Group:
     data: bytes
     dt_bounds: np.ndarray  # (m, 4): date start, date end, time start, time end in data
 
+    @cached_property
+    def usable_sensors(self) -> int:
+        """Sensor blocks before the first without gratings or shape points (a block of the format, but no shape
+        to compare with: absent, issue 23 B4); the later ones are absent too, so that indices keep their meaning."""
+        return next((j for j, (k, _, p) in enumerate(self.sensors) if not (k.shape[1] and p.shape[1])),
+                    len(self.sensors))
+
     def vendor(self, i: int) -> tuple:
-        return tuple(VendorSensor(k[i], a[i], p[i]) for k, a, p in self.sensors)
+        return tuple(VendorSensor(k[i], a[i], p[i]) for k, a, p in self.sensors[: self.usable_sensors])
 
     def frame(self, i: int, vendor: tuple | None = None) -> Frame:
         """The single Frame of row i (no validation: the arrays are built with the dtypes and shapes it needs)."""
@@ -590,7 +603,8 @@ class _Group:
         d0, d1, t0, t1 = self.dt_bounds[i].tolist()
         eng = self.engineering[i] if self.engineering is not None else np.zeros(0)
         return Record(self.frame(i, v), *self._channels, self.status4[i], v, eng, self.data[d0:d1].decode("latin-1"),
-                      self.data[t0:t1].decode("latin-1"), lay.extra, lay.key)
+                      self.data[t0:t1].decode("latin-1"), lay.extra, lay.key,
+                      len(self.sensors) - self.usable_sensors)
 
 
 def _extract(lay: _Layout, V: np.ndarray, seq: np.ndarray, stamps: np.ndarray, data: bytes,

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 
-from twin.io.drivers import COMMON_OPTIONS, Driver, split_common, url_options
+from twin.io.drivers import COMMON_OPTIONS, Driver, positive, seconds, split_common, url_options
 from twin.io.illumisense import codec
 from twin.io.illumisense.stream import StreamDecoder
 from twin.io.source import parse_url
@@ -99,6 +99,7 @@ class IllumisenseSource(Driver):
             bytes_discarded=d.bytes_discarded,
             odd_records=d.odd_records,
             layout_changes=d.layout_changes,
+            sensor_blocks_absent=d.sensor_blocks_absent,
         )
         if d.last_error is not None:
             out["last_framing_error"] = str(d.last_error)
@@ -109,11 +110,11 @@ class IllumisenseSource(Driver):
 
 
 def open_illumisense(url: str, **options) -> IllumisenseSource:
-    """``illumisense://HOST[:PORT]?channels=cores|single&cores=N&max_payload=B&wait=0|1&retry_for=S``."""
+    """``illumisense://HOST[:PORT]?channels=cores|single&cores=N&max_payload=B&wait=0|1&retry_for=S&start_wait=S``."""
     _, rest, query = parse_url(url)
     host, port = parse_host_port(rest, codec.DEFAULT_PORT, what=url)
     opts = url_options(url, query, {**COMMON_OPTIONS, "channels": str, "cores": int, "max_payload": int,
-                                 "resync_timeout": float, "layout_wait": float})
+                                 "resync_timeout": positive, "layout_wait": seconds})
     if opts.get("channels", "cores") not in ("cores", "single"):
         raise ValueError(f"{url!r}: channels must be 'cores' or 'single'")
     kw = split_common(opts)

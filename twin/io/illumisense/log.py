@@ -4,6 +4,9 @@ Nobody publishes a log format; loggers write each record's payload (the text aft
 as one line, so a line is read exactly as a payload (docs/protocols-illumisense.md): date, time, sample
 number, channel blocks, optional sensor blocks, any line ending. All lines are tokenized in one pass.
 
+- Lines end in LF, CR LF or CR alone, in any mixture; a UTF-8 byte-order mark before the first line is skipped.
+  A last line without a line end was cut (the writer was stopped mid-line): it is left out, since its last
+  number may be cut short (the reader reports the file as damaged).
 - Lines before the first record that decodes (column names, comments, settings) are a header and skipped
   silently (at most ``max_header_lines``); a later line that does not decode is skipped and reported with its
   line number. A line that fails and holds a decimal comma is retried with commas read as points.
@@ -57,13 +60,16 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
     """
     path = Path(path)
     data = path.read_bytes()
-    ends, starts, pos = [], [], 0
-    sep = b"\n" if b"\n" in data or b"\r" not in data else b"\r"  # LF or CR LF lines; CR alone from old tools
-    for line in data.split(sep):
+    # a UTF-8 byte-order mark (editors on Windows) is not part of the first line
+    ends, starts, pos = [], [], 3 if data.startswith(b"\xef\xbb\xbf") else 0
+    # lines end in LF, CR LF or CR alone (old tools), in any mixture (a header may end otherwise than the records)
+    for line in data[pos:].splitlines(keepends=True):
         starts.append(pos)
-        ends.append(pos + len(line))
-        pos += len(line) + 1
+        ends.append(pos + len(line.rstrip(b"\r\n")))
+        pos += len(line)
     keep = [i for i, (a, b) in enumerate(zip(starts, ends, strict=True)) if data[a:b].strip()]
+    if keep and keep[-1] == len(starts) - 1 and data[-1:] not in (b"\n", b"\r"):
+        keep.pop()  # a last line without its line end was cut: its last number may be cut short (the reader says so)
     res = decode_many(data, [starts[i] for i in keep], [ends[i] for i in keep], channels_as=channels_as,
                       n_cores=n_cores)
     errors: list[str] = []

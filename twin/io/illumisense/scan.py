@@ -179,11 +179,11 @@ def _timestamp(buf, da, db, ta, tb, pow10):
     else:
         if buf[ta + 8] != 46:
             return np.nan
+        if n - 1 + 2 > 15:  # before reading the digits: 19 of them would overflow int64
+            return TIME_SLOW
         f = _digits(buf, ta + 9, n - 1)
         if f < 0:
             return np.nan
-        if n - 1 + 2 > 15:
-            return TIME_SLOW
         ss = float(s_int * _ipow10(n - 1) + f) / pow10[n - 1]
     day = float((_days_from_civil(y, mo, d)) * 86400)
     return day + float(hh * 3600 + mm * 60) + ss

@@ -158,6 +158,8 @@ class StreamDecoder:
         From the consensus: records dropped for their layout; layouts re-learned.
     sequence : SequenceCounter
         Gaps, lost samples and resets of the delivered records' sample numbers.
+    sensor_blocks_absent : int
+        Sensor blocks of delivered records left out of :attr:`Frame.vendor` (:attr:`Record.absent_sensors`).
     last_error : FramingError or None
     errors : collections.deque of FramingError
     """
@@ -182,6 +184,7 @@ class StreamDecoder:
         self._scanned = 0
         self.sequence = SequenceCounter()
         self.records = 0
+        self.sensor_blocks_absent = 0
         self.framing_errors = 0
         self.bytes_discarded = 0
         self.last_error: FramingError | None = None
@@ -289,9 +292,11 @@ class StreamDecoder:
                     released = cons.push(grp.record(i))
                     out += released
                     seqs += [x.frame.sequence for x in released]
+                    self.sensor_blocks_absent += sum(x.absent_sensors for x in released)
                     i += 1
                 if i < i1:
                     cons.admit(i1 - i)
+                    self.sensor_blocks_absent += (i1 - i) * (len(grp.sensors) - grp.usable_sensors)
                     out.append((grp, i, i1))
                     seqs.append(grp.sequence[i:i1])
             if n_ok < len(spans):
@@ -316,6 +321,7 @@ class StreamDecoder:
 
     def _count(self, out: list[Record]) -> list[Record]:
         self._count_seq([r.frame.sequence for r in out])
+        self.sensor_blocks_absent += sum(r.absent_sensors for r in out)
         return out
 
     def _frame(self) -> list[tuple[int, int]]:
@@ -357,9 +363,10 @@ class StreamDecoder:
             end = p + 4 + length
             start_scan = p + 4 + self._scanned
             hi = min(end - 1, len(buf))  # the last payload byte may be the LF
-            # in sync, the tokenizer finds a NUL or LF inside a complete payload; hunting, a candidate is
-            # rejected as soon as one arrives
-            if self._hunting and hi > start_scan:
+            # in sync, the tokenizer finds a NUL or LF inside a complete payload; hunting, or in sync waiting
+            # for the rest of a payload, the candidate is rejected as soon as one arrives (a corrupted prefix
+            # in sync would otherwise wait for bytes that the later prefixes' NULs already prove wrong)
+            if (self._hunting or len(buf) < end) and hi > start_scan:
                 bad = [i for i in (buf.find(b"\x00", start_scan, hi), buf.find(b"\n", start_scan, hi)) if i >= 0]
                 if bad:
                     if spans:

@@ -154,8 +154,10 @@ def vendor_distance(positions: np.ndarray, s: np.ndarray, vendor_positions: np.n
         :func:`twin.metrics.shape_error` over the common arc length (pairs by arc length, Kabsch, exact
         point-to-polyline distances); None when fewer than 3 of our points lie on the vendor's shape.
     """
+    if vendor_s.size < 2:
+        return None
     keep = s <= vendor_s[-1] + 1e-9
-    if np.count_nonzero(keep) < 3 or vendor_s.size < 2:
+    if np.count_nonzero(keep) < 3:
         return None
     return shape_error(positions[..., keep, :], vendor_positions, s=s[keep], truth_s=vendor_s, register="kabsch")
 
