@@ -18,6 +18,7 @@ import numpy as np
 from models.catheter import CatheterSpec, Pose
 from models.fixtures import ExtendedCurve, build_connect, build_groove, build_tube, rod_base_pose, settle
 from twin import shapes
+from twin.io.options import Option, parse_options
 
 __all__ = ["CalibrationPoses", "Setup", "StaticShape", "parse_params"]
 
@@ -78,33 +79,21 @@ class Setup:
         raise ValueError(f"sim://{self.name} has no poses to set; known: {', '.join(self.poses) or 'none'}")
 
 
-def _number(key: str, value: str) -> float:
-    try:
-        return float(value)
-    except ValueError:
-        raise ValueError(f"sim parameter {key}={value!r}: expected a number") from None
-
-
 def parse_params(cls: type[Setup], params: dict[str, str]) -> dict:
-    """Convert URL query strings to the types of ``cls``'s keyword defaults; unknown keys are errors."""
+    """Convert URL query strings to the types of ``cls``'s keyword defaults (:mod:`twin.io.options`: unknown
+    keys, bad booleans and bad or non-finite numbers are one-line errors naming the setup and the key)."""
     import inspect
 
     sig = inspect.signature(cls.__init__)
-    known = {k: p.default for k, p in sig.parameters.items() if k != "self"}
-    out = {}
-    for key, value in params.items():
-        if key not in known:
-            raise ValueError(f"sim://{cls.name}: unknown parameter {key!r}; known: {', '.join(sorted(known))}")
-        default = known[key]
-        if isinstance(default, bool):
-            out[key] = value.lower() in ("1", "true", "yes", "on")
-        elif isinstance(default, int):
-            out[key] = int(_number(key, value))
-        elif isinstance(default, float):
-            out[key] = _number(key, value)
-        else:
-            out[key] = value
-    return out
+    spec = {}
+    for key, p in sig.parameters.items():
+        if key == "self":
+            continue
+        d = p.default
+        kind = "bool" if isinstance(d, bool) else "int" if isinstance(d, int) else \
+            "float" if isinstance(d, float) else "str"
+        spec[key] = Option(kind)
+    return parse_options(f"sim://{cls.name}", params, spec)
 
 
 class StaticShape(Setup):

@@ -25,12 +25,12 @@ from sim_interrogator.frame_path import FramePath
 from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.setups import Setup
 from twin import FiberModel, Frame
-from twin.io.source import Source, SourceClosed
+from twin.io.source import FrameByFrame, SourceClosed
 
 __all__ = ["SimInterrogator"]
 
 
-class SimInterrogator(Source):
+class SimInterrogator(FrameByFrame):
     """A simulated interrogator on a simulated catheter.
 
     Parameters
@@ -122,7 +122,8 @@ class SimInterrogator(Source):
             mujoco.mj_step(model, data, nstep=n)
         self.physics_time += time.perf_counter() - t0
 
-    def read(self, timeout: float | None = None) -> Frame | None:
+    def next_frame(self, timeout: float | None = None) -> Frame | None:
+        """The next frame (the live loop gathers them into batches: :class:`~twin.io.source.FrameByFrame`)."""
         if self._closed:
             raise SourceClosed(f"{self.url}: closed")
         t = self._k / self.rate

@@ -11,11 +11,21 @@ from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import parse_params
 from sim_interrogator.sim import SimInterrogator
 from twin import registry
+from twin.io.options import Option, parse_options
 from twin.io.source import parse_url
 
 __all__ = ["open_sim"]
 
-_SOURCE_KEYS = {"rate", "realtime", "optics", "noise_pm", "seed", "truth"}
+#: the interrogator's options of ``sim://`` (:mod:`twin.io.options`); every other key is the setup's
+SIM_OPTIONS = {
+    "rate": Option("float", default=100.0, low=0.0, low_open=True, high=10_000.0),
+    "realtime": Option("bool", default=False),
+    "optics": Option("str", default="realistic", choices=("realistic", "ideal")),
+    "noise_pm": Option("float", low=0.0),
+    "seed": Option("int", low=0),
+    "truth": Option("bool", default=True),
+}
+
 
 def open_sim(url: str, **options) -> SimInterrogator:
     """Build the setup named in ``url`` and return its SimInterrogator (``options`` override the query)."""
@@ -26,23 +36,14 @@ def open_sim(url: str, **options) -> SimInterrogator:
     known = registry.entries("twin.sim_setups")
     if name not in known:
         raise ValueError(f"{url!r}: unknown simulated setup {name!r}; known: {', '.join(known)}")
-    source = {k: params.pop(k) for k in list(params) if k in _SOURCE_KEYS}
-    kind = source.get("optics", "realistic")
-    if kind not in ("realistic", "ideal"):
-        raise ValueError(f"{url!r}: optics must be realistic or ideal, got {kind!r}")
-    cfg = OpticsConfig() if kind == "realistic" else OpticsConfig.ideal()
-    try:
-        if "noise_pm" in source:
-            cfg = cfg.replace(noise=float(source["noise_pm"]) * 1e-3)
-        if "seed" in source:
-            cfg = cfg.replace(seed=int(source["seed"]))
-        rate = float(source.get("rate", 100.0))
-    except ValueError as exc:
-        raise ValueError(f"{url!r}: {exc}") from None
+    opts = parse_options(url, params, SIM_OPTIONS, extra=True)
+    cfg = OpticsConfig() if opts["optics"] == "realistic" else OpticsConfig.ideal()
+    if "noise_pm" in opts:
+        cfg = cfg.replace(noise=opts["noise_pm"] * 1e-3)
+    if "seed" in opts:
+        cfg = cfg.replace(seed=opts["seed"])
     cls = registry.load("twin.sim_setups", name)
-    setup = cls(**parse_params(cls, params))
-    flag = {"1", "true", "yes", "on"}
-    sim = SimInterrogator(setup, fiber, optics=cfg, rate=rate, realtime=source.get("realtime", "0").lower() in flag,
-                          truth=source.get("truth", "1").lower() in flag)
+    setup = cls(**parse_params(cls, opts["_extra"]))
+    sim = SimInterrogator(setup, fiber, optics=cfg, rate=opts["rate"], realtime=opts["realtime"], truth=opts["truth"])
     sim.url = url
     return sim

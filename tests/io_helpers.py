@@ -13,7 +13,7 @@ import numpy as np
 from twin.frames import Frame
 from twin.io import illumisense
 from twin.io.source import Source, SourceClosed
-from twin.io.synthetic import SyntheticSource
+from twin.synthetic import SyntheticSource
 
 os.environ.setdefault("MPLBACKEND", "Agg")  # the FiSpec client imports matplotlib
 
@@ -127,3 +127,8 @@ def wait_until(predicate: Callable[[], bool], timeout: float = 20.0, poll: float
             return True
         time.sleep(poll)
     return predicate()
+
+
+def singles(batch) -> list:
+    """The single frames of what a source's ``read_batch`` returned (None: none)."""
+    return [] if batch is None else list(batch)

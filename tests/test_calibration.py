@@ -207,7 +207,7 @@ def test_a_calibration_in_micrometres_fails_in_one_line(tmp_path):
 def test_a_spun_fiber_of_one_grating_fails_naming_the_field(tmp_path):
     """Issue 23, also seen: numpy's bare "Singular matrix" (the spin-rate fit of a one-grating spun fibre)."""
     from twin.calibration import CalibrationError
-    from twin.io.synthetic import SyntheticSource
+    from twin.synthetic import SyntheticSource
 
     FIBER.replace(grating_s=[0.05], lambda0=FIBER.lambda0[:1], spin_rate=10.0).save(tmp_path / "one.toml")
     one = FiberModel.load(tmp_path / "one.toml")

@@ -559,9 +559,8 @@ def reference_hyperion_stream(data: bytes, max_content: int = 4096, max_channels
     (``<BBHI`` header, ASCII message, content) with status 0 whose content is peak content; each frame is
     (serial, seconds, nanoseconds, peaks per channel). The stream fails at the first response that is not one
     (a content length over ``max_content``, a non-ASCII message, a non-zero status, inconsistent peak content,
-    nanoseconds ≥ 1e9, a peak that is not a wavelength in 200–3000 nm); an incomplete last response is pending.
-    (The reserved u32 of the peak header is left unread here as by the codec: see
-    test_hyperion_peak_header_with_reserved_bits_set_is_refused.)"""
+    nanoseconds ≥ 1e9, a peak header's reserved u32 that is not 0, a peak that is not a wavelength in
+    200–3000 nm); an incomplete last response is pending."""
     frames, pos = [], 0
     while len(data) - pos >= 8:
         status, _, n_msg, n_content = struct.unpack_from("<BBHI", data, pos)
@@ -578,7 +577,8 @@ def reference_hyperion_stream(data: bytes, max_content: int = 4096, max_channels
         except (ValueError, struct.error):
             return frames, True
         n_channels = (struct.unpack_from("<H", content)[0] - 24) // 2
-        if n_channels > max_channels or ns >= 1_000_000_000 or not all(
+        reserved = struct.unpack_from("<I", content, 4)[0]
+        if n_channels > max_channels or ns >= 1_000_000_000 or reserved != 0 or not all(
                 200.0 <= v <= 3000.0 for c in channels for v in c):
             return frames, True
         frames.append((serial, sec, ns, channels))

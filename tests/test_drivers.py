@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from io_helpers import ManualSource, ScriptedServer, records, synthetic_frames, wait_until
+from io_helpers import ManualSource, ScriptedServer, records, singles, synthetic_frames, wait_until
 
 from sim_interrogator.servers import FispecServer, HyperionServer, IllumisenseServer
 from twin import Reconstructor, strain
@@ -25,8 +25,8 @@ from twin.io import hyperion, open_source
 from twin.io.hyperion.driver import HyperionSource, assign_peaks
 from twin.io.illumisense.driver import IllumisenseSource
 from twin.io.source import SourceClosed
-from twin.io.synthetic import SyntheticSource, multicore_fiber
 from twin.io.transport import Backoff, parse_host_port
+from twin.synthetic import SyntheticSource, multicore_fiber
 
 Q = 5e-5 + 1e-9  # ILLumiSense: half the 4th decimal
 
@@ -35,7 +35,7 @@ def read_n(src, n: int, timeout: float = 30.0) -> list:
     out = []
     deadline = time.monotonic() + timeout
     while len(out) < n and time.monotonic() < deadline:
-        out += src.read_many(n - len(out), 0.2)
+        out += singles(src.read_batch(n - len(out), 0.2))
     return out
 
 
@@ -99,10 +99,10 @@ def test_synthetic_url_options_and_errors():
     # issue 23, also seen: sizes and durations bounded before use ("Maximum allowed size exceeded", a
     # MemoryError traceback, an OverflowError)
     for gratings in (10**19, 10**17, 2):
-        with pytest.raises(ValueError, match=f"gratings: expected 3 to 10000, got {gratings}"):
+        with pytest.raises(ValueError, match=f"option gratings='{gratings}': expected an integer in \\[3, 10000\\]"):
             open_source(f"synthetic://?gratings={gratings}")
     for duration in ("nan", "-1"):
-        with pytest.raises(ValueError, match="duration must be a number of seconds >= 0"):
+        with pytest.raises(ValueError, match=f"option duration='{duration}': expected a number in \\(0, inf\\)"):
             open_source(f"synthetic://?duration={duration}")
     assert open_source("synthetic://?duration=1e300&rate=1e300").limit is None
 
@@ -204,7 +204,7 @@ def test_illumisense_driver_never_delivers_a_wrong_frame(garbage_stream, garbage
         got = []
         deadline = time.monotonic() + 20
         while not any(f.sequence == 11 for f in got) and time.monotonic() < deadline:
-            got += src.read_many(timeout=0.1)
+            got += singles(src.read_batch(timeout=0.1))
     finally:
         src.close()
     seqs = [f.sequence for f in got]
@@ -337,13 +337,13 @@ def test_fispec_port_closing_is_survived_and_a_linked_restart_reconnects(tmp_pat
     try:
         assert len(read_n(src, 5)) == 5
         server.close()  # the device disappears mid-stream
-        assert wait_until(lambda: src.read_many(timeout=0.05) == [] and src.stats()["state"] == "disconnected")
+        assert wait_until(lambda: src.read_batch(timeout=0.05) is None and src.stats()["state"] == "disconnected")
         assert src.stats()["disconnects"] == 1
         _, source2 = _fiber_and_source(k_x=-5.0)
         server = FispecServer(source2, link=link).start()  # new ptys, same links
         want = np.round(source2.wavelengths * 1e4) / 1e4
-        assert wait_until(lambda: any(np.array_equal(f.wavelengths, want) for f in src.read_many(timeout=0.1)),
-                          timeout=30)
+        assert wait_until(lambda: any(np.array_equal(f.wavelengths, want)
+                                      for f in singles(src.read_batch(timeout=0.1))), timeout=30)
         assert src.stats()["reconnects"] >= 1
     finally:
         src.close()

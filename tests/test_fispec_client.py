@@ -20,7 +20,7 @@ from io_helpers import ManualSource, wait_until
 
 from sim_interrogator.servers import FispecServer
 from twin import strain
-from twin.io.synthetic import multicore_fiber
+from twin.synthetic import multicore_fiber
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 fbg = require_module("myFBGcommunication.myFBGcommunication",

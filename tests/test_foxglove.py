@@ -134,7 +134,7 @@ def test_a_spec_client_decodes_shapes_at_20_hz_beside_a_stalled_client_and_a_thi
     assert figures and figures[-1]["colour"] == "error" and figures[-1]["max_error_mm"] < 1.0
     proc.send_signal(signal.SIGINT)
     out, _ = proc.communicate(timeout=60)
-    assert proc.returncode == 0
+    assert proc.returncode == 130  # Ctrl-C cut a bounded run (--duration) short: README's exit statuses
     summary = json.loads(out)
     assert summary["foxglove_clients"] == 2 and summary["foxglove_clients_refused"] == 1
     assert summary["foxglove_errors"] == 0 and summary["foxglove_frames"] >= len(scenes)

@@ -27,8 +27,8 @@ from conftest import require_tool
 from twin import FiberModel, Reconstructor
 from twin.frames import Frame, Shape, Truth
 from twin.igtl import IgtlServer, IgtlSink, crc64, parse_address
-from twin.io.synthetic import SyntheticSource
 from twin.live import LiveLoop, LiveStatus
+from twin.synthetic import SyntheticSource
 
 POLY = 0x42F0E1EBA9EA3693  # ECMA-182, from the OpenIGTLink header specification
 MASK = (1 << 64) - 1

@@ -667,9 +667,10 @@ def test_a_sensor_block_without_shape_points_is_absent_and_counted(tmp_path):
     from io_helpers import synthetic_frames
 
     from twin import FiberModel
-    from twin.io.illumisense.vendor import VendorDistance
+    from twin.frames import Frame
     from twin.io.record import Recorder
     from twin.reconstruct import Reconstructor
+    from twin.reference_errors import VendorDistance
 
     fiber = FiberModel.paper()
     frames = synthetic_frames(4)
@@ -678,18 +679,18 @@ def test_a_sensor_block_without_shape_points_is_absent_and_counted(tmp_path):
     data = b"".join(illumisense.encode_record(f, sensors=[empty, good]) for f in frames[:2])
     data += b"".join(illumisense.encode_record(f, sensors=[good, empty]) for f in frames[2:])
     dec = illumisense.StreamDecoder(layout_quorum=0)
-    got = dec.feed_batch(data)
+    got = [f for item in dec.feed_batch(data) for f in (item if item.batch_shape else (item,))]
     assert [f.vendor is None for f in got] == [True, True, False, False]
     assert len(got[2].vendor) == 1 and got[2].vendor[0].positions.shape == (200, 3)
     assert dec.sensor_blocks_absent == 2 * 2 + 2 * 1
     rec = illumisense.decode_record(illumisense.encode_payload(frames[0], sensors=[empty]))
     assert rec.sensors == () and rec.absent_sensors == 1 and rec.frame.vendor is None
     shapes = Reconstructor(fiber)(np.stack([f.wavelengths for f in got]))
-    sink = VendorDistance(rate=None)
-    sink(got, shapes, None)  # raised IndexError
-    assert sink.frames_compared == 1
+    sink = VendorDistance(per_second=None)
+    sink(Frame.stack(got), shapes, None)  # raised IndexError
+    assert sink.frames_compared == 2  # the two frames whose sensor 0 has a shape
     with Recorder(tmp_path / "r.h5", fiber=fiber) as recorder:  # raised on the empty block's chunk shape
-        recorder(got)
+        recorder(Frame.stack(got))
     assert recorder.frames_written == 4
 
 

@@ -13,9 +13,9 @@ from twin.frames import Frame, PeakStatus
 from twin.io import illumisense
 from twin.io.drivers import Driver
 from twin.io.illumisense import scan
-from twin.io.synthetic import SyntheticSource
-from twin.live import LiveLoop, join_batches, read_batch
+from twin.live import LiveLoop
 from twin.reconstruct import Reconstructor
+from twin.synthetic import SyntheticSource
 
 
 def record(payload: bytes) -> bytes:
@@ -96,8 +96,9 @@ def test_batch_path_gives_exactly_the_per_record_frames_and_counters(cuts):
     assert lost[12].status[0, 0] == PeakStatus.MISSING and np.isnan(lost[12].wavelengths[0, 0])
     assert lost[13].status[1, 0] == PeakStatus.MISSING and np.isnan(lost[13].powers[1, 0])
     assert all(lost[k].vendor is not None for k in range(30, 34))
-    if not cuts:  # one piece: the records of a layout without sensor blocks come as batches
+    if not cuts:  # one piece: the records of a layout come as batches, sensor blocks riding along
         assert any(f.batch_shape and len(f) > 5 for f in calls[0])
+        assert any(f.batch_shape and f.vendor is not None and len(f) == 4 for f in calls[0])
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -140,7 +141,7 @@ def test_tokenizer_numbers_are_python_floats_bit_for_bit(tok):
 # ------------------------------------------------------------------------------------------- live loop
 
 
-def test_live_loop_takes_a_batch_frame_like_the_list_of_its_frames():
+def test_live_loop_counts_a_batch_like_its_frames_one_by_one():
     src = SyntheticSource(rate=1000, pace=False, frames=64, cores=7, gratings=18, noise=0.001, truth=False)
     frames = list(src)
 
@@ -154,18 +155,22 @@ def test_live_loop_takes_a_batch_frame_like_the_list_of_its_frames():
     frames = frames[:20] + frames[23:]  # a gap of 3 samples
     stacked = Frame.stack(frames)
     a, b = LiveLoop(None, Reconstructor(src.fiber), []), LiveLoop(None, Reconstructor(src.fiber), [])
-    good_a, shapes_a, flags_a = a.process(frames)
+    one_by_one = [a.process(Frame.stack([f])) for f in frames]  # batches of one
+    flags_a = np.concatenate([x[2] for x in one_by_one])
+    positions_a = np.concatenate([x[1].positions for x in one_by_one])
     good_b, shapes_b, flags_b = b.process(stacked)
-    assert good_b is stacked and len(good_a) == len(good_b) == 61
-    assert np.array_equal(flags_a, flags_b) and np.array_equal(shapes_a.positions, shapes_b.positions)
-    assert a.c == b.c and a.c["lost_samples"] == 3 and a.c["peaks_outside_window"] == 1
-    assert a.c["frames_missing_peaks"] == 2
+    assert good_b is stacked and len(good_b) == 61
+    assert np.array_equal(flags_a, flags_b)
+    # the same shapes up to the last bits (a batch of one and one of 61 sum in other orders), 1e-12 m of ~0.2 m
+    np.testing.assert_allclose(positions_a, shapes_b.positions, rtol=0, atol=1e-12)
+    assert a.c.reported() == b.c.reported() and a.c.lost_samples == 3 and a.c.peaks_outside_window == 1
+    assert a.c.frames_missing_peaks == 2
     # a batch of another layout is rejected whole (a configuration error when nothing ever matched)
     wrong = Frame(np.ones((4, 3, 2)) * 1550.0)
     with pytest.raises(ValueError, match="fibre model"):
         LiveLoop(None, Reconstructor(src.fiber), []).process(wrong)
     good, shapes, flags = b.process(wrong)
-    assert good == [] and shapes is None and flags.size == 0 and b.c["frames_rejected"] == 4
+    assert len(good) == 0 and shapes is None and flags.size == 0 and b.c.frames_rejected == 4
 
 
 class _Canned(Driver):
@@ -186,25 +191,26 @@ class _Canned(Driver):
             self._push(self.pieces.pop(0))
 
 
-def test_driver_keeps_batches_whole_and_read_many_still_gives_single_frames():
+def test_driver_keeps_batches_whole_and_read_gives_single_frames():
     dec = illumisense.StreamDecoder(layout_quorum=0)
     pieces = [dec.feed_batch(b"".join(rec_of(k) for k in range(a, a + 10))) for a in (0, 10, 20)]
     # one batch per piece once the layout is known (in the first piece, the record that taught the layout was
-    # decoded on its own: a batch of 1, then one of 9; the live loop joins them, read_batch below)
+    # decoded on its own: a batch of 1, then one of 9; the driver joins them, read_batch below)
     assert [len(p) for p in pieces[1:]] == [1, 1] and [len(f) for f in pieces[0]] == [1, 9]
     first = flatten(pieces[0])
     src = _Canned(pieces)
-    got = read_batch(src, 6, 0.0)
+    got = src.read_batch(6, 0.0)
     assert isinstance(got, Frame) and list(got.sequence) == list(range(6))  # the limit cuts the batch
-    got = read_batch(src, 256, 0.0)
+    got = src.read_batch(256, 0.0)
     assert isinstance(got, Frame) and list(got.sequence) == list(range(6, 10))
-    singles = src.read_many(3, 0.0)
+    singles = [src.read(0.0) for _ in range(3)]
     assert [type(f) for f in singles] == [Frame] * 3 and [f.sequence for f in singles] == [10, 11, 12]
+    assert all(not f.batch_shape for f in singles)
     same_frames(singles, flatten(pieces[1])[:3])
     assert src.stats()["frames"] == 20  # two pieces pumped so far
-    # singles and batches mixed (frames with vendor blocks): the live loop gets single frames
-    mixed = join_batches([first[0], pieces[2][0]])
-    assert isinstance(mixed, list) and [f.sequence for f in mixed] == [0, *range(20, 30)]
+    # single frames and batches join into one batch, in order
+    mixed = Frame.stack([first[0], pieces[2][0]])
+    assert mixed.batch_shape == (11,) and list(mixed.sequence) == [0, *range(20, 30)]
 
 
 def test_live_loop_runs_on_the_batch_path_of_the_driver():

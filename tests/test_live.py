@@ -23,9 +23,9 @@ from io_helpers import ScriptedServer, records, synthetic_frames, wait_until
 from twin import FiberModel, Reconstructor, strain
 from twin.frames import Frame
 from twin.io.record import Recorder, open_recording
-from twin.io.source import Source, SourceClosed, open_source
-from twin.io.synthetic import SyntheticSource
+from twin.io.source import FrameByFrame, Source, SourceClosed, open_source
 from twin.live import FrameFlag, LiveLoop, LiveStatus
+from twin.synthetic import SyntheticSource
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1"}
@@ -42,7 +42,7 @@ class Collect:
 
     def __call__(self, frames, shapes, status):
         self.statuses.append(status)
-        self.sequences += [f.sequence for f in frames]
+        self.sequences += frames.sequence.tolist()
         self.flags += status.flags.tolist()
         if frames:
             assert shapes is not None and shapes.positions.shape[0] == len(frames)
@@ -51,13 +51,13 @@ class Collect:
         self.closed = True
 
 
-class Skipping(Source):
+class Skipping(FrameByFrame):
     """Wraps a source and drops the frames whose sequence is in ``skip`` (lost samples)."""
 
     def __init__(self, inner: Source, skip: set[int]):
         self.inner, self.skip, self.fiber, self.rate = inner, skip, inner.fiber, inner.rate
 
-    def read(self, timeout=None):
+    def next_frame(self, timeout=None):
         while True:
             f = self.inner.read(timeout)
             if f is None or f.sequence not in self.skip:
@@ -88,7 +88,7 @@ def test_counts_missing_peaks_partial_frames_and_lost_samples():
     assert sink.sequences == [f.sequence for f in frames]
 
 
-class Pausing(Source):
+class Pausing(FrameByFrame):
     """Frames until the sink has seen the loop ``live``, then nothing until it has seen it ``stale``, then frames
     again until ``total`` frames.
 
@@ -104,7 +104,7 @@ class Pausing(Source):
         self.resumed = False
         self.n = 0
 
-    def read(self, timeout=None):
+    def next_frame(self, timeout=None):
         if self.n >= self.total:
             raise SourceClosed("done")
         seen = {s.state for s in self.sink.statuses}
@@ -134,7 +134,7 @@ def test_stale_state_is_entered_reported_and_left():
     assert summary.status.stale_events == 1 and summary.status.frames == 600
 
 
-class Flaky(Source):
+class Flaky(FrameByFrame):
     """Raises OSError after ``fail_after`` frames (a transport error out of read)."""
 
     opened = 0
@@ -145,7 +145,7 @@ class Flaky(Source):
         self.inner._index = start
         self.fiber, self.rate, self.left = self.inner.fiber, 1000.0, fail_after
 
-    def read(self, timeout=None):
+    def next_frame(self, timeout=None):
         if self.left == 0:
             raise OSError("link went down")
         self.left -= 1
@@ -357,11 +357,11 @@ def test_frame_flags_of_a_hand_made_batch():
     none = np.full_like(w, np.nan)
     loop = LiveLoop(SyntheticSource(), rec, [])
     frames = [Frame(x, sequence=i) for i, x in enumerate([w, one_missing, two_missing, none])]
-    _, shapes, flags = loop.process(frames)
+    _, shapes, flags = loop.process(Frame.stack(frames))
     assert flags.tolist() == [0, FrameFlag.MISSING_PEAKS, FrameFlag.MISSING_PEAKS | FrameFlag.PARTIAL,
                               FrameFlag.MISSING_PEAKS | FrameFlag.UNUSABLE]
     assert np.isfinite(shapes.positions[2]).all() and np.isnan(shapes.positions[3]).all()
-    assert loop.c["invalid_nodes"] == 1 + 18
+    assert loop.c.invalid_nodes == 1 + 18
 
 
 def test_sequence_counter():
@@ -391,13 +391,13 @@ def test_frames_missing_peaks_counts_only_frames_with_missing_peaks():
     """Issue 11 item 7: the sequence-gap flag was set on the same array before it was counted (gave 3)."""
     f = FiberModel.paper()
     loop = LiveLoop(lambda: None, Reconstructor(f))
-    _, _, flags = loop.process([Frame(f.lambda0.copy(), 0.0, s) for s in (0, 2, 4, 6)])
-    assert loop.c["frames_missing_peaks"] == 0 and loop.c["lost_samples"] == 3
+    _, _, flags = loop.process(Frame.stack([Frame(f.lambda0.copy(), 0.0, s) for s in (0, 2, 4, 6)]))
+    assert loop.c.frames_missing_peaks == 0 and loop.c.lost_samples == 3
     assert list(flags) == [0, FrameFlag.SEQUENCE_GAP, FrameFlag.SEQUENCE_GAP, FrameFlag.SEQUENCE_GAP]
     w = f.lambda0.copy()
     w[3, 2] = np.nan
-    loop.process([Frame(w, 0.0, 9)])
-    assert loop.c["frames_missing_peaks"] == 1
+    loop.process(Frame.stack([Frame(w, 0.0, 9)]))
+    assert loop.c.frames_missing_peaks == 1
 
 
 def test_an_absurd_peak_is_missing_not_a_nan_shape():
@@ -417,21 +417,21 @@ def test_an_absurd_peak_is_missing_not_a_nan_shape():
     loop = LiveLoop(lambda: None, rec)
     w = good.copy()
     w[5, 1], w[7, 3] = 1e300, np.inf  # ±inf from a source is out of any window too
-    _, shapes, flags = loop.process([Frame(w, 0.0, 0), Frame(good, 0.0, 1)])
+    _, shapes, flags = loop.process(Frame.stack([Frame(w, 0.0, 0), Frame(good, 0.0, 1)]))
     assert list(flags) == [FrameFlag.MISSING_PEAKS, 0] and np.isfinite(shapes.positions).all()
-    assert loop.c["peaks_outside_window"] == 2 and loop.c["frames_missing_peaks"] == 1
-    assert loop.c["frames_complete"] == 2
+    assert loop.c.peaks_outside_window == 2 and loop.c.frames_missing_peaks == 1
+    assert loop.c.frames_complete == 2
     assert Reconstructor(f, peak_window=None).peaks_outside(w).sum() == 1  # no window: only the inf
 
 
-class _AbsurdSource(Source):
+class _AbsurdSource(FrameByFrame):
     """Synthetic frames whose grating 5 of core 1 reads 1e300 nm, and whose stats hold a NaN."""
 
     def __init__(self, url: str, **_):
         self.inner = SyntheticSource(rate=1000, pace=False, frames=20)
         self.url, self.fiber, self.rate = url, self.inner.fiber, 1000.0
 
-    def read(self, timeout=None):
+    def next_frame(self, timeout=None):
         f = self.inner.read(timeout)
         w = f.wavelengths.copy()
         w[5, 1] = 1e300
@@ -489,20 +489,16 @@ class _BurstySource(Source):
         self.rng = np.random.default_rng(seed)
         self.w = fiber.lambda0.copy()
 
-    def read_many(self, max_frames=1 << 30, timeout=None):
+    def read_batch(self, max_frames=1024, timeout=None):
         now = time.monotonic()
         if now < self.next_release:
             time.sleep(min(timeout or 0.0, self.next_release - now))
-            return []
+            return None
         due = int((now - self.t0) / self.period) + 1
         out = [Frame(self.w, 1000.0 + i * self.period, i) for i in range(self.sent, min(due, self.sent + max_frames))]
         self.sent += len(out)
         self.next_release = now + self.rng.uniform(0.0, 0.3)
-        return out
-
-    def read(self, timeout=None):
-        got = self.read_many(1, timeout)
-        return got[0] if got else None
+        return Frame.stack(out) if out else None
 
 
 def test_rate_readout_matches_the_source_whatever_the_bursts():
@@ -528,7 +524,7 @@ def test_rate_readout_matches_the_source_whatever_the_bursts():
     assert not summary.status.behind and summary.status.behind_events == 0
 
 
-class _SlowSource(Source):
+class _SlowSource(FrameByFrame):
     """Says 100 Hz, stamps frames 10 ms apart, but delivers only 60 a second: behind real time."""
 
     def __init__(self, fiber, nominal: float | None = 100.0, actual: float = 60.0):
@@ -536,7 +532,7 @@ class _SlowSource(Source):
         self.t0, self.k = time.monotonic(), 0
         self.w = fiber.lambda0.copy()
 
-    def read(self, timeout=None):
+    def next_frame(self, timeout=None):
         wait = self.t0 + self.k / self.actual - time.monotonic()
         if wait > (timeout or 0.0):
             time.sleep(timeout or 0.0)

@@ -26,12 +26,13 @@ from twin.frames import Frame
 from twin.io import illumisense
 from twin.io.errors import RecordingDamaged
 from twin.io.illumisense import VendorSensor
-from twin.io.illumisense.vendor import VendorDistance, vendor_sensors
+from twin.io.illumisense.vendor import vendor_sensors
 from twin.io.record import Recorder, open_recording
-from twin.io.replay import summarize
 from twin.io.source import open_source
-from twin.io.synthetic import multicore_fiber
 from twin.live import LiveLoop
+from twin.reference_errors import VendorDistance
+from twin.replay_summary import summarize
+from twin.synthetic import multicore_fiber
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg"}
@@ -124,7 +125,7 @@ def test_replay_of_a_recording_delivers_the_vendor_blocks(recorded):
 
 def test_the_live_loop_on_replay_compares_with_the_vendor_shape(recorded):
     path, _ = recorded
-    vendor = VendorDistance(rate=None)
+    vendor = VendorDistance(per_second=None)  # every frame
     summary = LiveLoop(open_source(f"replay://{path}?speed=max"), Reconstructor(FIBER), [vendor],
                        max_batch=16).run(duration=60, handle_signals=False)
     assert summary.reason == "source ended" and summary.status.frames == 200
@@ -135,7 +136,7 @@ def test_the_live_loop_on_replay_compares_with_the_vendor_shape(recorded):
 
 def test_twin_replay_compares_a_recording_with_its_vendor_shape(recorded):
     path, frames = recorded
-    s = summarize(path)
+    s = summarize(path, compare_rate=None)
     assert s.frames == 200 and s.vendor["vendor_frames_compared"] == sum(f.vendor is not None for f in frames)
     assert s.vendor["vendor_distance_max_mm"] < 1e-9
     assert s.truth is not None  # the truth is compared as before
@@ -179,7 +180,7 @@ def test_replay_of_a_log_with_sensor_blocks_delivers_them(tmp_path):
         assert_same_blocks(g.vendor, illumisense.decode_record(line).frame.vendor)
         if f.vendor is not None:
             np.testing.assert_allclose(g.vendor[0].positions, f.vendor[0].positions, rtol=0, atol=0.5e-7 + 1e-12)
-    s = summarize(path, fiber=FIBER)
+    s = summarize(path, fiber=FIBER, compare_rate=None)
     assert s.vendor["vendor_frames_compared"] == sum(f.vendor is not None for f in frames)
     assert s.vendor["vendor_distance_max_mm"] < 0.02  # the log's rounding (tests/test_illumisense_io.py)
 
@@ -260,11 +261,10 @@ def test_twin_replay_counts_like_the_live_loop(tmp_path):
     path = tmp_path / "books.h5"
     record(path, bad)
     s = summarize(path)
-    books = LiveLoop(None, Reconstructor(FIBER))
-    books.process(bad)
+    live = LiveLoop(open_source(f"replay://{path}?speed=max"), Reconstructor(FIBER)).run(handle_signals=False)
     for key in ("frames_complete", "frames_partial", "frames_unusable", "frames_missing_peaks", "invalid_nodes",
                 "peaks_outside_window", "lost_samples", "sequence_gaps", "sequence_resets"):
-        assert getattr(s, key) == books.c[key], key
+        assert getattr(s, key) == getattr(live.status, key), key
     assert s.peaks_outside_window == 2 and s.frames_missing_peaks == 3 and s.lost_samples == 3
 
 
@@ -272,7 +272,7 @@ def test_recording_an_illumisense_stream_keeps_its_sensor_blocks(tmp_path):
     """End to end: the twin's ILLumiSense server (sensor blocks by default) → driver → live loop → recorder;
     the recording replays with the blocks and `twin replay` compares ours with them."""
     from sim_interrogator.servers import IllumisenseServer
-    from twin.io.synthetic import SyntheticSource
+    from twin.synthetic import SyntheticSource
 
     fiber = multicore_fiber(7, 18)
     path = tmp_path / "stream.h5"
@@ -287,6 +287,6 @@ def test_recording_an_illumisense_stream_keeps_its_sensor_blocks(tmp_path):
         assert len(r) == recorder.frames_written and s0.present.all() and s0.positions.shape[1:] == (171, 3)
     first = next(iter(open_source(f"replay://{path}?speed=max")))
     assert first.vendor is not None and first.vendor[0].positions.shape == (171, 3)
-    s = summarize(path)
+    s = summarize(path, compare_rate=None)
     assert s.vendor["vendor_frames_compared"] == s.frames_complete
     assert s.vendor["vendor_distance_max_mm"] <= 0.02  # wire rounding only (tests/test_illumisense_io.py)

@@ -20,9 +20,9 @@ from twin import so3
 from twin.cli import main
 from twin.io.errors import RecordingDamaged
 from twin.io.record import open_recording
-from twin.io.replay import summarize
 from twin.io.rosbag import McapRecorder
 from twin.reconstruct import Reconstructor
+from twin.replay_summary import summarize
 
 N = 240  # frames of the recorded run
 URL = f"synthetic://?frames={N}&rate=400&drop=0"  # paced: batches of ~20 frames, several chunks
@@ -134,7 +134,7 @@ def _figures(path: Path, capsys) -> list[str]:
     assert main(["replay", str(path)]) == 0
     lines = capsys.readouterr().out.splitlines()
     # the first line names the file and its kind; the speed line is the machine's, not the run's
-    return [lines[0].split(",", 1)[1]] + [x for x in lines[1:] if "reconstructed at" not in x]
+    return [lines[0].split(",", 1)[1]] + [x for x in lines[1:] if "reconstruction throughput" not in x]
 
 
 def test_twin_replay_prints_the_same_figures_for_mcap_and_hdf5(run, capsys):

@@ -9,14 +9,14 @@ import socket
 import time
 
 import pytest
-from io_helpers import wait_until
+from io_helpers import singles, wait_until
 
 from sim_interrogator.servers import HyperionServer, IllumisenseServer
 from sim_interrogator.servers.common import MAX_CLIENTS
 from twin.cli import main
 from twin.io.hyperion.driver import HyperionSource
 from twin.io.illumisense.driver import IllumisenseSource
-from twin.io.synthetic import SyntheticSource, multicore_fiber
+from twin.synthetic import SyntheticSource, multicore_fiber
 
 
 @pytest.mark.parametrize(("argv", "names"), [
@@ -53,7 +53,7 @@ def read_n(src, n: int, timeout: float) -> list:
     out = []
     deadline = time.monotonic() + timeout
     while len(out) < n and time.monotonic() < deadline:
-        out += src.read_many(n - len(out), 0.2)
+        out += singles(src.read_batch(n - len(out), 0.2))
     return out
 
 

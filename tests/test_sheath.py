@@ -70,7 +70,7 @@ def test_sheath_url_and_settling():
     assert np.linalg.norm(pos - f.truth.positions[0]) < 0.2e-3  # within the 65 µm clearance + sag near the hub
     assert frames[:, 0] @ f.truth.frames[0][:, 0] > math.cos(math.radians(0.5))
     src.close()
-    with pytest.raises(ValueError, match="unknown parameter 'colour'"):
+    with pytest.raises(ValueError, match="unknown option 'colour'"):
         open_source("sim://sheath-path?colour=red")
     with pytest.raises(SettleError, match=r"sim://sheath-cycle.*still moved"):
         open_source("sim://sheath-cycle?settle_time=0.02")

@@ -163,9 +163,9 @@ def test_sim_url():
         src.read()
     with pytest.raises(ValueError, match="unknown simulated setup 'nope'"):
         open_source("sim://nope")
-    with pytest.raises(ValueError, match="unknown parameter 'colour'"):
+    with pytest.raises(ValueError, match="unknown option 'colour'"):
         open_source("sim://static?colour=red")
-    with pytest.raises(ValueError, match="segments=.*expected a number"):
+    with pytest.raises(ValueError, match="segments=.*expected an integer"):
         open_source("sim://static?segments=many")
     with pytest.raises(ValueError, match="not planar"):
         open_source("sim://static?shape=helix&fixture=groove")

@@ -15,8 +15,8 @@ from sim_interrogator.servers import IllumisenseServer
 from twin import FiberModel, strain
 from twin.frames import Frame
 from twin.io import illumisense
-from twin.io.illumisense.vendor import vendor_distance
-from twin.io.synthetic import SyntheticSource
+from twin.reference_errors import vendor_distance
+from twin.synthetic import SyntheticSource
 
 FIBER = FiberModel.paper()
 KAPPA = 20.0  # 1/m

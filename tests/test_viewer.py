@@ -32,9 +32,10 @@ from io_helpers import wait_until
 from twin import Reconstructor
 from twin.frames import Frame, Shape, Truth
 from twin.io.illumisense import VendorSensor
-from twin.io.illumisense.vendor import VENDOR_FROM_BASE, vendor_distance
-from twin.io.synthetic import SyntheticSource
+from twin.io.illumisense.vendor import VENDOR_FROM_BASE
 from twin.live import LiveLoop, LiveStatus
+from twin.reference_errors import vendor_distance
+from twin.synthetic import SyntheticSource
 from twin.viewer import CAMERA_FOV_DEG, Viewer, ViewerConfig, ViewerError, ViewerSink, keep_open
 from twin.viewer import commands as cmd
 from twin.viewer import geometry as geo
@@ -902,7 +903,7 @@ def orange(img: np.ndarray) -> np.ndarray:
 def test_browser_shows_the_vendor_shape_when_present_and_not_otherwise(make_viewer, tmp_path):
     """The interrogator's shape (orange, registered onto ours) is drawn along its projected centreline and
     nowhere else, named in the legend; a frame without one leaves no orange pixel."""
-    from twin.io.illumisense.vendor import vendor_in_base
+    from twin.reference_errors import vendor_in_base
 
     v = make_viewer()
     shape = arc()

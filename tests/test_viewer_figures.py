@@ -30,8 +30,8 @@ from test_viewer import (
 
 from twin import Calibration, Reconstructor
 from twin.cli import main
-from twin.io.synthetic import SyntheticSource
 from twin.live import LiveLoop
+from twin.synthetic import SyntheticSource
 from twin.viewer import Viewer, ViewerConfig, ViewerSink
 from twin.viewer import geometry as geo
 

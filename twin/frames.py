@@ -12,16 +12,15 @@ from __future__ import annotations
 import enum
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from twin._validate import frozen
 
-if TYPE_CHECKING:
-    from twin.io.illumisense import VendorSensor
+__all__ = ["VENDOR_SHAPE_SPACING", "Frame", "PeakStatus", "Shape", "Truth", "VendorArrays", "VendorSensor",
+           "frame_vendor", "vendor_rows"]
 
-__all__ = ["Frame", "PeakStatus", "Shape", "Truth"]
+VENDOR_SHAPE_SPACING = 1e-3  #: m between an interrogator's own shape points (ILLumiSense's public client)
 
 
 class PeakStatus(enum.IntFlag):
@@ -181,6 +180,154 @@ class Truth:
 
 
 @dataclass(frozen=True, eq=False)
+class VendorSensor:
+    """One sensor of one frame as the interrogator's own software reconstructed it (ILLumiSense sensor
+    blocks), in SI.
+
+    Attributes
+    ----------
+    curvature : ndarray, shape (G,)
+        Curvature magnitude at the sensor's gratings, 1/m.
+    angle : ndarray, shape (G,)
+        Bending direction at the gratings, rad.
+    positions : ndarray, shape (N, 3)
+        Shape points in the vendor's frame (x along the fibre axis), m, ``spacing`` apart in arc length from
+        the sensor's start.
+    spacing : float
+        Arc length between shape points, m (1 mm, as the public client assumes).
+    """
+
+    curvature: np.ndarray
+    angle: np.ndarray
+    positions: np.ndarray
+    spacing: float = VENDOR_SHAPE_SPACING
+
+    @property
+    def s(self) -> np.ndarray:
+        """Arc length of each shape point, m, shape (N,)."""
+        return self.spacing * np.arange(self.positions.shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class VendorArrays:
+    """One sensor's blocks over a batch of frames (a burst, a recording, rows of it), batch-first, SI: what
+    :attr:`Frame.vendor` holds for a batch, one per sensor.
+
+    Attributes
+    ----------
+    curvature : ndarray, shape (n, G)
+        |κ| at the sensor's G gratings, 1/m; NaN where absent.
+    angle : ndarray, shape (n, G)
+        Bending direction at the gratings, rad; NaN where absent.
+    positions : ndarray, shape (n, N, 3)
+        Shape points in the vendor frame, m, ``spacing`` apart from arc length 0; NaN where absent.
+    present : ndarray of bool, shape (n,)
+        Frames that carried this sensor's block with this G and N.
+    spacing : float
+        Arc length between shape points, m.
+    """
+
+    curvature: np.ndarray
+    angle: np.ndarray
+    positions: np.ndarray
+    present: np.ndarray
+    spacing: float = VENDOR_SHAPE_SPACING
+
+    @property
+    def s(self) -> np.ndarray:
+        """Arc length of the shape points, m, shape (N,)."""
+        return self.spacing * np.arange(self.positions.shape[1])
+
+    @property
+    def layout(self) -> tuple[int, int, float]:
+        """(G gratings, N shape points, spacing): blocks of one layout stack into one array."""
+        return self.curvature.shape[1], self.positions.shape[1], float(self.spacing)
+
+    def __len__(self) -> int:
+        return len(self.present)
+
+    def __getitem__(self, index) -> VendorArrays:
+        """Rows of the batch: ``arrays[start:stop]``, ``arrays[mask]`` (:meth:`sensor` for one row)."""
+        return VendorArrays(self.curvature[index], self.angle[index], self.positions[index], self.present[index],
+                            self.spacing)
+
+    def sensor(self, i: int) -> VendorSensor | None:
+        """Row ``i`` as a :class:`VendorSensor`, or None where absent."""
+        if not self.present[i]:
+            return None
+        return VendorSensor(self.curvature[i], self.angle[i], self.positions[i], self.spacing)
+
+    @classmethod
+    def absent(cls, n: int, layout: tuple[int, int, float]) -> VendorArrays:
+        """n rows without a block, of the given :attr:`layout`."""
+        g, m, spacing = layout
+        return cls(np.full((n, g), np.nan), np.full((n, g), np.nan), np.full((n, m, 3), np.nan), np.zeros(n, bool),
+                   float(spacing))
+
+    @classmethod
+    def from_sensors(cls, blocks: Sequence[VendorSensor | None], like: VendorSensor | None = None
+                     ) -> VendorArrays | None:
+        """Stack one sensor's blocks of consecutive frames (None: the frame had none).
+
+        The layout (G gratings, N points, spacing) is ``like``'s, else the first block's; blocks of another
+        layout are left out (``present`` False). None when no block is given and no ``like``.
+        """
+        ref = like if like is not None else next((b for b in blocks if b is not None), None)
+        if ref is None:
+            return None
+        n, g, m = len(blocks), len(ref.curvature), len(ref.positions)
+        rows = [i for i, b in enumerate(blocks) if b is not None and len(b.curvature) == g and len(b.angle) == g
+                and b.positions.shape == (m, 3) and b.spacing == ref.spacing]
+        out = cls.absent(n, (g, m, ref.spacing))
+        if rows:
+            out.curvature[rows] = np.stack([blocks[i].curvature for i in rows])
+            out.angle[rows] = np.stack([blocks[i].angle for i in rows])
+            out.positions[rows] = np.stack([blocks[i].positions for i in rows])
+            out.present[rows] = True
+        return out
+
+    @classmethod
+    def concat(cls, parts: Sequence[VendorArrays | None], counts: Sequence[int],
+               layout: tuple[int, int, float] | None = None) -> VendorArrays | None:
+        """Rows of consecutive batches (``counts`` rows each) as one, in ``layout`` (default: the first part's);
+        a part that is None or of another layout gives absent rows. None when no part has one and no layout
+        is given."""
+        ref = next((p for p in parts if p is not None), None)
+        if ref is None and layout is None:
+            return None
+        lay = layout if layout is not None else ref.layout
+        pieces = [p if p is not None and p.layout == lay else cls.absent(k, lay)
+                  for p, k in zip(parts, counts, strict=True)]
+        if len(pieces) == 1:
+            return pieces[0]
+        return cls(*(np.concatenate([getattr(p, k) for p in pieces]) for k in ("curvature", "angle", "positions",
+                                                                                 "present")), lay[2])
+
+
+def frame_vendor(sensors: Sequence[VendorArrays], i: int) -> tuple[VendorSensor, ...] | None:
+    """:attr:`Frame.vendor` of row ``i`` of a batch: the sensors' blocks up to the first one absent there (a
+    sensor's index keeps its meaning), or None when sensor 0 is absent."""
+    out = []
+    for arrays in sensors:
+        block = arrays.sensor(i)
+        if block is None:
+            break
+        out.append(block)
+    return tuple(out) or None
+
+
+def vendor_rows(frame: Frame) -> tuple[VendorArrays, ...]:
+    """A single frame's (one row) or a 1-D batch's sensor blocks as one :class:`VendorArrays` per sensor
+    (empty when it carries none)."""
+    if not frame.vendor:
+        return ()
+    if frame.batch_shape:
+        return tuple(frame.vendor)
+    return tuple(VendorArrays.from_sensors([b]) for b in frame.vendor)
+
+
+
+@dataclass(frozen=True, eq=False)
 class Frame:
     """One interrogator sample, or a batch of samples (leading axes ``...``, like :class:`Shape`).
 
@@ -198,10 +345,11 @@ class Frame:
         :class:`PeakStatus` bits per peak.
     truth : Truth or None
         Ground truth, when the source is the simulator (a batched :class:`Truth` for a batch).
-    vendor : tuple of VendorSensor or None
+    vendor : tuple of VendorSensor, tuple of VendorArrays, or None
         The interrogator software's own reconstruction, when it sends one (ILLumiSense sensor blocks:
-        curvature 1/m, angle rad, shape m; :class:`twin.io.illumisense.VendorSensor`). One frame only: a batch
-        made by :meth:`Frame.stack` does not carry it.
+        curvature 1/m, angle rad, shape m), one item per sensor: a :class:`VendorSensor` each for a single
+        frame, a :class:`VendorArrays` each (rows with ``present``) for a 1-D batch, which indexing and
+        :meth:`stack` carry along like the truth.
     """
 
     wavelengths: np.ndarray
@@ -210,7 +358,7 @@ class Frame:
     powers: np.ndarray | None = None
     status: np.ndarray | None = None
     truth: Truth | None = None
-    vendor: tuple[VendorSensor, ...] | None = None
+    vendor: tuple[VendorSensor, ...] | tuple[VendorArrays, ...] | None = None
 
     def __post_init__(self) -> None:
         w = np.asarray(self.wavelengths, dtype=np.float64)
@@ -297,13 +445,18 @@ class Frame:
             truth = self.truth[idx]
             if not truth.batch_shape and self.truth.present is not None and not self.truth.present[idx]:
                 truth = None
+        w = self.wavelengths[idx]
+        vendor = None
+        if self.vendor:  # a batch's VendorArrays per sensor: rows for a batch, the blocks of one frame
+            vendor = frame_vendor(self.vendor, idx[0]) if w.ndim == 2 else tuple(a[idx] for a in self.vendor)
         return Frame(
-            wavelengths=self.wavelengths[idx],
+            wavelengths=w,
             timestamp=self.timestamp[idx],
             sequence=self.sequence[idx],
             powers=None if self.powers is None else self.powers[idx],
             status=None if self.status is None else self.status[idx],
             truth=truth,
+            vendor=vendor,
         )
 
     @classmethod
@@ -322,7 +475,9 @@ class Frame:
         -------
         Frame
             Batch shape (n,). Powers are NaN and status :attr:`status_or_missing` for frames given without;
-            ``truth`` is None when no frame carries one.
+            ``truth`` is None when no frame carries one; ``vendor`` (one :class:`VendorArrays` per sensor,
+            in the layout of each sensor's first block; rows of frames without it, or of another layout,
+            absent) is None when no frame carries one.
 
         Raises
         ------
@@ -334,6 +489,8 @@ class Frame:
             return frames
         if len(frames) == 0:
             raise ValueError("Frame.stack: no frames given")
+        if len(frames) == 1 and len(frames[0].batch_shape) == 1 and truth_like is None:
+            return frames[0]  # one 1-D batch: already what is asked for (frames are immutable)
         shapes = {f.wavelengths.shape[-2:] for f in frames}
         if len(shapes) != 1:
             raise ValueError(f"Frame.stack: frames disagree on (n_gratings, n_cores): {sorted(shapes)}")
@@ -355,7 +512,14 @@ class Frame:
         if any(f.truth is not None for f in frames):
             counts = [len(f) if f.batch_shape else 1 for f in frames]
             truth = Truth.stack([f.truth for f in frames], counts, like=truth_like)
-        return cls(w, t, q, powers, status, truth)
+        vendor = None
+        if any(f.vendor for f in frames):
+            counts = [len(f) if f.batch_shape else 1 for f in frames]
+            rows = [vendor_rows(f) for f in frames]
+            n_sensors = max(len(r) for r in rows)
+            vendor = tuple(VendorArrays.concat([r[k] if k < len(r) else None for r in rows], counts)
+                           for k in range(n_sensors))
+        return cls(w, t, q, powers, status, truth, vendor)
 
 
 @dataclass(frozen=True, eq=False)

@@ -53,7 +53,6 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, TextIO
 
 import numba
@@ -392,7 +391,7 @@ class IgtlSink:
         self._pending: tuple[Shape, Truth | None] | None = None
         self._due = -float("inf")
 
-    def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None:
+    def __call__(self, frames: Frame, shapes: Shape | None, status: LiveStatus) -> None:
         from twin.viewer.geometry import latest_usable, next_due
 
         try:

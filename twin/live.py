@@ -31,12 +31,20 @@ Nothing a source, the reconstructor or a sink does ends the loop with an excepti
 error that makes every frame useless (frames whose shape does not match the fibre model from the start). A
 sink that raises is closed and dropped, and the error is reported in the summary.
 
+Frames move in one form: the source's ``read_batch`` (:class:`twin.io.source.Source`) gives one 1-D batch
+:class:`~twin.frames.Frame` (one frame is a batch of one; the interrogator's own shape rides on it as
+:attr:`Frame.vendor <twin.frames.Frame.vendor>`), the loop reconstructs it in one call — the strain computed once,
+shared by the window check and the reconstruction — and hands it to every sink.
+
 Sinks are tiny: any callable ``sink(frames, shapes, status)`` with an optional ``close()``. ``frames`` is the
-list of frames of the batch, or one 1-D batch :class:`~twin.frames.Frame` when the source decodes in batches
-(the ILLumiSense driver: same ``len``, indexing and iteration), ``shapes`` the batched
-:class:`~twin.frames.Shape` (``shapes[i]`` belongs to ``frames[i]``; None when the batch could not be
-reconstructed), ``status`` a :class:`LiveStatus`. Between batches sinks get ``sink([], None, status)``
-heartbeats (at least every ``heartbeat`` s and on every state change).
+batch :class:`~twin.frames.Frame` (``len``, indexing, arrays ``frames.sequence``, ``frames.timestamp``, …),
+``shapes`` the batched :class:`~twin.frames.Shape` (``shapes[i]`` belongs to ``frames[i]``; None when the batch
+could not be reconstructed), ``status`` a :class:`LiveStatus`. Between batches sinks get heartbeats with an empty
+batch (``len(frames) == 0``) and ``shapes`` None, at least every ``heartbeat`` s and on every state change.
+
+The counts live in one small object, :class:`Counters`; ``twin live``, ``twin replay`` (the loop over a file
+source at full speed), the demo and the viewer and OpenIGTLink sinks all read the same books
+(docs/figures.md defines every figure).
 
 Why one module of this size: the loop, its status and counters and its summary are one state machine; split,
 the counters' one meaning would be spread over files.
@@ -44,7 +52,9 @@ the counters' one meaning would be spread over files.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
+import math
 import signal
 import sys
 import threading
@@ -65,15 +75,13 @@ from twin.reconstruct import Reconstructor
 
 __all__ = [
     "CallbackSink",
+    "Counters",
     "FrameFlag",
     "LiveLoop",
     "LiveStatus",
     "LiveSummary",
     "PrinterSink",
     "Sink",
-    "batch_timestamps",
-    "join_batches",
-    "read_batch",
 ]
 
 
@@ -91,9 +99,52 @@ _MISSING, _PARTIAL, _UNUSABLE, _GAP = (np.uint8(f) for f in (1, 2, 4, 8))
 
 
 class Sink(Protocol):
-    """What the loop feeds: ``sink(frames, shapes, status)``; ``close()`` when the loop ends (optional)."""
+    """What the loop feeds: ``sink(frames, shapes, status)`` with a batch Frame (empty for a heartbeat);
+    ``close()`` when the loop ends (optional)."""
 
-    def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None: ...
+    def __call__(self, frames: Frame, shapes: Shape | None, status: LiveStatus) -> None: ...
+
+
+@dataclass
+class Counters:
+    """The loop's book of counts since it started (docs/figures.md): what :class:`LiveStatus` reports besides
+    the source's own counters and the rates. Meanings in :class:`LiveStatus`; ``reopens`` are the loop's own
+    reopenings of a source that raised (reported inside ``reconnects``); ``process_s`` is the wall time spent
+    in :meth:`LiveLoop.process` (window check, reconstruction, books), s; ``time_first`` / ``time_last`` the
+    first and last finite source timestamps, s (NaN before)."""
+
+    frames: int = 0
+    frames_complete: int = 0
+    frames_partial: int = 0
+    frames_unusable: int = 0
+    frames_missing_peaks: int = 0
+    peaks_outside_window: int = 0
+    frames_rejected: int = 0
+    lost_samples: int = 0
+    sequence_gaps: int = 0
+    sequence_resets: int = 0
+    invalid_nodes: int = 0
+    source_errors: int = 0
+    reconstruct_errors: int = 0
+    stale_events: int = 0
+    reopens: int = 0
+    process_s: float = 0.0
+    time_first: float = float("nan")
+    time_last: float = float("nan")
+
+    #: the counts a LiveStatus carries as they are
+    REPORTED = ("frames", "frames_complete", "frames_partial", "frames_unusable", "frames_missing_peaks",
+                "peaks_outside_window", "frames_rejected", "lost_samples", "sequence_gaps", "sequence_resets",
+                "invalid_nodes", "source_errors", "reconstruct_errors", "stale_events")
+
+    def reported(self) -> dict:
+        return {k: getattr(self, k) for k in self.REPORTED}
+
+    @property
+    def time_span(self) -> float | None:
+        """Last minus first finite source timestamp, s (None before two)."""
+        span = self.time_last - self.time_first
+        return float(span) if np.isfinite(span) else None
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,73 +254,42 @@ class LiveSummary:
         ``stopped``.
     sink_errors : tuple of str
         Sinks that raised (and were dropped), with the error.
+    counters : Counters or None
+        The loop's books at the end (a copy).
     """
 
     status: LiveStatus
     duration: float
     reason: str
     sink_errors: tuple[str, ...] = ()
+    counters: Counters | None = None
 
     @property
     def frames_per_s(self) -> float:
+        """Frames received per wall-clock second of the run, Hz (docs/figures.md: the run's arrival rate)."""
         return self.status.frames / self.duration if self.duration > 0 else 0.0
 
+    @property
+    def reconstruct_frames_per_s(self) -> float | None:
+        """Frames reconstructed per second spent in the loop's processing (window check, reconstruction and
+        books; first-call compilation included), Hz: the throughput, not the arrival rate. None before any."""
+        c = self.counters
+        if c is None or c.process_s <= 0 or not self.status.frames:
+            return None
+        return self.status.frames / c.process_s
+
     def as_dict(self) -> dict:
+        rfs = self.reconstruct_frames_per_s
+        span = None if self.counters is None else self.counters.time_span
         return {
             "reason": self.reason,
             "duration": round(self.duration, 6),
             "frames_per_s": round(self.frames_per_s, 3),
+            "reconstruct_frames_per_s": None if rfs is None else round(rfs, 1),
+            "time_span": None if span is None else round(span, 6),
             **self.status.as_dict(),
             "sink_errors": list(self.sink_errors),
         }
-
-
-def read_batch(source: Source, max_frames: int, timeout: float | None) -> list[Frame] | Frame:
-    """Every frame the source has ready, up to ``max_frames``, waiting up to ``timeout`` s for the first.
-
-    Uses the source's ``read_batches`` when it has one (a driver whose decoder makes batch Frames): when every
-    item is a 1-D batch of one shape, the result is ONE batch Frame (no Python object per frame), otherwise
-    the list of single frames. Else the source's ``read_many`` (the drivers, synthetic and replay sources
-    have one), else ``read(timeout)`` followed by ``read(0)`` until nothing is ready. An exception
-    (SourceClosed included) is raised only when no frame was read before it; otherwise the frames are
-    returned and the exception is kept on the source (``_twin_deferred``) and raised by the next call, so
-    nothing received is dropped.
-    """
-    deferred = getattr(source, "_twin_deferred", None)
-    if deferred is not None:
-        source._twin_deferred = None
-        raise deferred
-    batches = getattr(source, "read_batches", None)
-    if batches is not None:
-        return join_batches(batches(max_frames, timeout))
-    many = getattr(source, "read_many", None)
-    if many is not None:
-        return many(max_frames, timeout)
-    first = source.read(timeout)
-    if first is None:
-        return []
-    out = [first]
-    while len(out) < max_frames:
-        try:
-            nxt = source.read(0.0)
-        except Exception as exc:
-            source._twin_deferred = exc
-            break
-        if nxt is None:
-            break
-        out.append(nxt)
-    return out
-
-
-def join_batches(items: Sequence[Frame]) -> list[Frame] | Frame:
-    """Single frames and 1-D batch Frames (in order) as what :meth:`LiveLoop.process` takes: one batch Frame
-    when every item is a batch of one (n_gratings, n_cores) without truth, else the list of single frames."""
-    if items and all(f.batch_shape and f.truth is None for f in items) and \
-            len({f.wavelengths.shape[1:] for f in items}) == 1:
-        if len(items) == 1:
-            return items[0]
-        return Frame.stack(items)
-    return [g for f in items for g in (f if f.batch_shape else (f,))]
 
 
 # what a source may raise besides SourceClosed; anything else (a bug in a source) is reported the same way,
@@ -297,11 +317,20 @@ class LiveLoop:
         Sinks get a status at least this often, s.
     rate_window : float
         Window of the rate readout and of the behind-real-time check, s (:class:`~twin.io.rate.RateMeter`).
+    realtime : bool
+        The source is a stream in real time (the default): say when it falls behind. False for a file read at
+        full speed (``twin replay``), where behind-real-time means nothing.
+    name : str
+        What the loop's messages start with (the command).
+    quiet : bool
+        Do not say on stderr what happens as it happens (source failures, a dropped sink, falling behind): for a
+        caller that reports everything from the summary (``twin replay``).
     """
 
     def __init__(self, source: Source | Callable[[], Source], reconstructor: Reconstructor,
                  sinks: Sequence[Sink] = (), *, stale_after: float = 0.5, max_batch: int = 256,
-                 poll: float = 0.05, heartbeat: float = 0.1, rate_window: float = 2.0):
+                 poll: float = 0.05, heartbeat: float = 0.1, rate_window: float = 2.0, realtime: bool = True,
+                 name: str = "twin live", quiet: bool = False):
         self._factory = source if callable(source) and not isinstance(source, Source) else None
         self.source: Source | None = None if self._factory else source
         self.rec = reconstructor
@@ -309,17 +338,18 @@ class LiveLoop:
         self.stale_after, self.max_batch = float(stale_after), int(max_batch)
         self.poll, self.heartbeat = float(poll), float(heartbeat)
         self.rate_window = float(rate_window)
+        self.realtime = bool(realtime)
+        self.name = name
+        self.quiet = bool(quiet)
         self._shape = (reconstructor.fiber.n_gratings, reconstructor.fiber.n_cores)
+        self._empty = Frame(np.empty((0, *self._shape)))  # what heartbeats carry
         self._stop = threading.Event()
         self._stop_reason = "stopped"
         self.sink_errors: list[str] = []
         self._reset_counters()
 
     def _reset_counters(self) -> None:
-        self.c = dict.fromkeys(
-            ("frames", "frames_complete", "frames_partial", "frames_unusable", "frames_missing_peaks",
-             "peaks_outside_window", "frames_rejected", "lost_samples", "sequence_gaps", "sequence_resets",
-             "invalid_nodes", "source_errors", "reconstruct_errors", "stale_events", "reopens"), 0)
+        self.c = Counters()
         self._sequence = SequenceCounter()
         self._matched_any = False
         self._tip: np.ndarray | None = None
@@ -331,20 +361,19 @@ class LiveLoop:
         self._meter = RateMeter(window=self.rate_window)
 
     # ---------------------------------------------------------------- the hot path
-    def process(self, frames: Sequence[Frame] | Frame) -> tuple[list[Frame] | Frame, Shape | None, np.ndarray]:
+    def process(self, frames: Frame) -> tuple[Frame, Shape | None, np.ndarray]:
         """Check, reconstruct and count one batch.
 
         Parameters
         ----------
-        frames : list of Frame, or Frame
-            Single frames, or one 1-D batch Frame (what :func:`read_batch` gives for a driver that decodes in
-            batches: no Python object per frame on the hot path).
+        frames : Frame
+            A 1-D batch (what a source's ``read_batch`` gives; no Python object per frame on the hot path).
 
         Returns
         -------
-        frames : list of Frame, or Frame
-            The frames that match the fibre model (the others are counted in ``frames_rejected``): a list for
-            a list, the batch (or an empty list) for a batch.
+        frames : Frame
+            The batch when it matches the fibre model, else an empty batch (its frames counted in
+            ``frames_rejected``).
         shapes : Shape or None
             Batched reconstruction (None when nothing matched or the reconstructor raised).
         flags : ndarray of uint8 (n,)
@@ -356,94 +385,69 @@ class LiveLoop:
             When no frame has matched the fibre model yet and this batch does not either: a configuration
             error (wrong ``--fiber``), not a transient.
         """
-        shape = self._shape
-        if isinstance(frames, Frame):
-            if len(frames.batch_shape) != 1:
-                raise ValueError(f"LiveLoop.process: expected a 1-D batch Frame, got batch shape {frames.batch_shape}")
-            n = len(frames)
-            if frames.wavelengths.shape[1:] == shape:
-                good, w, seq = frames, frames.wavelengths, frames.sequence
-            else:
-                good, w, seq = [], None, None
-                self._reject(n, frames.wavelengths.shape[1:])
-                n = 0
-        else:
-            good = [f for f in frames if f.wavelengths.shape == shape]
-            if len(good) < len(frames):
-                self._reject(len(frames) - len(good), frames[0].wavelengths.shape, any_good=bool(good))
-            n = len(good)
-            if n:
-                w = np.stack([f.wavelengths for f in good]) if n > 1 else good[0].wavelengths[None]
-                seq = [f.sequence for f in good]
+        if len(frames.batch_shape) != 1:
+            raise ValueError(f"LiveLoop.process: expected a 1-D batch Frame, got batch shape {frames.batch_shape}")
+        n = len(frames)
+        if frames.wavelengths.shape[1:] != self._shape:
+            self._reject(n, frames.wavelengths.shape[1:])
+            return self._empty, None, np.zeros(0, np.uint8)
         if n == 0:
-            return [] if isinstance(good, Frame) else good, None, np.zeros(0, np.uint8)
+            return frames, None, np.zeros(0, np.uint8)
+        t0 = time.perf_counter()
         self._matched_any = True
-        shapes, flags = self.process_arrays(w, seq)
-        return good, shapes, flags
-
-    def process_arrays(self, w: np.ndarray, sequence) -> tuple[Shape | None, np.ndarray]:
-        """Reconstruct and count a batch given as arrays (the books of :meth:`process`; ``twin replay`` keeps
-        its books here too, so both count alike).
-
-        Parameters
-        ----------
-        w : ndarray, shape (n, n_gratings, n_cores)
-            Wavelengths, nm, matching the fibre model (n >= 1).
-        sequence : array_like of int, shape (n,)
-            The frames' sequence numbers.
-
-        Returns
-        -------
-        shapes : Shape or None
-            Batched reconstruction (None when the reconstructor raised).
-        flags : ndarray of uint8 (n,)
-            :class:`FrameFlag` bits per frame.
-        """
-        n = len(w)
-        shape = self._shape
-        outside = self.rec.peaks_outside(w)
+        c = self.c
+        e, outside = self.rec.strain(frames.wavelengths)  # once: the window check and the reconstruction
         n_outside = int(np.count_nonzero(outside))
-        if n_outside:
-            w = np.where(outside, np.nan, w)  # missing, for the reconstruction and the flags alike
-        flags = np.isnan(w.reshape(n, -1)).any(axis=1).astype(np.uint8)  # MISSING_PEAKS = 1
+        flags = np.isnan(e.reshape(n, -1)).any(axis=1).astype(np.uint8)  # MISSING_PEAKS = 1
         # counted before the sequence counter adds its own flag to the same array
         n_missing = int(np.count_nonzero(flags))
-        self._count_sequence(sequence, flags)
+        self._count_sequence(frames.sequence, flags)
         try:
-            shapes = self.rec(w)
+            shapes = self.rec.from_strain(e)
         except Exception as exc:  # the frames still reach the sinks (the recorder keeps them)
-            if not self.c["reconstruct_errors"]:
-                print(f"twin live: reconstruction failed: {exc}", file=sys.stderr)
-            self.c["reconstruct_errors"] += 1
+            if not c.reconstruct_errors:
+                self._say(f"reconstruction failed: {exc}")
+            c.reconstruct_errors += 1
             shapes = None
-        g = shape[0]
-        c = self.c
-        c["peaks_outside_window"] += n_outside
-        if shapes is None:
-            n_valid = np.zeros(n, np.int64)
-        else:
-            n_valid = shapes.valid.sum(axis=-1)
+        g = self._shape[0]
+        c.peaks_outside_window += n_outside
+        n_valid = np.zeros(n, np.int64) if shapes is None else shapes.valid.sum(axis=-1)
         unusable = n_valid == 0
         partial = (n_valid < g) & ~unusable
         flags |= (partial * _PARTIAL) | (unusable * _UNUSABLE)
         n_partial, n_unusable = int(partial.sum()), int(unusable.sum())
-        c["frames"] += n
-        c["frames_missing_peaks"] += n_missing
-        c["frames_partial"] += n_partial
-        c["frames_unusable"] += n_unusable
-        c["frames_complete"] += n - n_partial - n_unusable
-        c["invalid_nodes"] += g * n - int(n_valid.sum())
+        c.frames += n
+        c.frames_missing_peaks += n_missing
+        c.frames_partial += n_partial
+        c.frames_unusable += n_unusable
+        c.frames_complete += n - n_partial - n_unusable
+        c.invalid_nodes += g * n - int(n_valid.sum())
+        self._count_span(frames.timestamp)
         if n_unusable < n:
             self._last_valid = time.monotonic()
             last = n - 1 if not unusable[-1] else int(np.flatnonzero(~unusable)[-1])
             self._tip = shapes.positions[last, -1].copy()
-        return shapes, flags
+        c.process_s += time.perf_counter() - t0
+        return frames, shapes, flags
 
-    def _reject(self, n: int, bad: tuple, any_good: bool = False) -> None:
+    def _count_span(self, timestamps: np.ndarray) -> None:
+        """First and last finite source timestamps (the ends of a batch are enough when they are finite)."""
+        first, last = float(timestamps[0]), float(timestamps[-1])
+        if not (math.isfinite(first) and math.isfinite(last)):
+            ts = timestamps[np.isfinite(timestamps)]
+            if not ts.size:
+                return
+            first, last = float(ts[0]), float(ts[-1])
+        c = self.c
+        if math.isnan(c.time_first):
+            c.time_first = first
+        c.time_last = last
+
+    def _reject(self, n: int, bad: tuple) -> None:
         """Count n frames of another (n_gratings, n_cores) than the fibre model's; a configuration error when
         nothing has ever matched."""
-        self.c["frames_rejected"] += n
-        if not any_good and not self._matched_any:
+        self.c.frames_rejected += n
+        if not self._matched_any:
             shape = self._shape
             raise ValueError(
                 f"frames have {bad[0]} gratings × {bad[1]} cores but the fibre model has {shape[0]} × "
@@ -454,9 +458,9 @@ class LiveLoop:
         """Count gaps and resets of the sequence numbers; flag the frames that follow a gap."""
         counter = self._sequence
         flags[counter.count_many(seq) > 0] |= _GAP  # one batch call (a call per frame cost ~10 µs each)
-        self.c["sequence_gaps"] = counter.sequence_gaps
-        self.c["lost_samples"] = counter.lost_samples
-        self.c["sequence_resets"] = counter.sequence_resets
+        self.c.sequence_gaps = counter.sequence_gaps
+        self.c.lost_samples = counter.lost_samples
+        self.c.sequence_resets = counter.sequence_resets
 
     # ---------------------------------------------------------------- status
     def status(self, flags: np.ndarray | None = None) -> LiveStatus:
@@ -474,9 +478,9 @@ class LiveLoop:
             state=self._state,
             connection=s.get("state") if isinstance(s.get("state"), str) else None,
             elapsed=now - self._t0,
-            **{k: v for k, v in self.c.items() if k != "reopens"},
+            **self.c.reported(),
             framing_errors=int(s.get("framing_errors", 0)),
-            reconnects=int(s.get("reconnects", 0)) + self.c["reopens"],
+            reconnects=int(s.get("reconnects", 0)) + self.c.reopens,
             disconnects=int(s.get("disconnects", 0)),
             last_valid_age=age,
             rate_hz=meter.rate,
@@ -499,7 +503,7 @@ class LiveLoop:
             new = "stale"
         changed = new != self._state
         if changed and new == "stale":
-            self.c["stale_events"] += 1
+            self.c.stale_events += 1
         self._state = new
         return changed
 
@@ -515,7 +519,7 @@ class LiveLoop:
                 sink(frames, shapes, status)
             except Exception as exc:  # a faulty sink must not end the loop
                 self.sink_errors.append(f"{type(sink).__name__}: {exc}")
-                print(f"twin live: sink {type(sink).__name__} failed and was removed: {exc}", file=sys.stderr)
+                self._say(f"sink {type(sink).__name__} failed and was removed: {exc}")
                 self.sinks.remove(sink)
                 _close(sink)
 
@@ -548,18 +552,18 @@ class LiveLoop:
                 if duration is not None and now - self._t0 >= duration:
                     reason = "duration"
                     break
-                if max_frames is not None and self.c["frames"] >= max_frames:
+                if max_frames is not None and self.c.frames >= max_frames:
                     reason = "frames"
                     break
                 wait = self.poll
                 if duration is not None:
                     wait = max(0.0, min(wait, self._t0 + duration - now))
-                frames: list[Frame] | Frame = []
+                frames: Frame | None = None
                 if self.source is None:
                     if reopen_at is not None and now >= reopen_at:
                         try:
                             self._open()
-                            self.c["reopens"] += 1
+                            self.c.reopens += 1
                             reopen_at = None
                         except _SOURCE_ERRORS:
                             reopen_at = time.monotonic() + backoff.failed()
@@ -567,23 +571,23 @@ class LiveLoop:
                         time.sleep(wait)
                 else:
                     limit = self.max_batch if max_frames is None else max(1, min(
-                        self.max_batch, max_frames - self.c["frames"]))
+                        self.max_batch, max_frames - self.c.frames))
                     try:
-                        frames = read_batch(self.source, limit, wait)
+                        frames = self.source.read_batch(limit, wait)
                     except SourceClosed:
                         reason = "source ended"
                         break
                     except SourceFailed as exc:  # reopening cannot cure it (a damaged recording)
-                        self.c["source_errors"] += 1
+                        self.c.source_errors += 1
                         self._source_stats = {**self._source_stats, "last_error": str(exc)}
-                        print(f"twin live: source failed: {exc}", file=sys.stderr)
+                        self._say(f"source failed: {exc}")
                         reason = "source failed"
                         break
                     except _SOURCE_ERRORS as exc:
-                        self.c["source_errors"] += 1
+                        self.c.source_errors += 1
                         self._source_stats = {**self._source_stats, "last_error": str(exc)}
                         if self._factory is None:
-                            print(f"twin live: source failed: {exc}", file=sys.stderr)
+                            self._say(f"source failed: {exc}")
                             reason = "source failed"
                             break
                         _close(self.source)
@@ -592,19 +596,19 @@ class LiveLoop:
                 if frames:
                     good, shapes, flags = self.process(frames)
                     t = time.monotonic()
-                    if good and self._meter.add(batch_timestamps(good), t):
+                    if len(good) and self._meter.add(good.timestamp, t) and self.realtime:
                         self._say_behind()
-                    if self.c["frames"] and backoff.failures:
+                    if self.c.frames and backoff.failures:
                         backoff.reset()
                     changed = self._update_state()
-                    if good or changed:
+                    if (len(good) or changed) and self.sinks:  # a status only for someone to read it
                         self._emit(good, shapes, self.status(flags))
                         last_emit = t
                 else:
                     changed = self._update_state()
                     t = time.monotonic()
                     if changed or t - last_emit >= self.heartbeat:
-                        self._emit([], None, self.status())
+                        self._emit(self._empty, None, self.status())
                         last_emit = t
         except KeyboardInterrupt:
             reason = "interrupted"
@@ -615,7 +619,7 @@ class LiveLoop:
             final = self.status()
             for sink in self.sinks:
                 try:
-                    sink([], None, final)
+                    sink(self._empty, None, final)
                 except Exception as exc:
                     self.sink_errors.append(f"{type(sink).__name__}: {exc}")
                 err = _close(sink)
@@ -628,7 +632,8 @@ class LiveLoop:
                     pass
                 _close(self.source)
             final = self.status()
-        return LiveSummary(final, time.monotonic() - self._t0, reason, tuple(self.sink_errors))
+        return LiveSummary(final, time.monotonic() - self._t0, reason, tuple(self.sink_errors),
+                           dataclasses.replace(self.c))
 
     def _say_behind(self) -> None:
         m = self._meter
@@ -636,8 +641,12 @@ class LiveLoop:
             return  # said once; later episodes are counted
         expected = m.expected_rate or 0.0
         why = "its nominal rate" if m.nominal is not None else "its timestamps advance"
-        print(f"twin live: frames arrive at {m.arrival_rate:.0f} Hz, slower than {why} ({expected:.0f} Hz): the "
-              "source runs behind real time (said once; counted in behind_events)", file=sys.stderr, flush=True)
+        self._say(f"frames arrive at {m.arrival_rate:.0f} Hz, slower than {why} ({expected:.0f} Hz): the source runs "
+                  "behind real time (said once; counted in behind_events)")
+
+    def _say(self, text: str) -> None:
+        if not self.quiet:
+            print(f"{self.name}: {text}", file=sys.stderr, flush=True)
 
     def _install_signals(self) -> Callable[[], None] | None:
         if threading.current_thread() is not threading.main_thread():
@@ -662,15 +671,8 @@ class LiveLoop:
         return restore
 
 
-def batch_timestamps(frames: Sequence[Frame] | Frame) -> np.ndarray:
-    """Timestamps of a list of frames or of a batch Frame, s, shape (n,)."""
-    if isinstance(frames, Frame):
-        return np.asarray(frames.timestamp, dtype=np.float64)
-    return np.fromiter((f.timestamp for f in frames), float, len(frames))
-
-
 def _nominal_rate(source) -> float | None:
-    rate = getattr(source, "rate", None)
+    rate = source.rate
     try:
         rate = float(rate) if rate is not None else None
     except (TypeError, ValueError):
@@ -701,11 +703,16 @@ class PrinterSink:
         Where to print (default stdout).
     rate : float
         Lines per second, Hz.
+    extras : sequence of callables returning str or None
+        More figures for the line (the error against a truth or the interrogator's own shape:
+        :meth:`twin.reference_errors.TruthError.status_text`); None leaves them out.
     """
 
-    def __init__(self, stream: TextIO | None = None, rate: float = 1.0):
+    def __init__(self, stream: TextIO | None = None, rate: float = 1.0,
+                 extras: Sequence[Callable[[], str | None]] = ()):
         self.stream = stream or sys.stdout
         self.period = 1.0 / rate if rate > 0 else float("inf")
+        self.extras = tuple(extras)
         self._last = -float("inf")
         self._state = None
 
@@ -714,7 +721,11 @@ class PrinterSink:
         if status.state == "ended" or (status.state == self._state and now - self._last < self.period):
             return
         self._last, self._state = now, status.state
-        print(format_status(status), file=self.stream, flush=True)
+        line = format_status(status)
+        more = [t for t in (f() for f in self.extras) if t]
+        if more:
+            line += "  " + "  ".join(more)
+        print(line, file=self.stream, flush=True)
 
 
 def format_status(s: LiveStatus) -> str:
@@ -732,7 +743,7 @@ def format_status(s: LiveStatus) -> str:
 
 
 class CallbackSink:
-    """Calls ``fn(frame, shape, status)`` with the latest frame of each batch (and its single Shape)."""
+    """Calls ``fn(frame, shape, status)`` with the latest frame of each batch (a single Frame and its Shape)."""
 
     def __init__(self, fn: Callable[[Frame, Shape, LiveStatus], None]):
         self.fn = fn

@@ -238,23 +238,50 @@ class Reconstructor:
             raise ValueError("wavelengths contain ±inf; use NaN for a missing peak")
         return w
 
+    def strain(self, wavelengths) -> tuple[np.ndarray, np.ndarray]:
+        """Optical strain of every peak with the peaks outside the physical window as missing, computed once
+        for the window check and the reconstruction (:meth:`from_strain`).
+
+        Parameters
+        ----------
+        wavelengths : ndarray, shape (..., n_gratings, n_cores)
+            nm (NaN where missing; ±inf counts as outside). Not checked: the caller matched the shape.
+
+        Returns
+        -------
+        strain : ndarray, shape (..., n_gratings, n_cores)
+            (λ − λ0)/λ0, NaN where missing or outside.
+        outside : ndarray of bool, same shape
+            Peaks present but outside the window (``peak_window``) around their reference, or infinite.
+        """
+        w = np.asarray(wavelengths, dtype=np.float64)
+        e = (w - self._lam0) / self._lam0
+        outside = outside_window(e, self.peak_window)
+        return (np.where(outside, np.nan, e) if outside.any() else e), outside
+
     def curvature(self, wavelengths):
         """Calibrated curvature vectors at the gratings (a :class:`~twin.strain.StrainSolution`).
 
         Peaks outside the physical window (:meth:`peaks_outside`) count as missing."""
-        w = self._wavelengths(wavelengths)
-        e = (w - self._lam0) / self._lam0
-        outside = outside_window(e, self.peak_window)
-        return self._solver.solve(np.where(outside, np.nan, e) if outside.any() else e)
+        return self._solver.solve(self.strain(self._wavelengths(wavelengths))[0])
 
     def peaks_outside(self, wavelengths) -> np.ndarray:
         """Boolean (..., n_gratings, n_cores): peaks present but outside the physical window (``peak_window``)
         around their reference wavelength, or infinite; the reconstruction treats them as missing."""
-        w = np.asarray(wavelengths, dtype=np.float64)
-        return outside_window((w - self._lam0) / self._lam0, self.peak_window)
+        return self.strain(wavelengths)[1]
 
     def __call__(self, wavelengths) -> Shape:
-        sol = self.curvature(wavelengths)
+        return self.from_strain(self.strain(self._wavelengths(wavelengths))[0])
+
+    def from_strain(self, strain: np.ndarray) -> Shape:
+        """The shapes from the strain :meth:`strain` gives (the live loop's path: the strain once per batch).
+
+        Parameters
+        ----------
+        strain : ndarray, shape (..., n_gratings, n_cores)
+            Optical strain, NaN where missing or outside the window.
+        """
+        sol = self._solver.solve(strain)
         k, valid = sol.curvature, sol.valid
         if self.twist:
             k = np.concatenate([k, sol.twist_rate[..., None]], axis=-1)  # rates (k_x, k_y, γ)

@@ -19,10 +19,9 @@ from pathlib import Path
 
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
+from twin.frames import frame_vendor
 from twin.io.errors import RecordingDamaged
-from twin.io.illumisense.vendor import frame_vendor
 from twin.io.record import Recorder, open_recorder, open_recording
-from twin.live import LiveLoop
 from twin.reconstruct import Reconstructor
 
 __all__ = ["HELP", "add_arguments", "run"]
@@ -47,23 +46,31 @@ def run(args: argparse.Namespace) -> int:
             raise RecordingDamaged(reader.damage_line())
         fiber = FiberModel.load(args.fiber) if args.fiber else reader.fiber or FiberModel.paper()
         calibration = Calibration.load(args.calibration) if args.calibration else reader.calibration
-        books = LiveLoop(None, Reconstructor(fiber, calibration))  # never run: replay's reconstruction and books
+        rec = Reconstructor(fiber, calibration)
         recorder = open_recorder(args.out, fiber=fiber, calibration=calibration, source_url=reader.source_url,
                                  rate=reader.rate)
         try:
             for start, frames in reader.chunks(max(1, args.batch)):
                 m = len(frames)
-                shapes, _ = books.process_arrays(frames.wavelengths, frames.sequence)
+                shapes = _shapes(rec, frames.wavelengths)
                 blocks = reader.vendor(start, start + m)
-                vendor = [frame_vendor(blocks, i) for i in range(m)] if blocks else None
                 received = reader.received(start, start + m)
-                if isinstance(recorder, Recorder):  # frames only; the sensor blocks ride on single frames
-                    batch = frames if vendor is None else [replace(f, vendor=v) for f, v in zip(frames, vendor,
-                                                                                               strict=True)]
+                if isinstance(recorder, Recorder):  # frames only; the sensor blocks ride on the batch
+                    batch = replace(frames, vendor=tuple(blocks)) if blocks else frames
                     recorder.append(batch, received=float(received[0]) if len(received) else None)
                 else:
+                    vendor = [frame_vendor(blocks, i) for i in range(m)] if blocks else None
                     recorder.append(frames, shapes, received=received, vendor=vendor)
         finally:
             recorder.close()
     print(f"twin export: {recorder.frames_written} frames of {args.recording} to {args.out}")
     return 0
+
+
+def _shapes(rec: Reconstructor, wavelengths):
+    """The shapes as the live loop makes them (peaks outside their window missing; None if the reconstruction
+    fails: the frames are still exported)."""
+    try:
+        return rec.from_strain(rec.strain(wavelengths)[0])
+    except Exception:
+        return None

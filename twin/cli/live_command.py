@@ -5,12 +5,13 @@
               [--igtl [HOST:]PORT [--igtl-rate HZ]] [--foxglove [HOST:]PORT [--foxglove-rate HZ]]
 
 Prints a status line about once a second (state, frame rate, lost samples, framing errors, reconnects,
-partial/unusable frames, tip position in mm; on stderr with ``--json``) and a summary at the end; ``--json``
-prints the summary as one JSON object on stdout. Ctrl-C ends the run cleanly: the recording is flushed and
-marked complete, and the summary is printed. Exit status 0; 130 when Ctrl-C cut a run with ``--duration`` or
-``--frames`` short (without a bound, Ctrl-C is how a run ends: 0); 1 when a sink failed (e.g. the recording
-could not be written) or the source failed for good (a damaged recording: ``replay://FILE?salvage=1`` replays
-the frames before the damage instead).
+partial/unusable frames, tip position in mm, and the latest error against the truth or the interrogator's own
+shape when the frames carry one; on stderr with ``--json``) and a summary at the end (with the errors over every
+complete frame: docs/figures.md); ``--json`` prints the summary as one JSON object on stdout. Ctrl-C ends the
+run cleanly: the recording is flushed and marked complete, and the summary is printed. Exit status 0; 130 when
+Ctrl-C cut a run with ``--duration`` or ``--frames`` short (without a bound, Ctrl-C is how a run ends: 0); 1 when
+a sink failed (e.g. the recording could not be written) or the source failed for good (a damaged recording:
+``replay://FILE?salvage=1`` replays the frames before the damage instead).
 
 ``--viewer`` shows the shapes live in a browser (meshcat, :mod:`twin.viewer`; the URL to open is printed on
 stderr): the latest shape at most ``--viewer-rate`` times a second (30), the truth beside it when the source
@@ -39,6 +40,7 @@ one a recording carries, else none.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import sys
@@ -50,6 +52,7 @@ from twin.fiber import FiberModel
 from twin.io.source import open_source, parse_url
 from twin.live import LiveLoop, LiveSummary, PrinterSink
 from twin.reconstruct import Reconstructor
+from twin.reference_errors import TruthError, VendorDistance
 
 #: one-line help (read by `twin --help` without importing this module)
 HELP = "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"
@@ -144,23 +147,23 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
         calibration = Calibration.load(args.calibration) if args.calibration else getattr(first, "calibration", None)
         rec = Reconstructor(fiber, calibration, method=args.method)
+        # the references the frames may carry: the simulator's truth, the interrogator's own shape
+        truth, vendor = TruthError(), VendorDistance()
         uncertainty = None  # the confidence tube for the viewer and OpenIGTLink (the default pipeline's)
         if rec.method == "material" and not rec.twist:
             from twin.uncertainty import Uncertainty
 
             uncertainty = Uncertainty(rec)
         if not args.quiet:
-            sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate))
+            sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate,
+                                     extras=(truth.status_text, vendor.status_text)))
         for path in args.record or ():
             from twin.io.record import open_recorder
 
             recorders.append(open_recorder(path, fiber=fiber, calibration=calibration, source_url=args.url,
                                            rate=first.rate))
         sinks.extend(recorders)
-        from twin.io.illumisense.vendor import VendorDistance
-
-        vendor = VendorDistance()  # ILLumiSense sends its own shape: compare ours with it (a few frames/s)
-        sinks.append(vendor)
+        sinks += [truth, vendor]
         if args.viewer:
             from twin.viewer import Viewer, ViewerConfig, ViewerSink
 
@@ -208,6 +211,11 @@ def run(args: argparse.Namespace) -> int:
     loop = LiveLoop(factory, rec, sinks, stale_after=args.stale)
     summary = loop.run(duration=args.duration, max_frames=args.frames)
     out = summary.as_dict()
+    errors = truth.result()
+    if errors is not None:
+        out["truth"] = dataclasses.asdict(errors)
+    elif truth.note is not None:
+        out["truth_note"] = truth.note
     out.update(vendor.as_dict())
     if recorders:  # the first recording's figures under the old keys; every recording's in "recordings"
         out["recordings"] = [{"file": str(r.path), "frames": r.frames_written, "vendor_dropped": r.vendor_dropped}
@@ -264,7 +272,7 @@ def calibration_label(args: argparse.Namespace, calibration: Calibration | None)
 def format_summary(summary: LiveSummary, out: dict) -> str:
     s = summary.status
     lines = [
-        f"twin live: {summary.duration:.1f} s, {s.frames} frames ({summary.frames_per_s:.1f} Hz), "
+        f"twin live: {summary.duration:.1f} s, {s.frames} frames (arrived at {summary.frames_per_s:.1f} frames/s), "
         f"ended: {summary.reason}",
         f"  lost samples {s.lost_samples} in {s.sequence_gaps} gaps, sequence resets {s.sequence_resets}, "
         f"framing errors {s.framing_errors}, disconnects {s.disconnects}, reconnects {s.reconnects}, "
@@ -278,12 +286,17 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
     ]
     if s.tip is not None:
         lines.append("  last tip (" + ", ".join(f"{1e3 * x:.2f}" for x in s.tip) + ") mm")
+    if "truth" in out:
+        t = out["truth"]
+        lines.append(f"  vs truth ({t['frames_compared']} frames, {t['register']}): distance to the true curve mean "
+                     f"{t['mean_error_mm']:.3f} mm, max {t['max_error_mm']:.3f} mm; tip to the true tip mean "
+                     f"{t['tip_error_mm_mean']:.3f} mm, max {t['tip_error_mm_max']:.3f} mm")
     source = s.source
     if source.get("warnings"):  # e.g. the simulator's MuJoCo start-up notes, collected and explained by the source
         lines.append(f"  source warnings: {source['warnings']} ({source.get('warnings_note', 'see --json')})")
     if "vendor_distance_max_mm" in out:
-        lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): max "
-                     f"{out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
+        lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): distance "
+                     f"max {out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
     if "foxglove_frames" in out:
         lines.append(f"  Foxglove: {out['foxglove_frames']} updates, {out['foxglove_clients']} clients"
                      + (f", {out['foxglove_clients_refused']} refused (over the cap)" if out["foxglove_clients_refused"]

@@ -1,17 +1,19 @@
-"""`twin replay FILE`: reconstruct a recording and print its summary (:func:`twin.io.replay.summarize`).
+"""`twin replay FILE`: reconstruct a recording and print its summary (:func:`twin.replay_summary.summarize`).
 
-    twin replay run.h5 [--fiber FILE] [--calibration FILE] [--json] [--register kabsch] [--max-compare N]
+    twin replay run.h5 [--fiber FILE] [--calibration FILE] [--json] [--register kabsch] [--compare-rate HZ]
     twin replay illumisense_log.txt --fiber sensor.toml
     twin replay cut.h5 --salvage
 
 Reads a twin HDF5 recording (``twin live --record``; also one still being written or left by a killed
 process) or an ILLumiSense log file (:mod:`twin.io.illumisense.log`), reconstructs every frame in
-batches, and reports frames, time span, lost samples, partial and unusable frames, invalid nodes and the
-reconstruction speed, counted as ``twin live`` counts them. When the recording holds the simulator's truth, it
-also reports the shape error against it (after ``--register``; on at most ``--max-compare`` frames spread evenly
-over the recording, in mm). When the recording (a twin HDF5 recording or an ILLumiSense log) carries the
-interrogator's own shape (sensor blocks), it reports the distance between that shape and ours after a rigid
-registration (``vendor_distance_*_mm``, :mod:`twin.io.illumisense.vendor`).
+batches — the live loop over the file at full speed, so it reports what ``twin live replay://FILE`` reports —
+frames, time span, lost samples, partial and unusable frames, invalid nodes and the reconstruction throughput of
+the run. When the recording holds the simulator's truth, it also reports the shape error against it (after
+``--register``; on the first complete frame of each 0.1 s of the recording's time, as ``twin live`` compares,
+or on ``--compare-rate`` frames a second, 0 for every complete frame; in mm). When the recording (a
+twin HDF5 recording or an ILLumiSense log) carries the interrogator's own shape (sensor blocks), it reports the
+distance between that shape and ours after a rigid registration (``vendor_distance_*_mm``,
+:mod:`twin.reference_errors`). docs/figures.md defines every figure.
 
 A damaged recording (cut short, or with chunks that fail their checksum) is an error (one line: how many frames
 are readable, what is damaged; exit status 2) unless ``--salvage`` is given: then the frames before the damage
@@ -30,8 +32,8 @@ from pathlib import Path
 from twin import jsonout
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
-from twin.io.replay import ReplaySummary, summarize
 from twin.metrics import REGISTRATIONS
+from twin.replay_summary import ReplaySummary, summarize
 
 #: one-line help (read by `twin --help` without importing this module)
 HELP = "reconstruct a recording (twin HDF5 or MCAP, ILLumiSense log) and summarise it"
@@ -46,8 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=("material", "paper"), default="material")
     parser.add_argument("--register", choices=REGISTRATIONS, default="kabsch",
                         help="registration before comparing with the truth (default kabsch)")
-    parser.add_argument("--max-compare", type=int, default=1000,
-                        help="frames compared with the truth, spread evenly (default 1000)")
+    parser.add_argument("--compare-rate", type=float, default=10.0, metavar="HZ",
+                        help="frames compared with the truth and the interrogator's shape per second of the "
+                             "recording's time, as twin live compares them (default 10; 0: every complete frame)")
     parser.add_argument("--channels", choices=("cores", "single"), default="cores",
                         help="log files: one channel per core (default) or all cores on one channel")
     parser.add_argument("--cores", type=int, default=None, help="log files with --channels single: core count")
@@ -58,11 +61,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.compare_rate >= 0:  # NaN too
+        raise ValueError(f"--compare-rate must be a number of frames per second >= 0, got {args.compare_rate}")
     fiber = FiberModel.load(args.fiber) if args.fiber else None
     calibration = Calibration.load(args.calibration) if args.calibration else None
     summary = summarize(args.file, fiber=fiber, calibration=calibration, method=args.method, register=args.register,
-                        max_compare=args.max_compare, channels_as=args.channels, n_cores=args.cores,
-                        salvage=args.salvage)
+                        compare_rate=args.compare_rate or None, channels_as=args.channels, n_cores=args.cores,
+                        salvage=args.salvage, handle_signals=True)
     if args.json:
         print(jsonout.dumps(summary.as_dict()))
     else:
@@ -89,16 +94,17 @@ def format_summary(s: ReplaySummary) -> str:
         f"{s.peaks_outside_window}",
     ]
     if s.reconstruct_frames_per_s:
-        lines.append(f"  reconstructed at {s.reconstruct_frames_per_s:.0f} frames/s")
+        lines.append(f"  reconstruction throughput {s.reconstruct_frames_per_s:.0f} frames/s (frames ÷ wall time "
+                     "spent reconstructing in this run, first-call compilation included; speed: twin bench)")
     if s.truth is not None:
         t = s.truth
-        lines.append(f"  vs truth ({t.frames_compared} frames, {t.register}): mean {t.mean_error_mm:.3f} mm, "
-                     f"max {t.max_error_mm:.3f} mm, tip mean {t.tip_error_mm_mean:.3f} mm, "
-                     f"max {t.tip_error_mm_max:.3f} mm")
+        lines.append(f"  vs truth ({t.frames_compared} frames, {t.register}): distance to the true curve mean "
+                     f"{t.mean_error_mm:.3f} mm, max {t.max_error_mm:.3f} mm; tip to the true tip mean "
+                     f"{t.tip_error_mm_mean:.3f} mm, max {t.tip_error_mm_max:.3f} mm")
     if s.vendor:
         v = s.vendor
-        lines.append(f"  vs the interrogator's own shape ({v['vendor_frames_compared']} frames, Kabsch): max "
-                     f"{v['vendor_distance_max_mm']:.3f} mm, mean {v['vendor_distance_mean_mm']:.3f} mm")
+        lines.append(f"  vs the interrogator's own shape ({v['vendor_frames_compared']} frames, Kabsch): distance "
+                     f"max {v['vendor_distance_max_mm']:.3f} mm, mean {v['vendor_distance_mean_mm']:.3f} mm")
     for d in s.damage:
         lines.append(f"  damage: {d}")
     return "\n".join(lines)

@@ -19,8 +19,8 @@ Common behaviour
 - **Counters** in :meth:`stats`: ``state`` (connected / disconnected / closed), ``frames``, ``framing_errors``,
   ``lost_samples`` and ``sequence_gaps`` (from the source's sample numbers), ``disconnects``, ``reconnects``
   (successful connections after the first), ``connect_failures``, ``last_error`` (text).
-- :meth:`read_many` returns every frame already received (a burst after a stall is reconstructed as one batch);
-  :meth:`read_batches` returns them as the decoder made them (1-D batch Frames kept whole), for the live loop.
+- :meth:`read_batch` returns every frame already received as one batch (a burst after a stall is reconstructed
+  as one batch; a batch decoder's output is joined without a Python object per frame).
 
 The protocols' drivers: :mod:`twin.io.illumisense.driver`, :mod:`twin.io.hyperion.driver`,
 :mod:`twin.io.fispec.driver`.
@@ -28,21 +28,20 @@ The protocols' drivers: :mod:`twin.io.illumisense.driver`, :mod:`twin.io.hyperio
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from twin.frames import Frame, PeakStatus
 from twin.io.errors import FramingError
-from twin.io.source import Source, SourceClosed
+from twin.io.options import Option
+from twin.io.source import MAX_BATCH, Source, SourceClosed
 from twin.io.transport import Backoff, ConnectionLost
 
-__all__ = ["COMMON_OPTIONS", "MISSING", "Driver", "flag", "int_list", "positive", "seconds", "split_common",
-           "url_options"]
+__all__ = ["COMMON_OPTIONS", "MISSING", "Driver", "split_common"]
 
 MISSING = np.uint8(PeakStatus.MISSING)
 
@@ -221,11 +220,13 @@ class Driver(Source):
                 self._disconnect(exc)
 
     def _take(self, max_frames: int) -> list[Frame]:
-        """Queued items holding at most ``max_frames`` frames (a batch cut at the limit leaves its rest queued)."""
+        """Queued items holding at most ``max_frames`` frames of one (n_gratings, n_cores) (a batch cut at the
+        limit leaves its rest queued; an item of another shape waits for the next call)."""
         out: list[Frame] = []
         room = max_frames
         q = self._queue
-        while q and room > 0:
+        shape = q[0].wavelengths.shape[-2:] if q else None
+        while q and room > 0 and q[0].wavelengths.shape[-2:] == shape:
             item = q[0]
             n = len(item) if item.batch_shape else 1
             if n > room:
@@ -237,35 +238,15 @@ class Driver(Source):
             room -= n
         return out
 
-    def read_many(self, max_frames: int = 1 << 30, timeout: float | None = None) -> list[Frame]:
-        """Frames received so far (up to ``max_frames``), waiting up to ``timeout`` s for the first one.
+    def read_batch(self, max_frames: int = MAX_BATCH, timeout: float | None = None) -> Frame | None:
+        """Frames received so far (up to ``max_frames``) as one batch, waiting up to ``timeout`` s for the first.
 
-        Returns an empty list when nothing arrived in time (also while disconnected and retrying).
+        Returns None when nothing arrived in time (also while disconnected and retrying). What the decoder made
+        as batches is joined once here (no Python object per frame for a batch decoder's output).
         """
         self._wait(timeout)
-        out: list[Frame] = []
-        for item in self._take(max_frames):
-            if item.batch_shape:
-                out.extend(item)
-            else:
-                out.append(item)
-        return out
-
-    def read_batches(self, max_frames: int = 1 << 30, timeout: float | None = None) -> list[Frame]:
-        """Like :meth:`read_many`, but frames a driver decoded as a batch stay one 1-D batch Frame.
-
-        Returns
-        -------
-        list of Frame
-            Single frames and 1-D batches, in order, holding at most ``max_frames`` frames in all
-            (:func:`twin.live.read_batch` joins them into one batch for the live loop when it can).
-        """
-        self._wait(timeout)
-        return self._take(max_frames)
-
-    def read(self, timeout: float | None = None) -> Frame | None:
-        frames = self.read_many(1, timeout)
-        return frames[0] if frames else None
+        items = self._take(max_frames)
+        return Frame.stack(items) if items else None
 
     def close(self) -> None:
         if not self._closed:
@@ -282,56 +263,18 @@ class Driver(Source):
         return {"state": state, **self.counters, "last_error": self.last_error}
 
 
-# ------------------------------------------------------------------------------------------------ ILLumiSense
+# -------------------------------------------------------------------------------------------- URL options
 
 
-def url_options(url: str, query: dict[str, str], parsers: dict[str, Callable[[str], object]]) -> dict:
-    unknown = sorted(set(query) - set(parsers))
-    if unknown:
-        raise ValueError(f"{url!r}: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(parsers))}")
-    out = {}
-    for key, value in query.items():
-        try:
-            out[key] = parsers[key](value)
-        except ValueError:
-            want = _EXPECTED.get(parsers[key])
-            raise ValueError(f"{url!r}: option {key}={value!r} is not valid" + (f"; expected {want}" if want else "")
-                             ) from None
-    return out
-
-
-def seconds(v: str) -> float:
-    """A duration option, s: a finite number >= 0 (``nan`` or ``-1`` would never elapse, or at once)."""
-    x = float(v)
-    if not (math.isfinite(x) and x >= 0):
-        raise ValueError(v)
-    return x
-
-
-def positive(v: str) -> float:
-    """A finite number > 0 (a timeout, a rate)."""
-    x = float(v)
-    if not (math.isfinite(x) and x > 0):
-        raise ValueError(v)
-    return x
-
-
-def flag(v: str) -> bool:
-    if v.lower() in ("1", "true", "yes", "on"):
-        return True
-    if v.lower() in ("0", "false", "no", "off"):
-        return False
-    raise ValueError(v)
-
-
-def int_list(v: str) -> list[int]:
-    return [int(x) for x in v.split(",") if x.strip()]
-
-
-COMMON_OPTIONS = {"wait": flag, "retry_for": seconds, "connect_timeout": positive, "start_wait": seconds}
-_EXPECTED = {seconds: "a number of seconds >= 0", positive: "a number > 0", flag: "1 or 0", int: "an integer",
-             float: "a number"}
+#: the options every driver takes (:mod:`twin.io.options`); drivers add their own
+COMMON_OPTIONS = {
+    "wait": Option("bool"),
+    "retry_for": Option("float", low=0.0),
+    "connect_timeout": Option("float", low=0.0, low_open=True, high=3600.0),
+    "start_wait": Option("float", low=0.0),
+}
 
 
 def split_common(opts: dict) -> dict:
+    """Take the keywords of :class:`Driver` (``wait``, ``retry_for``, ``start_wait``) out of parsed options."""
     return {k: opts.pop(k) for k in ("wait", "retry_for", "start_wait") if k in opts}

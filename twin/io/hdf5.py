@@ -82,7 +82,7 @@ import numpy as np
 from twin.calibration import Calibration
 from twin.extras import require
 from twin.fiber import FiberModel
-from twin.frames import Frame, Truth
+from twin.frames import Frame, Truth, VendorArrays, vendor_rows
 
 __all__ = ["FORMAT", "FRAME_FIELDS", "SWMR_READ_ATTEMPTS", "TRUTH_FIELDS", "VENDOR_FIELDS", "VERSION", "HDF5Open",
            "Recorder", "chunk_rows", "open_hdf5", "readable_rows"]
@@ -342,7 +342,7 @@ class Recorder:
         self._ds: dict[str, object] = {}
         self._shape: tuple[int, int] | None = None
         self._truth_ref: Truth | None = None
-        self._vendor_ref: list = []  # the first block of each sensor in the first chunk: the stored layout
+        self._vendor_ref: list = []  # (G, N, spacing) of each sensor's first block in the first flush
         self._last_flush = time.monotonic()
         self.frames_written = 0
         self.flushes = 0
@@ -351,8 +351,9 @@ class Recorder:
         self._closed = False
 
     # ---------------------------------------------------------------- sink interface
-    def __call__(self, frames: Sequence[Frame] | Frame, shapes=None, status=None) -> None:
-        if isinstance(frames, Frame) or len(frames):
+    def __call__(self, frames: Frame, shapes=None, status=None) -> None:
+        """The live-loop sink: append a batch (an empty one is a heartbeat: flush when due)."""
+        if len(frames):
             self.append(frames)
         elif time.monotonic() - self._last_flush >= self.flush_interval and self._pending:
             self.flush()
@@ -434,9 +435,8 @@ class Recorder:
                     shp = np.shape(v)[len(truth.batch_shape):]
                     make(f"truth/{name}", shp, "f4" if name == "frames" else "f8", np.nan)
         self._vendor_ref = list(vendor)
-        for k, block in enumerate(self._vendor_ref):
-            g, m = len(block.curvature), len(block.positions)
-            f.create_dataset(f"vendor/sensor{k}/spacing", data=np.float64(block.spacing))
+        for k, (g, m, spacing) in enumerate(self._vendor_ref):
+            f.create_dataset(f"vendor/sensor{k}/spacing", data=np.float64(spacing))
             make(f"vendor/sensor{k}/present", (), "?")
             make(f"vendor/sensor{k}/curvature", (g,), "f8", np.nan)
             make(f"vendor/sensor{k}/angle", (g,), "f8", np.nan)
@@ -453,13 +453,15 @@ class Recorder:
             return
         items, received = self._pending, self._received
         self._pending, self._received, self._n_pending = [], [], 0
-        # one entry per row: a single frame's sensor blocks (a batch carries none)
-        vendors = [v for f in items for v in ([None] * len(f) if f.batch_shape else [f.vendor])]
+        # each item's sensor blocks as rows per sensor (single frames and batches alike)
+        vendors = [vendor_rows(f) for f in items]
+        counts = [len(f) if f.batch_shape else 1 for f in items]
         if not self._ds:
-            first: dict[int, object] = {}
-            for v in vendors:
-                for k, block in enumerate(v or ()):
-                    first.setdefault(k, block)
+            first: dict[int, tuple] = {}
+            for rows in vendors:
+                for k, a in enumerate(rows):
+                    if a.present.any():
+                        first.setdefault(k, a.layout)
             self._create(next((f.truth for f in items if f.truth is not None), None),
                          [first[k] for k in range(len(first))])
         offered = sum(int(np.count_nonzero(f.truth.all_present)) for f in items if f.truth is not None)
@@ -484,7 +486,7 @@ class Recorder:
             self.truth_dropped += offered - int(present.sum())
         else:
             self.truth_dropped += offered
-        cols.update(self._vendor_columns(vendors))
+        cols.update(self._vendor_columns(vendors, counts))
         for name, data in cols.items():
             ds = self._ds[name]
             ds.resize(n0 + n, axis=0)
@@ -496,17 +498,16 @@ class Recorder:
         self._file.flush()
         self.flushes += 1
 
-    def _vendor_columns(self, vendors: list) -> dict[str, np.ndarray]:
-        """The /vendor rows of one flush, from each row's sensor blocks (None: none); counts what is dropped."""
-        offered = sum(len(v) for v in vendors if v)
+    def _vendor_columns(self, vendors: list, counts: list[int]) -> dict[str, np.ndarray]:
+        """The /vendor rows of one flush, from each item's blocks (:func:`~twin.frames.vendor_rows`) in the
+        recording's layout per sensor; counts the blocks dropped (another layout, or a sensor beyond those)."""
+        offered = sum(int(a.present.sum()) for rows in vendors for a in rows)
         if not offered and not self._vendor_ref:
             return {}
-        from twin.io.illumisense.vendor import VendorArrays
-
         cols: dict[str, np.ndarray] = {}
         stored = 0
-        for k, ref in enumerate(self._vendor_ref):
-            a = VendorArrays.from_sensors([v[k] if v and len(v) > k else None for v in vendors], like=ref)
+        for k, layout in enumerate(self._vendor_ref):
+            a = VendorArrays.concat([rows[k] if len(rows) > k else None for rows in vendors], counts, layout=layout)
             stored += int(a.present.sum())
             for name in VENDOR_FIELDS:
                 cols[f"vendor/sensor{k}/{name}"] = getattr(a, name)

@@ -18,6 +18,7 @@ Entering that state needs it to last ``hold`` s; leaving it needs the arrival ra
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 
@@ -77,16 +78,20 @@ class RateMeter:
         now = time.monotonic() if now is None else float(now)
         if self._start is None:
             self._start = now
-        # the source's clock
+        # the source's clock (one frame, the common live case, without array calls)
         stamped = self._stamped
-        if not np.all(np.isfinite(ts)) or np.any(np.diff(ts) < 0) or (stamped and ts[0] < stamped[-1][1]):
+        first, last = float(ts[0]), float(ts[-1])
+        if n == 1:
+            usable = math.isfinite(first)
+        else:
+            usable = bool(np.isfinite(ts).all()) and bool((ts[1:] >= ts[:-1]).all())
+        if not usable or (stamped and first < stamped[-1][1]):
             stamped.clear()
             self._stamped_n = 0
-        if np.all(np.isfinite(ts)) and not np.any(np.diff(ts) < 0):
-            stamped.append((float(ts[0]), float(ts[-1]), n))
+        if usable:
+            stamped.append((first, last, n))
             self._stamped_n += n
-            newest = float(ts[-1])
-            while len(stamped) > 1 and stamped[0][1] < newest - self.window:
+            while len(stamped) > 1 and stamped[0][1] < last - self.window:
                 self._stamped_n -= stamped.popleft()[2]
         # the wall clock
         arrived = self._arrived

@@ -11,7 +11,7 @@ damaged recording is never ``complete``. Damage to the truth or to the interroga
 damaged row on.
 
 The interrogator's own reconstruction (ILLumiSense sensor blocks) comes back per sensor as
-:class:`~twin.io.illumisense.vendor.VendorArrays` (:meth:`RecordingReader.vendor`), from a twin recording or a
+:class:`~twin.frames.VendorArrays` (:meth:`RecordingReader.vendor`), from a twin recording or a
 log alike, and on the single frames of ``replay://`` as :attr:`Frame.vendor <twin.frames.Frame.vendor>`.
 
 ILLumiSense log files (``*.txt``, one record per line as lab loggers save the stream) are read too:
@@ -31,7 +31,7 @@ import numpy as np
 
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
-from twin.frames import Frame, Truth
+from twin.frames import Frame, Truth, VendorArrays
 from twin.io.hdf5 import (
     FORMAT,
     FRAME_FIELDS,
@@ -98,6 +98,7 @@ class RecordingReader:
             raise IsADirectoryError(f"{self.path}: is a directory, not a recording") from None
         self.errors: list[str] = []
         self.damage: list[str] = []
+        self.notes: list[str] = []  # what reading had to assume (none for these formats; an MCAP reader's)
         # first damaged row of the frames / of their truth / of their vendor blocks
         self._first_bad = self._truth_ok = self._vendor_ok = 1 << 62
         self._file = None
@@ -108,7 +109,7 @@ class RecordingReader:
         if head == _HDF5_SIGNATURE:
             self._open_hdf5()
         else:
-            self._mem = _read_log(self, channels_as=channels_as, n_cores=n_cores)
+            self._mem = self._read_log(channels_as=channels_as, n_cores=n_cores)
             self.kind = "illumisense-log"
             self.fiber = self.calibration = None
             self.source_url = f"file://{self.path}"
@@ -118,6 +119,16 @@ class RecordingReader:
             if last not in (b"\n", b"\r"):
                 self.damage.append("the last line has no line end: the file was cut (its last record, which may "
                                    "be incomplete, is left out)")
+
+    def _read_log(self, *, channels_as: str, n_cores: int | None) -> Frame:
+        """Decode an ILLumiSense log file (:mod:`twin.io.illumisense.log`) into one batch of frames, keeping its
+        skipped lines and its sensor blocks."""
+        from twin.io.illumisense.log import read_log
+
+        log = read_log(self.path, channels_as=channels_as, n_cores=n_cores)
+        self.errors.extend(log.errors)
+        self._vendor_mem = log.vendor
+        return Frame(log.wavelengths, log.timestamps, log.sequences, powers=log.powers, status=log.status)
 
     @property
     def complete(self) -> bool:
@@ -413,15 +424,13 @@ class RecordingReader:
 
     def vendor(self, start: int = 0, stop: int | None = None) -> tuple:
         """The interrogator's own reconstruction of frames ``start:stop``, one
-        :class:`~twin.io.illumisense.vendor.VendorArrays` per sensor (rows from 0 = frame ``start``; empty
+        :class:`~twin.frames.VendorArrays` per sensor (rows from 0 = frame ``start``; empty
         when the recording has none). Rows past damaged vendor chunks come back absent."""
         start, stop = self._span(start, stop)
         if self._mem is not None:
             return tuple(a[start:stop] for a in self._vendor_mem)
         if not self._vendor_sensors:
             return ()
-        from twin.io.illumisense.vendor import VendorArrays
-
         f = self._file
         names = [f"vendor/sensor{j}/{k}" for j in range(self._vendor_sensors) for k in VENDOR_FIELDS]
         end = max(start, min(stop, self._vendor_ok))
@@ -516,22 +525,3 @@ def _load_toml(text) -> dict:
     if isinstance(text, bytes):
         text = text.decode("utf-8")
     return tomllib.loads(str(text))
-
-
-def _read_log(reader: RecordingReader, *, channels_as: str, n_cores: int | None) -> Frame:
-    """Decode an ILLumiSense log file (:mod:`twin.io.illumisense.log`) into one batch of frames."""
-    from twin.io.illumisense.log import read_log
-
-    log = read_log(reader.path, channels_as=channels_as, n_cores=n_cores)
-    reader.errors.extend(log.errors)
-    reader._vendor_mem = log.vendor
-    return Frame(log.wavelengths, log.timestamps, log.sequences, powers=log.powers, status=log.status)
-
-
-def __getattr__(name: str):
-    # the replay source moved to twin.io.replay; installs whose entry points still name this module find it
-    if name in ("ReplaySource", "open_replay"):
-        from twin.io import replay
-
-        return getattr(replay, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -11,7 +11,7 @@
 - the **gratings** as black dots; the **fixture** (tube, groove, sheath) as a faint translucent tube;
 - the **interrogator's own shape** (ILLumiSense sensor blocks, :attr:`twin.frames.Frame.vendor`), when the frame
   carries one, as a thin orange centreline, moved onto the reconstruction by the rigid registration the
-  reported vendor distance is computed with (:func:`twin.io.illumisense.vendor.vendor_in_base`), so what is
+  reported vendor distance is computed with (:func:`twin.reference_errors.vendor_in_base`), so what is
   drawn is what is reported (its max / mean distance in the overlay). Shown by default; the page's scene
   controls (node ``twin/vendor``) switch it off and on, and ``ViewerConfig.show_vendor`` sets how it starts;
 - a **scale bar** (black, a round length) under the catheter, and an overlay: the figures (max / mean / tip

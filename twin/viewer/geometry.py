@@ -387,7 +387,7 @@ def frame_scene(shape: Shape, truth: Truth | None = None, vendor=None, base_pose
     block = vendor[vendor_sensor] if isinstance(vendor, tuple | list) and len(vendor) > vendor_sensor else (
         None if isinstance(vendor, tuple | list) else vendor)
     if block is not None:
-        from twin.io.illumisense.vendor import vendor_in_base
+        from twin.reference_errors import vendor_in_base
 
         moved = vendor_in_base(shape.positions, shape.s, block.positions, block.s)
         if moved is not None:  # else no overlap, or NaN points: nothing to show or report

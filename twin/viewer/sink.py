@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
@@ -62,7 +61,7 @@ class ViewerSink:
         self._due = -float("inf")
         self._gave_up = False
 
-    def __call__(self, frames: Sequence[Frame], shapes: Shape | None, status: LiveStatus) -> None:
+    def __call__(self, frames: Frame, shapes: Shape | None, status: LiveStatus) -> None:
         try:
             self._handle(frames, shapes, status)
         except Exception as exc:  # the viewer must never end the live loop

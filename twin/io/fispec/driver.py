@@ -22,9 +22,10 @@ import numpy as np
 
 from twin.fiber import FiberModel
 from twin.frames import Frame
-from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, int_list, positive, split_common, url_options
+from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, split_common
 from twin.io.errors import FramingError
 from twin.io.fispec import codec as fispec
+from twin.io.options import Option, parse_options
 from twin.io.source import parse_url
 from twin.io.transport import ConnectionLost, open_serial
 
@@ -238,8 +239,11 @@ def open_fispec(url: str, **options) -> FispecSource:
     ports = [p for p in rest.split(",") if p]
     if not ports:
         raise ValueError(f"{url!r}: expected fispec://PORT (a device, a pty path or a pyserial URL)")
-    opts = url_options(url, query, {**COMMON_OPTIONS, "rate": positive, "cores": int_list, "window": positive,
-                                    "baudrate": int, "reply_timeout": positive})
+    opts = parse_options(url, query, {**COMMON_OPTIONS, "rate": Option("float", low=0.0, low_open=True, high=1e4),
+                                      "cores": Option("ints", low=0, high=63),
+                                      "window": Option("float", low=0.0, low_open=True),
+                                      "baudrate": Option("int", low=1),
+                                      "reply_timeout": Option("float", low=0.0, low_open=True)})
     opts.pop("connect_timeout", None)
     kw = split_common(opts)
     kw.update(opts)

@@ -6,54 +6,8 @@
 The driver imports the codec; neither imports this face.
 """
 
-from twin.io.hyperion.codec import (
-    COMMAND_PORT,
-    STREAM_PEAKS_PORT,
-    InstrumentState,
-    PeakHeader,
-    Request,
-    RequestDecoder,
-    Response,
-    ResponseDecoder,
-    decode_ascii,
-    decode_i32_array,
-    decode_peaks,
-    decode_peaks_header,
-    decode_request,
-    decode_response,
-    decode_u8,
-    decode_u32,
-    encode_peaks,
-    encode_request,
-    encode_response,
-    encode_stream_frame,
-    respond,
-)
-from twin.io.hyperion.driver import HyperionSource, assign_peaks, open_hyperion
+from twin.io.hyperion import codec, driver
+from twin.io.hyperion.codec import *  # noqa: F403 -- the face: every public name of the codec and the driver
+from twin.io.hyperion.driver import *  # noqa: F403
 
-__all__ = [
-    "COMMAND_PORT",
-    "STREAM_PEAKS_PORT",
-    "HyperionSource",
-    "InstrumentState",
-    "PeakHeader",
-    "Request",
-    "RequestDecoder",
-    "Response",
-    "ResponseDecoder",
-    "assign_peaks",
-    "decode_ascii",
-    "decode_i32_array",
-    "decode_peaks",
-    "decode_peaks_header",
-    "decode_request",
-    "decode_response",
-    "decode_u8",
-    "decode_u32",
-    "encode_peaks",
-    "encode_request",
-    "encode_response",
-    "encode_stream_frame",
-    "open_hyperion",
-    "respond",
-]
+__all__ = [*codec.__all__, *driver.__all__]

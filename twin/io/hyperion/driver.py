@@ -20,8 +20,9 @@ import numpy as np
 
 from twin.fiber import FiberModel
 from twin.frames import Frame
-from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, int_list, split_common, url_options
+from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, split_common
 from twin.io.hyperion import codec as hyperion
+from twin.io.options import Option, parse_options
 from twin.io.sequence import SequenceCounter
 from twin.io.source import parse_url
 from twin.io.transport import TcpClient, parse_host_port
@@ -199,14 +200,15 @@ class HyperionSource(Driver):
         return out
 
 
-# ---------------------------------------------------------------------------------------------------- FiSpec
+# ---------------------------------------------------------------------------------------------------- opener
 
 
 def open_hyperion(url: str, **options) -> HyperionSource:
     """``hyperion://HOST[:PORT]?stream_port=P&channels=1,2,3,4&wait=0|1&retry_for=S&start_wait=S``."""
     _, rest, query = parse_url(url)
     host, port = parse_host_port(rest, hyperion.COMMAND_PORT, what=url)
-    opts = url_options(url, query, {**COMMON_OPTIONS, "stream_port": int, "channels": int_list})
+    opts = parse_options(url, query, {**COMMON_OPTIONS, "stream_port": Option("int", low=1, high=65535),
+                                      "channels": Option("ints", low=1, high=256)})
     kw = split_common(opts)
     kw.update(opts)
     kw.update(options)

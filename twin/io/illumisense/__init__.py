@@ -12,49 +12,11 @@ The package's public face re-exports what users of the protocol need; the module
 Imports run one way: scan ← codec ← stream ← log, driver; no module of the package imports this face.
 """
 
-from twin.io.illumisense.codec import (
-    ANGLE_LABEL,
-    CURVATURE_LABEL,
-    DEFAULT_MAX_PAYLOAD,
-    DEFAULT_PORT,
-    SHAPE_LABELS,
-    SHAPE_SPACING,
-    Record,
-    VendorSensor,
-    decode_many,
-    decode_payload,
-    decode_record,
-    encode_payload,
-    encode_record,
-    format_timestamp,
-    parse_timestamp,
-)
-from twin.io.illumisense.driver import IllumisenseSource, open_illumisense
-from twin.io.illumisense.log import LogContents, read_log
-from twin.io.illumisense.stream import LayoutConsensus, StreamDecoder
-from twin.io.illumisense.vendor import VendorArrays
+from twin.io.illumisense import codec, driver, log, stream
+from twin.io.illumisense.codec import *  # noqa: F403 -- the face: every public name of its modules
+from twin.io.illumisense.codec import SHAPE_SPACING
+from twin.io.illumisense.driver import *  # noqa: F403
+from twin.io.illumisense.log import *  # noqa: F403
+from twin.io.illumisense.stream import *  # noqa: F403
 
-__all__ = [
-    "ANGLE_LABEL",
-    "CURVATURE_LABEL",
-    "DEFAULT_MAX_PAYLOAD",
-    "DEFAULT_PORT",
-    "SHAPE_LABELS",
-    "SHAPE_SPACING",
-    "IllumisenseSource",
-    "LayoutConsensus",
-    "LogContents",
-    "Record",
-    "StreamDecoder",
-    "VendorArrays",
-    "VendorSensor",
-    "decode_many",
-    "decode_payload",
-    "decode_record",
-    "encode_payload",
-    "encode_record",
-    "format_timestamp",
-    "open_illumisense",
-    "parse_timestamp",
-    "read_log",
-]
+__all__ = [*codec.__all__, "SHAPE_SPACING", *stream.__all__, *log.__all__, *driver.__all__]

@@ -74,7 +74,7 @@ from typing import Literal
 
 import numpy as np
 
-from twin.frames import Frame, PeakStatus
+from twin.frames import VENDOR_SHAPE_SPACING, Frame, PeakStatus, VendorArrays, VendorSensor
 from twin.io.errors import FramingError, TruncatedFrameError
 from twin.io.illumisense import scan as _scan
 
@@ -104,7 +104,7 @@ _INT64 = 1 << 63
 CURVATURE_LABEL = "Curvature [1/cm]"
 ANGLE_LABEL = "Curvature angle [rad]"
 SHAPE_LABELS = ("Shape x [cm]", "Shape y [cm]", "Shape z [cm]")
-SHAPE_SPACING = 1e-3  #: m between the vendor's shape points (the public client's assumption)
+SHAPE_SPACING = VENDOR_SHAPE_SPACING  #: m between the vendor's shape points (the public client's assumption)
 
 ChannelsAs = Literal["cores", "single"]
 
@@ -119,34 +119,6 @@ _UNITS = {
     "angle": ({"rad": 1.0, "deg": math.pi / 180.0}, "rad"),
     "shape": ({"cm": 0.01, "mm": 1e-3, "m": 1.0}, "cm"),
 }
-
-
-@dataclass(frozen=True, eq=False)
-class VendorSensor:
-    """One sensor block of a record: ILLumiSense's own reconstruction, in SI.
-
-    Attributes
-    ----------
-    curvature : ndarray, shape (G,)
-        Curvature magnitude at the sensor's gratings, 1/m.
-    angle : ndarray, shape (G,)
-        Bending direction at the gratings, rad.
-    positions : ndarray, shape (N, 3)
-        Shape points in the vendor's frame (x along the fibre axis), m, ``spacing`` apart in arc length from
-        the sensor's start.
-    spacing : float
-        Arc length between shape points, m (1 mm, as the public client assumes).
-    """
-
-    curvature: np.ndarray
-    angle: np.ndarray
-    positions: np.ndarray
-    spacing: float = SHAPE_SPACING
-
-    @property
-    def s(self) -> np.ndarray:
-        """Arc length of each shape point, m, shape (N,)."""
-        return self.spacing * np.arange(self.positions.shape[0])
 
 
 @dataclass(frozen=True, eq=False)
@@ -588,9 +560,14 @@ class _Group:
                               self.powers[i], self.status[i], vendor or None)
 
     def batch(self, i0: int, i1: int) -> Frame:
-        """Rows i0:i1 as one batch Frame (views; the vendor blocks are not carried, as in any batch Frame)."""
+        """Rows i0:i1 as one batch Frame (views), the sensor blocks as :class:`VendorArrays` per sensor."""
+        vendor = None
+        if self.usable_sensors:
+            present = np.ones(i1 - i0, bool)
+            vendor = tuple(VendorArrays(k[i0:i1], a[i0:i1], p[i0:i1], present)
+                           for k, a, p in self.sensors[: self.usable_sensors])
         return Frame._trusted(self.wavelengths[i0:i1], self.timestamp[i0:i1], self.sequence[i0:i1],
-                              self.powers[i0:i1], self.status[i0:i1])
+                              self.powers[i0:i1], self.status[i0:i1], vendor)
 
     @cached_property
     def _channels(self) -> tuple[np.ndarray, np.ndarray]:

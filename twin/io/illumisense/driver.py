@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import time
 
-from twin.io.drivers import COMMON_OPTIONS, Driver, positive, seconds, split_common, url_options
+from twin.io.drivers import COMMON_OPTIONS, Driver, split_common
 from twin.io.illumisense import codec
 from twin.io.illumisense.stream import StreamDecoder
+from twin.io.options import Option, parse_options
 from twin.io.source import parse_url
 from twin.io.transport import ConnectionLost, TcpClient, parse_host_port
 
@@ -106,17 +107,18 @@ class IllumisenseSource(Driver):
         return out
 
 
-# -------------------------------------------------------------------------------------------------- Hyperion
+# ---------------------------------------------------------------------------------------------------- opener
 
 
 def open_illumisense(url: str, **options) -> IllumisenseSource:
     """``illumisense://HOST[:PORT]?channels=cores|single&cores=N&max_payload=B&wait=0|1&retry_for=S&start_wait=S``."""
     _, rest, query = parse_url(url)
     host, port = parse_host_port(rest, codec.DEFAULT_PORT, what=url)
-    opts = url_options(url, query, {**COMMON_OPTIONS, "channels": str, "cores": int, "max_payload": int,
-                                 "resync_timeout": positive, "layout_wait": seconds})
-    if opts.get("channels", "cores") not in ("cores", "single"):
-        raise ValueError(f"{url!r}: channels must be 'cores' or 'single'")
+    opts = parse_options(url, query, {**COMMON_OPTIONS, "channels": Option("str", choices=("cores", "single")),
+                                      "cores": Option("int", low=1, high=64),
+                                      "max_payload": Option("int", low=codec.MIN_PAYLOAD, high=1 << 24),
+                                      "resync_timeout": Option("float", low=0.0, low_open=True),
+                                      "layout_wait": Option("float", low=0.0)})
     kw = split_common(opts)
     fiber = options.pop("fiber", None)
     channels_as = opts.pop("channels", "cores")

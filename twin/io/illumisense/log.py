@@ -2,7 +2,8 @@
 
 Nobody publishes a log format; loggers write each record's payload (the text after the 4-byte length prefix)
 as one line, so a line is read exactly as a payload (docs/protocols-illumisense.md): date, time, sample
-number, channel blocks, optional sensor blocks, any line ending. All lines are tokenized in one pass.
+number, channel blocks, optional sensor blocks, any line ending. All lines are tokenized and decoded in one pass
+into arrays (one batch per layout; no object per record).
 
 - Lines end in LF, CR LF or CR alone, in any mixture; a UTF-8 byte-order mark before the first line is skipped.
   A last line without a line end was cut (the writer was stopped mid-line): it is left out, since its last
@@ -22,14 +23,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
-from twin.frames import Frame
-from twin.io.errors import FramingError
-from twin.io.illumisense.codec import Record, decode_many, decode_record
+from twin.frames import VENDOR_SHAPE_SPACING, VendorArrays
+from twin.io.illumisense.codec import _decode_groups
 from twin.io.illumisense.stream import LayoutConsensus
-from twin.io.illumisense.vendor import VendorArrays
 
 __all__ = ["LogContents", "VendorArrays", "read_log"]
 
@@ -70,57 +70,102 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
     keep = [i for i, (a, b) in enumerate(zip(starts, ends, strict=True)) if data[a:b].strip()]
     if keep and keep[-1] == len(starts) - 1 and data[-1:] not in (b"\n", b"\r"):
         keep.pop()  # a last line without its line end was cut: its last number may be cut short (the reader says so)
-    res = decode_many(data, [starts[i] for i in keep], [ends[i] for i in keep], channels_as=channels_as,
-                      n_cores=n_cores)
+    kw = {"channels_as": channels_as, "n_cores": n_cores}
+    # every line decoded at once into arrays, one group per layout (no Frame per record)
+    res, groups, gid, gidx = _decode_groups(data, [starts[i] for i in keep], [ends[i] for i in keep], **kw)
+    # lines that failed and hold a decimal comma: retried with commas read as points, all at once
+    retry = [k for k in np.flatnonzero(gid < 0).tolist() if b"," in data[starts[keep[k]] : ends[keep[k]]]]
+    if retry:
+        lines = [data[starts[keep[k]] : ends[keep[k]]].replace(b",", b".") for k in retry]
+        lens = np.array([len(x) for x in lines], np.int64)
+        s2 = np.concatenate([[0], np.cumsum(lens + 1)[:-1]])
+        _, more, gid2, gidx2 = _decode_groups(b"\n".join(lines), s2, s2 + lens, **kw)
+        ok = gid2 >= 0
+        gid[np.array(retry)[ok]] = gid2[ok] + len(groups)
+        gidx[np.array(retry)[ok]] = gidx2[ok]
+        groups = groups + more
     errors: list[str] = []
-    decoded: list[tuple[int, Record]] = []
+    decoded: list[_Row] = []
     header = 0
-    for i, r in zip(keep, res, strict=True):
-        line = data[starts[i] : ends[i]]
-        if isinstance(r, FramingError) and b"," in line:
-            try:
-                r = decode_record(line.replace(b",", b"."), channels_as=channels_as, n_cores=n_cores)
-            except FramingError:
-                pass
-        if isinstance(r, FramingError):
+    for k, i in enumerate(keep):
+        if gid[k] < 0:
             if not decoded:
                 header += 1
                 if header > max_header_lines:
                     break
                 continue
-            errors.append(f"line {i + 1}: {r}")
+            errors.append(f"line {i + 1}: {res[k]}")
             continue
-        decoded.append((i + 1, r))
+        g = int(gid[k])
+        decoded.append(_Row(groups[g].lay.key, i + 1, g, int(gidx[k])))
     consensus = LayoutConsensus(quorum, window, relearn=False)
-    kept: list[Record] = []
-    for _, r in decoded:
+    kept: list[_Row] = []
+    for r in decoded:
         kept += consensus.push(r)
     kept += consensus.finish()
     if not kept:
         raise ValueError(f"{path}: neither a twin HDF5 recording nor an ILLumiSense log (no line is a "
                          "TAB-separated record: date, time, sample, C, channel blocks…)")
-    ids = {id(r) for r in kept}
+    lines_kept = {r.line for r in kept}
     layout = kept[0].layout
-    for no, r in decoded:
-        if id(r) not in ids:
-            errors.append(f"line {no}: channel layout {_describe(r.layout)} differs from the log's "
+    for r in decoded:
+        if r.line not in lines_kept:
+            errors.append(f"line {r.line}: channel layout {_describe(r.layout)} differs from the log's "
                           f"{_describe(layout)}")
     errors.sort(key=lambda e: int(e.split(":", 1)[0].split()[1]))
-    frames = [r.frame for r in kept]
-    n_sensors = max((len(r.sensors) for r in kept), default=0)
-    vendor = tuple(VendorArrays.from_sensors([r.sensors[k] if len(r.sensors) > k else None for r in kept])
-                   for k in range(n_sensors))
-    batch = Frame.stack(frames)
-    return LogContents(
-        timestamps=batch.timestamp,
-        sequences=batch.sequence,
-        wavelengths=batch.wavelengths,
-        powers=batch.powers,
-        status=batch.status,
-        vendor=vendor,
-        errors=errors,
-        odd_records=consensus.odd,
-    )
+    kept.sort(key=lambda r: r.line)
+    return _arrays(kept, groups, errors, consensus.odd)
+
+
+class _Row(NamedTuple):
+    """A decoded line: its layout (what :class:`LayoutConsensus` votes on), line number, group and row."""
+
+    layout: tuple
+    line: int
+    group: int
+    row: int
+
+
+def _arrays(kept: list[_Row], groups: list, errors: list[str], odd: int) -> LogContents:
+    """The kept rows, in line order, gathered from their groups' arrays."""
+    g_of = np.array([r.group for r in kept])
+    i_of = np.array([r.row for r in kept])
+    n = len(kept)
+    first = groups[kept[0].group]
+    out = {name: np.empty((n, *getattr(first, name).shape[1:]), getattr(first, name).dtype)
+           for name in ("wavelengths", "powers", "status", "timestamp", "sequence")}
+    sensor_layouts: list[tuple] = []  # (G, N) of each sensor's first kept block
+    for g in np.unique(g_of).tolist():
+        at = np.flatnonzero(g_of == g)
+        grp = groups[g]
+        for name, arr in out.items():
+            arr[at] = getattr(grp, name)[i_of[at]]
+        for k, (curv, _, xyz) in enumerate(_usable(grp)):
+            if k == len(sensor_layouts):
+                sensor_layouts.append((curv.shape[1], xyz.shape[1]))
+    # sensor k in the layout of its first block in line order; rows of another layout or without it absent
+    vendor = []
+    for k in range(len(sensor_layouts)):
+        ref = next(_usable(groups[r.group])[k] for r in kept if len(_usable(groups[r.group])) > k)
+        arrays = VendorArrays.absent(n, (ref[0].shape[1], ref[2].shape[1], VENDOR_SHAPE_SPACING))
+        for g in np.unique(g_of).tolist():
+            sens = _usable(groups[g])
+            if len(sens) <= k or sens[k][0].shape[1] != ref[0].shape[1] or sens[k][2].shape[1] != ref[2].shape[1]:
+                continue
+            at = np.flatnonzero(g_of == g)
+            curv, ang, xyz = sens[k]
+            arrays.curvature[at], arrays.angle[at], arrays.positions[at] = curv[i_of[at]], ang[i_of[at]], xyz[i_of[at]]
+            arrays.present[at] = True
+        vendor.append(arrays)
+    return LogContents(timestamps=out["timestamp"], sequences=out["sequence"], wavelengths=out["wavelengths"],
+                       powers=out["powers"], status=out["status"], vendor=tuple(vendor), errors=errors,
+                       odd_records=odd)
+
+
+def _usable(group) -> tuple:
+    """A group's sensor blocks that carry a shape (the decoder's rule: blocks from the first without gratings or
+    shape points on are absent)."""
+    return group.sensors[: group.usable_sensors]
 
 
 def _describe(layout: tuple) -> str:

@@ -238,8 +238,8 @@ class StreamDecoder:
     def feed_batch(self, data: bytes) -> list[Frame]:
         """Like :meth:`feed`, with the frames of consecutive records of one decoded group as one batch Frame.
 
-        The batch-first path of the live loop: no Python object is built per record. Records with sensor
-        blocks (:attr:`Frame.vendor` is one frame only) and records released by the layout consensus come as
+        The batch-first path of the live loop: no Python object is built per record (sensor blocks ride on
+        the batch as :class:`~twin.frames.VendorArrays`). Records released by the layout consensus come as
         single frames; a layout change starts a new batch.
 
         Returns
@@ -255,10 +255,7 @@ class StreamDecoder:
                 out.append(item.frame)
                 continue
             grp, i0, i1 = item
-            if grp.sensors:
-                out += [grp.frame(i) for i in range(i0, i1)]
-            else:  # views of the group's arrays; the live loop joins consecutive batches once (join_batches)
-                out.append(grp.batch(i0, i1))
+            out.append(grp.batch(i0, i1))  # views of the group's arrays; the driver joins consecutive batches
         return out
 
     def _feed(self, data: bytes) -> list:

@@ -233,7 +233,7 @@ class McapRecording:
         items = [m for m in items if m[0] < n]
         if not items:
             return ()
-        from twin.io.illumisense.vendor import VendorArrays
+        from twin.frames import VendorArrays
 
         try:
             d = _grouped([m[2] for m in items], msgs.decode_vendor)

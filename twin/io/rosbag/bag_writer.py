@@ -47,7 +47,7 @@ from twin import so3
 from twin.calibration import Calibration
 from twin.extras import require
 from twin.fiber import FiberModel
-from twin.frames import Frame, Shape
+from twin.frames import Frame, Shape, frame_vendor
 from twin.io.rosbag import ros_messages as msgs
 
 __all__ = ["FORMAT", "TOPICS", "McapRecorder"]
@@ -138,8 +138,9 @@ class McapRecorder:
         self._closed = False
 
     # ---------------------------------------------------------------- sink interface
-    def __call__(self, frames: Sequence[Frame] | Frame, shapes: Shape | None = None, status=None) -> None:
-        if isinstance(frames, Frame) or len(frames):
+    def __call__(self, frames: Frame, shapes: Shape | None = None, status=None) -> None:
+        """The live-loop sink: append a batch (an empty one is a heartbeat: flush when due)."""
+        if len(frames):
             self.append(frames, shapes)
         elif time.monotonic() - self._last_flush >= self.flush_interval:
             self.flush()
@@ -151,7 +152,7 @@ class McapRecorder:
 
         ``received``: wall-clock time of the batch, or of each frame (n,), s since the Unix epoch (default now):
         the messages' log time (NaN: now). ``vendor``: the interrogator's blocks of each frame (a tuple of
-        VendorSensor or None, n entries); default: the single frames' :attr:`Frame.vendor`.
+        VendorSensor or None, n entries); default: the frames' :attr:`Frame.vendor` (a batch's per row).
         """
         if self._closed:
             raise ValueError(f"{self.path}: recorder is closed")
@@ -159,7 +160,9 @@ class McapRecorder:
         if not items:
             return
         if vendor is None:
-            vendor = [getattr(f, "vendor", None) for f in items for _ in range(len(f) if f.batch_shape else 1)]
+            vendor = [v for f in items for v in (
+                (f.vendor,) if not f.batch_shape else
+                [frame_vendor(f.vendor, i) for i in range(len(f))] if f.vendor else [None] * len(f))]
         batch = Frame.stack(items) if not (len(items) == 1 and items[0].batch_shape) else items[0]
         n = len(batch)
         rows = self.frames_written + np.arange(n)

@@ -1,4 +1,5 @@
-"""``synthetic://`` — frames from the reconstruction's own forward model, no physics engine needed.
+"""``synthetic://`` — frames from the reconstruction's own forward model, no physics engine needed (a source
+above :mod:`twin.io`: it runs the forward model, :func:`twin.strain.forward`).
 
 The fibre bends as a circular arc whose curvature and bending plane move in time: at sample ``i`` (time
 t = i / rate) the curvature vector at every grating is κ(t)·(cos φ(t), sin φ(t)) with
@@ -45,7 +46,8 @@ from twin import strain
 from twin.curve import step_grid
 from twin.fiber import FiberModel
 from twin.frames import Frame, PeakStatus, Truth
-from twin.io.source import Source, SourceClosed, parse_url
+from twin.io.options import Option, parse_options
+from twin.io.source import MAX_BATCH, Source, SourceClosed, parse_url
 
 __all__ = ["SyntheticSource", "arc_truth", "multicore_fiber", "open_synthetic"]
 
@@ -197,7 +199,7 @@ class SyntheticSource(Source):
         self.with_truth = bool(truth)
         self.truth_s = step_grid(0.0, self.fiber.sensed_length, 1e-3)[0]
         self._index = 0  # next frame to deliver
-        self._block: list[Frame] = []
+        self._block: Frame | None = None
         self._block_start = 0
         self._t0_wall = time.time()
         self._t0 = time.monotonic()
@@ -210,7 +212,8 @@ class SyntheticSource(Source):
         kappa = self.kappa + self.kappa_amp * np.sin(2 * np.pi * t / self.period)
         return kappa, self.phi + 2 * np.pi * self.spin * t
 
-    def _generate(self, i0: int, n: int) -> list[Frame]:
+    def _generate(self, i0: int, n: int) -> Frame:
+        """Frames i0 … i0 + n − 1 as one batch (with their batched truth)."""
         idx = np.arange(i0, i0 + n)
         t = idx / self.rate
         kappa, phi = self.state(t)
@@ -230,45 +233,33 @@ class SyntheticSource(Source):
             w[lost] = np.nan
             status[lost] = _MISSING
         powers = np.where(np.isnan(w), np.nan, -20.0)
-        pos = frames = None
+        truth = None
         if self.with_truth:
             pos, frames = arc_truth(kappa, phi, self.truth_s)
-        out = []
-        zeros = np.zeros(g)
-        for j in range(n):
-            truth = None
-            if pos is not None:
-                truth = Truth(
-                    s=self.truth_s,
-                    positions=pos[j],
-                    frames=frames[j],
-                    curvature=k[j],
-                    twist=zeros,
-                    temperature=zeros,
-                )
-            out.append(
-                Frame(
-                    wavelengths=w[j],
-                    timestamp=self._t0_wall + t[j],
-                    sequence=int(idx[j]),
-                    powers=powers[j],
-                    status=status[j],
-                    truth=truth,
-                )
-            )
-        return out
+            zeros = np.zeros((n, g))
+            truth = Truth(s=self.truth_s, positions=pos, frames=frames, curvature=np.array(k), twist=zeros,
+                          temperature=zeros)
+        return Frame(wavelengths=w, timestamp=self._t0_wall + t, sequence=idx, powers=powers, status=status,
+                     truth=truth)
 
     # ------------------------------------------------------------------ Source
-    def _frame(self, i: int) -> Frame:
-        """Frame ``i``, generated with the aligned block of ``_BLOCK`` frames that holds it (so that the random
-        numbers, seeded per block, do not depend on how the frames are read)."""
-        if not self._block_start <= i < self._block_start + len(self._block):
-            start = i - i % _BLOCK
-            self._block = self._generate(start, _BLOCK)  # always whole blocks: same draws whatever the limit
-            self._block_start = start
-        return self._block[i - self._block_start]
+    def _frames(self, i: int, n: int) -> Frame:
+        """Frames i … i + n − 1, generated in the aligned blocks of ``_BLOCK`` frames that hold them (so that the
+        random numbers, seeded per block, do not depend on how the frames are read)."""
+        parts = []
+        while n > 0:
+            if not self._block_start <= i < self._block_start + _BLOCK or self._block is None:
+                start = i - i % _BLOCK
+                self._block = self._generate(start, _BLOCK)  # always whole blocks: same draws whatever the limit
+                self._block_start = start
+            j = i - self._block_start
+            take = min(n, _BLOCK - j)
+            parts.append(self._block[j : j + take])
+            i, n = i + take, n - take
+        return parts[0] if len(parts) == 1 else Frame.stack(parts)
 
-    def read(self, timeout: float | None = None) -> Frame | None:
+    def read_batch(self, max_frames: int = MAX_BATCH, timeout: float | None = None) -> Frame | None:
+        """Every frame that is due now (up to ``max_frames``), waiting up to ``timeout`` s for the first."""
         if self._closed:
             raise SourceClosed(f"{self.url}: closed")
         i = self._index
@@ -281,42 +272,40 @@ class SyntheticSource(Source):
                     time.sleep(max(0.0, timeout))
                     return None
                 time.sleep(wait)
-        self._index = i + 1
-        return self._frame(i)
-
-    def read_many(self, max_frames: int = 1 << 30, timeout: float | None = None) -> list[Frame]:
-        """Every frame that is due now (up to ``max_frames``), waiting up to ``timeout`` s for the first."""
-        first = self.read(timeout)
-        if first is None:
-            return []
-        out = [first]
-        due = (1 << 62) if not self.pace else int((time.monotonic() - self._t0) * self.rate) + 1
+        due = (1 << 62) if not self.pace else max(i + 1, int((time.monotonic() - self._t0) * self.rate) + 1)
         if self.limit is not None:
             due = min(due, self.limit)
-        while len(out) < max_frames and self._index < due:
-            out.append(self._frame(self._index))
-            self._index += 1
-        return out
+        n = max(1, min(max_frames, due - i))
+        self._index = i + n
+        return self._frames(i, n)
 
     def close(self) -> None:
         self._closed = True
-        self._block = []
+        self._block = None
 
     def stats(self) -> dict:
         return {"frames": self._index, "rate_hz": self.rate}
 
 
-def _flag(value: str, key: str) -> bool:
-    v = value.strip().lower()
-    if v in ("1", "true", "yes", "on"):
-        return True
-    if v in ("0", "false", "no", "off"):
-        return False
-    raise ValueError(f"synthetic: {key} must be 1 or 0, got {value!r}")
-
-
-_FLOATS = ("rate", "kappa", "kappa_amp", "period", "phi", "spin", "noise", "quantise", "drop", "duration")
-_INTS = ("cores", "gratings", "seed", "frames")
+#: the options of ``synthetic://`` (module docstring; :mod:`twin.io.options`)
+SYNTHETIC_OPTIONS = {
+    "rate": Option("float", low=0.0, low_open=True),
+    "pace": Option("str", choices=("realtime", "max")),
+    "cores": Option("int", low=3, high=7),
+    "gratings": Option("int", low=3, high=10_000),
+    "kappa": Option("float"),
+    "kappa_amp": Option("float"),
+    "period": Option("float", low=0.0, low_open=True),
+    "phi": Option("float"),
+    "spin": Option("float"),
+    "noise": Option("float", low=0.0),
+    "quantise": Option("float", low=0.0),
+    "drop": Option("float", low=0.0, high=0.999999),
+    "seed": Option("int", low=0),
+    "frames": Option("int", low=1),
+    "duration": Option("float", low=0.0, low_open=True),
+    "truth": Option("bool"),
+}
 
 
 def open_synthetic(url: str, **options) -> SyntheticSource:
@@ -327,23 +316,8 @@ def open_synthetic(url: str, **options) -> SyntheticSource:
     _, rest, query = parse_url(url)
     if rest.strip("/"):
         raise ValueError(f"{url!r}: synthetic URLs take only options: synthetic://?rate=1000&cores=7")
-    kw: dict = {}
-    known = {*_FLOATS, *_INTS, "pace", "truth"}
-    for key, value in query.items():
-        if key not in known:
-            raise ValueError(f"{url!r}: unknown option {key!r}; known: {', '.join(sorted(known))}")
-        try:
-            if key in _FLOATS:
-                kw[key] = float(value)
-            elif key in _INTS:
-                kw[key] = int(value)
-            elif key == "pace":
-                if value not in ("realtime", "max"):
-                    raise ValueError
-                kw["pace"] = value == "realtime"
-            else:
-                kw[key] = _flag(value, key)
-        except ValueError:
-            raise ValueError(f"{url!r}: option {key}={value!r} is not valid") from None
+    kw = parse_options(url, query, SYNTHETIC_OPTIONS)
+    if "pace" in kw:
+        kw["pace"] = kw["pace"] == "realtime"
     kw.update(options)
     return SyntheticSource(url=url, **kw)

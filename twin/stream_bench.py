@@ -8,9 +8,9 @@ CPU; docs/protocols-illumisense.md for the layout):
     Sustained throughput of the live path without the network: the pre-encoded byte stream, cut into 64 KiB
     pieces as ``recv`` would return them, goes through what :class:`twin.io.illumisense.driver.IllumisenseSource`
     and :class:`twin.live.LiveLoop` do with each piece: :meth:`~twin.io.illumisense.StreamDecoder.feed_batch`
-    (one batch Frame per piece), :func:`twin.live.join_batches` (what :func:`twin.live.read_batch` hands the
-    loop) and :meth:`twin.live.LiveLoop.process` (shape check, sequence and validity bookkeeping, one batched
-    :class:`~twin.reconstruct.Reconstructor` call per piece, ~28 frames), over the whole stream again and again
+    (one batch Frame per piece) joined into one batch (the driver's ``read_batch``), and a run of the live loop
+    (shape check, sequence and validity bookkeeping, one batched :class:`~twin.reconstruct.Reconstructor` call per
+    piece, ~28 frames, status for the sinks), over the whole stream again and again
     for three windows of ≥ 0.5 s (1 s without ``quick``); the best window is reported, as a shared machine
     slows the others down. Goal ≥ 40,000 frames/s (issue 13).
 ``decode_frames_per_s`` / ``reconstruct_frames_per_s``
@@ -27,12 +27,12 @@ CPU; docs/protocols-illumisense.md for the layout):
     block (curvature, angle, 171 shape points × 3; ≈ 6.9 kB).
 ``loopback_frames_per_s``
     The same through a real loopback TCP connection: a sender process pushes the records as fast as the
-    socket takes them and :class:`twin.io.illumisense.driver.IllumisenseSource` + :func:`twin.live.read_batch` +
-    ``LiveLoop.process`` consume them.
+    socket takes them and :class:`twin.live.LiveLoop` over :class:`twin.io.illumisense.driver.IllumisenseSource`
+    consumes them (after 20 warm-up batches).
 ``latency_us_p50`` / ``latency_us_p99`` / ``latency_us_max``
     From a frame's send to its shape, at a realistic 1 kHz on loopback: the sender process writes the wall
-    clock into each record's time field (microseconds) just before ``sendall``; the receiver reads with
-    :func:`twin.live.read_batch`, reconstructs, and takes ``time.time()`` when the batch's shapes exist. Both
+    clock into each record's time field (microseconds) just before ``sendall``; the live loop reads, reconstructs,
+    and a sink takes ``time.time()`` when the batch's shapes exist. Both
     clocks are the same system clock. 2 s (quick) or 5 s of frames.
 """
 
@@ -52,7 +52,7 @@ _CHUNK = 1 << 16
 
 
 def _frames_and_fiber(n: int = 2048):
-    from twin.io.synthetic import SyntheticSource
+    from twin.synthetic import SyntheticSource
 
     src = SyntheticSource(rate=1000, pace=False, frames=n, cores=7, gratings=18, noise=0.001, truth=False)
     return list(src), src.fiber
@@ -72,22 +72,89 @@ def _stream_bytes(frames, fiber=None) -> bytes:
                     for f, v in zip(frames, vendor_sensors(shapes), strict=True))
 
 
+class _Pieces:
+    """Byte pieces as ``recv`` would return them, through the ILLumiSense driver's decoder and its join: a source
+    (:class:`twin.io.source.Source`) for timing the loop without a socket."""
+
+    url = "bench://pieces"
+    rate = None
+
+    def __init__(self, pieces: list[bytes], fiber):
+        from twin.io import illumisense
+
+        self.fiber = fiber
+        self._pieces = iter(pieces)
+        self._decoder = illumisense.StreamDecoder()
+        self._rest = None
+
+    def read_batch(self, max_frames: int = 1024, timeout: float | None = None):
+        from twin.frames import Frame
+        from twin.io.source import SourceClosed
+
+        batch, self._rest = self._rest, None
+        while batch is None:
+            piece = next(self._pieces, None)
+            if piece is None:
+                raise SourceClosed("bench: end of the pieces")
+            items = self._decoder.feed_batch(piece)
+            if items:
+                batch = Frame.stack(items)
+        if len(batch) > max_frames:
+            batch, self._rest = batch[:max_frames], batch[max_frames:]
+        return batch
+
+    def stats(self) -> dict:
+        return {}
+
+    def describe(self) -> dict:
+        return {"url": self.url}
+
+    def close(self) -> None:
+        pass
+
+
+class _Timer:
+    """A live-loop sink timing the frames after the first ``warm`` batches (compiled kernels, caches), and
+    the latency from each frame's send time (its timestamp) to the moment its shapes exist."""
+
+    def __init__(self, warm: int = 0, latency: bool = False):
+        self.warm, self.latency = warm, latency
+        self.frames, self.t0, self.t1 = 0, None, None
+        self.lat: list[np.ndarray] = []
+
+    def __call__(self, frames, shapes, status) -> None:
+        if not len(frames):
+            return
+        now = time.perf_counter()
+        if self.latency:
+            self.lat.append(time.time() - frames.timestamp)
+        if self.warm > 0:
+            self.warm -= 1
+            self.t0 = now
+            return
+        if self.t0 is None:
+            self.t0 = now
+        self.frames += len(frames)
+        self.t1 = now
+
+    @property
+    def rate(self) -> float:
+        return self.frames / (self.t1 - self.t0) if self.t1 is not None and self.t1 > self.t0 else 0.0
+
+
 def _throughput(blob: bytes, fiber, seconds: float, vendor_blob: bytes | None = None) -> dict:
     from twin.io import illumisense
-    from twin.live import LiveLoop, join_batches
+    from twin.live import LiveLoop
     from twin.reconstruct import Reconstructor
 
     rec = Reconstructor(fiber)
-    loop = LiveLoop(None, rec, [])
     pieces = [blob[i : i + _CHUNK] for i in range(0, len(blob), _CHUNK)]
-    # warm-up: compiled kernels, caches
-    dec, dec_batch = illumisense.StreamDecoder(), illumisense.StreamDecoder()
-    for p in pieces[:4]:
-        loop.process(dec.feed(p))
-        items = dec_batch.feed_batch(p)
-        if items:
-            loop.process(join_batches(items))
 
+    def full_pass() -> int:
+        # the live loop over the driver's decoding and join (feed_batch, Frame.stack): read, reconstruct, count
+        return LiveLoop(_Pieces(pieces, fiber), rec, []).run(handle_signals=False).status.frames
+
+    full_pass()  # warm-up: compiled kernels, caches
     cpu_rates: dict = {}
 
     def best(run_once, repeats: int = 3, key: str = "") -> float:
@@ -102,15 +169,6 @@ def _throughput(blob: bytes, fiber, seconds: float, vendor_blob: bytes | None = 
             cpu.append(n / max(time.process_time() - c0, 1e-9))
         cpu_rates[key] = round(max(cpu))
         return max(rates)
-
-    def full_pass() -> int:
-        # the driver's _pump (feed_batch) and the loop's read_batch (join_batches), then process
-        dec, n = illumisense.StreamDecoder(), 0
-        for p in pieces:
-            items = dec.feed_batch(p)
-            if items:
-                n += len(loop.process(join_batches(items))[0])
-        return n
 
     def decode_pass() -> int:
         dec = illumisense.StreamDecoder()
@@ -148,7 +206,7 @@ def _throughput(blob: bytes, fiber, seconds: float, vendor_blob: bytes | None = 
 
 
 def _start_sender(mode: str, seconds: float, rate: float = 0.0) -> tuple[subprocess.Popen, int]:
-    proc = subprocess.Popen([sys.executable, "-m", "twin.io.bench", "--sender", mode, str(seconds), str(rate)],
+    proc = subprocess.Popen([sys.executable, "-m", "twin.stream_bench", "--sender", mode, str(seconds), str(rate)],
                             stdout=subprocess.PIPE, text=True)
     line = proc.stdout.readline()
     if not line.strip().isdigit():
@@ -159,57 +217,39 @@ def _start_sender(mode: str, seconds: float, rate: float = 0.0) -> tuple[subproc
 
 def _loopback(fiber, seconds: float) -> dict:
     from twin.io.illumisense.driver import IllumisenseSource
-    from twin.live import LiveLoop, read_batch
+    from twin.live import LiveLoop
     from twin.reconstruct import Reconstructor
 
-    loop = LiveLoop(None, Reconstructor(fiber), [])
     proc, port = _start_sender("flood", seconds + 2)
     src = IllumisenseSource("127.0.0.1", port)
+    timer = _Timer(warm=20)
     try:
-        for _ in range(20):  # warm-up
-            loop.process(read_batch(src, 256, 1.0))
-        n, t0 = 0, time.perf_counter()
-        while time.perf_counter() - t0 < seconds:
-            good, _, _ = loop.process(read_batch(src, 256, 1.0))
-            n += len(good)
-        rate = n / (time.perf_counter() - t0)
+        LiveLoop(src, Reconstructor(fiber), [timer]).run(duration=seconds + 0.5, handle_signals=False)
         lost = src.stats()["lost_samples"]
     finally:
         src.close()
         proc.kill()
         proc.wait()
-    return {"loopback_frames_per_s": round(rate), "loopback_lost_samples": lost}
+    return {"loopback_frames_per_s": round(timer.rate), "loopback_lost_samples": lost}
 
 
 def _latency(fiber, seconds: float, rate: float = 1000.0) -> dict:
     from twin.io.illumisense.driver import IllumisenseSource
-    from twin.live import LiveLoop, batch_timestamps, read_batch
+    from twin.live import LiveLoop
     from twin.reconstruct import Reconstructor
 
-    loop = LiveLoop(None, Reconstructor(fiber), [])
-    loop.process(_frames_and_fiber(8)[0])  # warm-up
+    rec = Reconstructor(fiber)
+    rec(np.stack([f.wavelengths for f in _frames_and_fiber(8)[0]]))  # warm-up
     proc, port = _start_sender("paced", seconds + 0.5, rate)
-    src = IllumisenseSource("127.0.0.1", port)
-    lat: list[np.ndarray] = []
+    src = IllumisenseSource("127.0.0.1", port, retry_for=0.0)
+    timer = _Timer(latency=True)
     try:
-        t_end = time.monotonic() + seconds + 10
-        while time.monotonic() < t_end:
-            frames = read_batch(src, 256, 0.5)
-            if not frames:
-                if proc.poll() is not None:
-                    break
-                continue
-            good, _, _ = loop.process(frames)
-            done = time.time()
-            sent = batch_timestamps(good)
-            lat.append(done - sent)
-            if len(frames) and src.stats()["state"] != "connected":
-                break
+        LiveLoop(src, rec, [timer]).run(duration=seconds + 10, handle_signals=False)
     finally:
         src.close()
         proc.kill()
         proc.wait()
-    us = np.concatenate(lat)[50:] * 1e6 if lat else np.zeros(1)  # skip the connection's first frames
+    us = np.concatenate(timer.lat)[50:] * 1e6 if timer.lat else np.zeros(1)  # skip the connection's first frames
     return {
         "latency_us_p50": round(float(np.percentile(us, 50)), 1),
         "latency_us_p99": round(float(np.percentile(us, 99)), 1),
@@ -292,4 +332,4 @@ if __name__ == "__main__":  # pragma: no cover
     if len(sys.argv) == 5 and sys.argv[1] == "--sender":
         _sender(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]))
     else:
-        sys.exit("usage: python -m twin.io.bench --sender flood|paced SECONDS RATE (started by `twin bench`)")
+        sys.exit("usage: python -m twin.stream_bench --sender flood|paced SECONDS RATE (started by `twin bench`)")

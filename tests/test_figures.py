@@ -1,0 +1,131 @@
+"""The figures the tool prints follow docs/figures.md, whatever path the frames take: ``twin live replay://F`` and
+``twin replay F`` report the same counts and errors; the frames compared with a reference do not depend on how
+the frames were batched; the tip error and the max error are what their definitions say (an analytic case where
+the tip error exceeds the max distance to the true curve); ``twin live`` reports the error against a truth."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from io_helpers import synthetic_frames
+
+from twin import Reconstructor
+from twin.frames import Frame, Shape, Truth, VendorSensor
+from twin.io.illumisense.vendor import vendor_sensors
+from twin.io.record import Recorder, open_recording
+from twin.io.source import open_source
+from twin.live import LiveLoop
+from twin.reference_errors import TruthError, VendorDistance
+from twin.synthetic import multicore_fiber
+
+TWIN = [sys.executable, "-m", "twin.cli"]
+ENV = {**os.environ, "MPLBACKEND": "Agg"}
+FIBER = multicore_fiber(4, 18)  # the synthetic source's default sensor
+COUNTS = ("frames", "lost_samples", "sequence_gaps", "sequence_resets", "frames_complete", "frames_partial",
+          "frames_unusable", "frames_missing_peaks", "invalid_nodes", "peaks_outside_window")
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """300 noisy frames at 100 Hz with their truth, dropped peaks, a gap, and the interrogator's own shape (ours
+    moved by a smooth bend of up to 0.5 mm, so the distance is not zero) on most frames."""
+    frames = synthetic_frames(310, rate=100, noise=0.003, drop=0.02, seed=3)
+    frames = frames[:100] + frames[110:]  # 10 samples lost
+    shapes = Reconstructor(FIBER)(np.stack([f.wavelengths for f in frames]))
+    own = vendor_sensors(shapes)
+    out = []
+    for i, (f, v) in enumerate(zip(frames, own, strict=True)):
+        s = v.s
+        bent = v.positions + np.stack([0 * s, 0.5e-3 * (s / s[-1]) ** 2, 0 * s], axis=-1)
+        blocks = None if i % 9 == 4 else (VendorSensor(v.curvature, v.angle, bent, v.spacing),)
+        out.append(Frame(f.wavelengths, f.timestamp, f.sequence, f.powers, f.status, f.truth, blocks))
+    path = tmp_path_factory.mktemp("figures") / "run.h5"
+    with Recorder(path, fiber=FIBER, rate=100) as rec:
+        for i in range(0, len(out), 37):
+            rec.append(out[i : i + 37])
+    return path
+
+
+def test_live_over_a_recording_and_replay_report_the_same_figures(recording):
+    live = subprocess.run([*TWIN, "live", f"replay://{recording}?speed=max", "--json", "--quiet"],
+                          capture_output=True, text=True, env=ENV, timeout=300)
+    replay = subprocess.run([*TWIN, "replay", str(recording), "--json"], capture_output=True, text=True, env=ENV,
+                            timeout=300)
+    assert live.returncode == 0 and replay.returncode == 0, live.stderr + replay.stderr
+    a, b = json.loads(live.stdout), json.loads(replay.stdout)
+    assert {k: a[k] for k in COUNTS} == {k: b[k] for k in COUNTS}
+    assert a["frames"] == 300 and a["lost_samples"] == 10 and a["frames_partial"] > 0
+    # one frame per 0.1 s of the recording's 3.1 s (less the 0.1 s gap): about 30, the same on both paths
+    assert a["truth"] == b["truth"] and 25 <= a["truth"]["frames_compared"] <= 32
+    vendor = ("vendor_frames_compared", "vendor_distance_max_mm", "vendor_distance_mean_mm")
+    assert {k: a[k] for k in vendor} == {k: b[k] for k in vendor}
+    assert 0.05 < a["vendor_distance_max_mm"] < 0.5 and a["vendor_frames_compared"] >= 20
+    # the text says what its frames/s measure (docs/figures.md)
+    text = subprocess.run([*TWIN, "replay", str(recording)], capture_output=True, text=True, env=ENV, timeout=300)
+    assert "reconstruction throughput" in text.stdout and "frames ÷ wall time spent reconstructing" in text.stdout
+    assert "tip to the true tip" in text.stdout and "distance to the true curve" in text.stdout
+
+
+@pytest.mark.parametrize(("max_batch", "per_second"), [(1, None), (7, None), (256, None), (1, 10.0), (7, 10.0)])
+def test_the_frames_compared_do_not_depend_on_the_batching(recording, max_batch, per_second):
+    truth, vendor = TruthError(per_second=per_second), VendorDistance(per_second=per_second)
+    reference = TruthError(per_second=per_second), VendorDistance(per_second=per_second)
+    LiveLoop(open_source(f"replay://{recording}?speed=max"), Reconstructor(FIBER), [truth, vendor],
+             max_batch=max_batch).run(handle_signals=False)
+    LiveLoop(open_source(f"replay://{recording}?speed=max"), Reconstructor(FIBER), list(reference),
+             max_batch=300).run(handle_signals=False)
+    assert truth.result() == reference[0].result()
+    assert vendor.as_dict() == reference[1].as_dict()
+    # every complete frame carrying sensor 0's block: an independent count from the recording itself
+    with open_recording(recording) as r:
+        frames = r.frames()
+        present = r.vendor()[0].present
+    complete = Reconstructor(FIBER)(frames.wavelengths).all_valid
+    eligible = complete & present
+    if per_second is None:
+        assert vendor.frames_compared == int(np.count_nonzero(eligible))
+    else:  # the first eligible frame of each 0.1 s slot of the timestamps
+        slots = np.floor(frames.timestamp[eligible] * per_second)
+        assert vendor.frames_compared == np.unique(slots).size
+
+
+def test_tip_error_and_max_error_follow_their_definitions():
+    """A straight reconstruction 10 % too short against a straight truth: every registered point lies on the
+    true line (max distance to the true curve 0), but the tip is 5 % of the length from the true tip at the same
+    arc length (Kabsch centres the two: the shift is 0.05 L)."""
+    L, n = 0.2, 201
+    s = np.linspace(0.0, L, n)
+    line = np.stack([0 * s, 0 * s, s], axis=-1)
+    short = np.stack([0 * s, 0 * s, 0.9 * s], axis=-1)
+    frames_ = np.broadcast_to(np.eye(3), (n, 3, 3))
+    shapes = Shape(s=s, positions=short[None], frames=frames_[None], curvature=np.zeros((1, 3, 2)),
+                   grating_s=s[[0, 100, 200]], valid=np.ones((1, 3), bool))
+    truth = Truth(s=s, positions=line[None], frames=frames_[None], curvature=np.zeros((1, 3, 2)),
+                  twist=np.zeros((1, 3)), temperature=np.zeros((1, 3)))
+    batch = Frame(np.full((1, 3, 1), 1550.0), truth=truth)
+    sink = TruthError()
+    sink(batch, shapes, None)
+    r = sink.result()
+    assert r.frames_compared == 1
+    assert r.max_error_mm == pytest.approx(0.0, abs=1e-9) and r.mean_error_mm == pytest.approx(0.0, abs=1e-9)
+    assert r.tip_error_mm_max == pytest.approx(0.05 * L * 1e3, rel=1e-9)
+
+
+def test_twin_live_reports_the_error_against_the_truth():
+    out = subprocess.run([*TWIN, "live", "synthetic://?pace=max&frames=400&rate=100&noise=0.002", "--json",
+                          "--print-rate", "1000"], capture_output=True, text=True, env=ENV, timeout=300)
+    assert out.returncode == 0, out.stderr
+    summary = json.loads(out.stdout)
+    t = summary["truth"]
+    # 400 frames at 100 Hz: 4 s of source time, one frame per 0.1 s slot (41 when the first starts mid-slot)
+    assert summary["frames_complete"] == 400 and t["frames_compared"] in (40, 41) and t["register"] == "kabsch"
+    assert 0 < t["mean_error_mm"] <= t["max_error_mm"] < 1.0
+    assert "vs truth max" in out.stderr  # the status lines (on stderr with --json)
+    text = subprocess.run([*TWIN, "live", "synthetic://?pace=max&frames=100&rate=5", "--quiet"],
+                          capture_output=True, text=True, env=ENV, timeout=300)
+    assert "vs truth (100 frames, kabsch)" in text.stdout  # 5 Hz: each frame in its own 0.1 s slot

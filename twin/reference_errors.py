@@ -1,0 +1,276 @@
+"""The reconstruction against a reference the frames carry: the simulator's truth and the interrogator's own
+shape (ILLumiSense sensor blocks). Both are live-loop sinks, so ``twin live``, ``twin replay`` (live over a file
+source), the demo and the tests count the same frames the same way; docs/figures.md defines every figure.
+
+- :class:`TruthError`: :func:`twin.metrics.shape_error` against the truth (registration ``register``): per frame
+  the max, mean and RMS distance from the registered points to the true curve, and the tip error (the
+  registered tip to the true point at the same arc length — a point-to-point distance, which may exceed the
+  point-to-curve max).
+- :class:`VendorDistance`: the same point-to-curve figures against the vendor's shape after a rigid (Kabsch)
+  registration over their common arc length (:func:`vendor_distance`); the vendor frame convention is
+  :data:`twin.io.illumisense.vendor.VENDOR_FROM_BASE`'s, and the registration makes the figures independent
+  of it.
+
+Which frames: among the frames whose reconstruction is complete (all gratings solved) and which carry the
+reference (a truth present; sensor ``sensor``'s block present), the first of each 1/``per_second`` s slot of the
+source's timestamps (10 a second of source time by default: a comparison costs about as much as a
+reconstruction, so every frame of a 1 kHz stream would not keep up); ``per_second=None`` takes every one. A frame
+without a timestamp is a slot of its own. The rule depends on the frames only, never on how they were batched or
+paced, so every path compares the same frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from twin.frames import Frame, Shape
+from twin.metrics import ErrorStats, kabsch, shape_error
+
+__all__ = ["TruthError", "TruthErrors", "VendorDistance", "vendor_distance", "vendor_in_base"]
+
+
+def vendor_distance(positions: np.ndarray, s: np.ndarray, vendor_positions: np.ndarray, vendor_s: np.ndarray):
+    """Distance from our reconstructions to the vendor's shapes after a rigid (Kabsch) registration.
+
+    Parameters
+    ----------
+    positions : ndarray, shape (..., m, 3)
+        Our reconstructions, m, at arc lengths ``s`` (m,).
+    vendor_positions : ndarray, shape (..., N, 3)
+        The vendor's shapes, m, at arc lengths ``vendor_s`` (N,) from the same base.
+    s, vendor_s : ndarray
+
+    Returns
+    -------
+    ErrorStats or None
+        :func:`twin.metrics.shape_error` over the common arc length (pairs by arc length, Kabsch, exact
+        point-to-polyline distances); None when fewer than 3 of our points lie on the vendor's shape.
+    """
+    if vendor_s.size < 2:  # a block with fewer than 2 shape points has no curve (nor a last point to index)
+        return None
+    keep = s <= vendor_s[-1] + 1e-9
+    if np.count_nonzero(keep) < 3:
+        return None
+    return shape_error(positions[..., keep, :], vendor_positions, s=s[keep], truth_s=vendor_s, register="kabsch")
+
+
+def vendor_in_base(positions: np.ndarray, s: np.ndarray, vendor_positions: np.ndarray, vendor_s: np.ndarray
+                   ) -> tuple[np.ndarray, ErrorStats] | None:
+    """The vendor's shape moved onto one reconstruction by the registration :func:`vendor_distance` makes.
+
+    :func:`vendor_distance` moves our points onto the vendor's (Kabsch over the common arc length); this applies
+    the inverse motion to the vendor's points instead, so the distances from our points to the moved vendor
+    polyline are the reported ones (what the viewer draws is what is reported).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (m, 3)
+        One reconstruction in its base frame, m, at arc lengths ``s`` (m,).
+    vendor_positions : ndarray, shape (N, 3)
+        The vendor's shape, m, vendor frame, at arc lengths ``vendor_s`` (N,).
+
+    Returns
+    -------
+    (ndarray (N, 3), ErrorStats) or None
+        The vendor's points in our base frame, m, and :func:`vendor_distance`'s figures; None when the two do
+        not overlap over 3 points or the vendor's shape has NaN points.
+    """
+    v = np.asarray(vendor_positions, dtype=np.float64)
+    vs = np.asarray(vendor_s, dtype=np.float64)
+    if not np.isfinite(v).all():
+        return None
+    p = np.asarray(positions, dtype=np.float64)
+    e = vendor_distance(p, s, v, vs)
+    if e is None:
+        return None
+    keep = s <= vs[-1] + 1e-9
+    paired = np.stack([np.interp(s[keep], vs, v[:, k]) for k in range(3)], axis=-1)
+    R, t = kabsch(p[keep], paired)  # ours → vendor, the motion shape_error applies
+    return (v - t) @ R, e
+
+
+def _mm(x: float) -> float:
+    return round(float(x) * 1e3, 4)
+
+
+@dataclass(frozen=True)
+class TruthErrors:
+    """Shape error against the truth over ``frames_compared`` frames, mm (docs/figures.md).
+
+    ``mean_error_mm`` is the mean over frames of each frame's mean point-to-curve distance, ``max_error_mm``
+    the largest point-to-curve distance of any frame, ``rms_error_mm`` the RMS over all points of all frames,
+    ``tip_error_mm_mean`` / ``_max`` the mean and largest tip error (point to the true point at the same arc
+    length)."""
+
+    frames_compared: int
+    register: str
+    mean_error_mm: float
+    max_error_mm: float
+    rms_error_mm: float
+    tip_error_mm_mean: float
+    tip_error_mm_max: float
+
+
+class _Slots:
+    """The first eligible frame of each 1/``per_second`` s slot of the source's timestamps (module docstring)."""
+
+    def __init__(self, per_second: float | None):
+        if per_second is not None and not per_second > 0:
+            raise ValueError(f"per_second must be positive (or None: every frame), got {per_second}")
+        self.per_second = per_second
+        self._last = np.nan  # slot of the last frame taken
+
+    def take(self, eligible: np.ndarray, timestamps: np.ndarray) -> np.ndarray:
+        """Indices of the frames to compare, of those ``eligible`` (bool per frame)."""
+        idx = np.flatnonzero(eligible)
+        if self.per_second is None or not idx.size:
+            return idx
+        slot = np.floor(np.asarray(timestamps, np.float64)[idx] * self.per_second)
+        prev = np.concatenate([[self._last], slot[:-1]])
+        new = ~(slot == prev)  # NaN (no timestamp) never equals: a slot of its own
+        self._last = slot[-1]
+        return idx[new]
+
+
+class TruthError:
+    """Live-loop sink: the shape error against the truth the frames carry (module docstring for which frames).
+
+    Parameters
+    ----------
+    register : str
+        Registration before comparing (:func:`twin.metrics.shape_error`).
+    per_second : float or None
+        Frames compared per second of source time (module docstring); None: every eligible frame.
+
+    Attributes
+    ----------
+    latest : ErrorStats or None
+        The last compared frame's figures (for status lines).
+    note : str or None
+        Why the comparison stopped (a truth that does not cover the reconstruction), once.
+    seen_truth : bool
+        Some frame carried a truth.
+    """
+
+    def __init__(self, register: str = "kabsch", per_second: float | None = 10.0):
+        self.register = register
+        self._slots = _Slots(per_second)
+        self._parts: dict[str, list[np.ndarray]] = {"mean": [], "max": [], "rms": [], "tip": []}
+        self.latest: ErrorStats | None = None
+        self.note: str | None = None
+        self.seen_truth = False
+
+    def __call__(self, frames: Frame, shapes: Shape | None, status) -> None:
+        truth = frames.truth
+        if not len(frames) or truth is None:
+            return
+        self.seen_truth = True
+        if shapes is None or self.note is not None:
+            return
+        sel = self._slots.take(shapes.all_valid & truth.all_present, frames.timestamp)
+        if not sel.size:
+            return
+        try:
+            e = shape_error(shapes.positions[sel], truth.positions[sel], s=shapes.s, truth_s=truth.s,
+                            register=self.register)
+        except ValueError as exc:
+            self.note = f"truth comparison skipped: {exc}"
+            return
+        for k, parts in self._parts.items():
+            parts.append(np.atleast_1d(getattr(e, k)))
+        last = -1
+        self.latest = ErrorStats(*(float(np.atleast_1d(getattr(e, k))[last]) for k in ("max", "mean", "rms", "tip")))
+
+    @property
+    def frames_compared(self) -> int:
+        return int(sum(a.size for a in self._parts["mean"]))
+
+    def result(self) -> TruthErrors | None:
+        """The figures over every compared frame, or None when none was compared."""
+        if not self._parts["mean"]:
+            return None
+        e = {k: np.concatenate(v) for k, v in self._parts.items()}
+        return TruthErrors(
+            frames_compared=int(e["mean"].size),
+            register=self.register,
+            mean_error_mm=_mm(e["mean"].mean()),
+            max_error_mm=_mm(e["max"].max()),
+            rms_error_mm=_mm(np.sqrt(np.mean(e["rms"] ** 2))),
+            tip_error_mm_mean=_mm(e["tip"].mean()),
+            tip_error_mm_max=_mm(e["tip"].max()),
+        )
+
+    def status_text(self) -> str | None:
+        """The latest frame's error, for a status line (None before the first comparison)."""
+        e = self.latest
+        if e is None:
+            return None
+        return f"vs truth max {e.max * 1e3:.2f} mm, tip {e.tip * 1e3:.2f} mm"
+
+
+class VendorDistance:
+    """Live-loop sink: the distance from our shapes to the interrogator's own (sensor ``sensor``'s blocks,
+    :attr:`Frame.vendor <twin.frames.Frame.vendor>`), module docstring for which frames.
+
+    Parameters
+    ----------
+    sensor : int
+        Which sensor block is the fibre we reconstruct (0: the first).
+    per_second : float or None
+        Frames compared per second of source time (module docstring); None: every eligible frame.
+    """
+
+    def __init__(self, sensor: int = 0, per_second: float | None = 10.0):
+        self.sensor = sensor
+        self._slots = _Slots(per_second)
+        self._max: list[np.ndarray] = []
+        self._mean: list[np.ndarray] = []
+        self.latest: ErrorStats | None = None
+        self.skipped = 0
+
+    def add(self, positions: np.ndarray, s: np.ndarray, vendor_positions: np.ndarray, vendor_s: np.ndarray) -> None:
+        """Compare a batch: ours (n, m, 3) at ``s`` with the vendor's (n, N, 3) at ``vendor_s``."""
+        if len(positions) == 0:
+            return
+        ok = np.isfinite(positions).all(axis=(1, 2)) & np.isfinite(vendor_positions).all(axis=(1, 2))
+        if not ok.all():
+            self.skipped += int(np.count_nonzero(~ok))
+            positions, vendor_positions = positions[ok], vendor_positions[ok]
+            if not len(positions):
+                return
+        e = vendor_distance(positions, s, vendor_positions, vendor_s)
+        if e is None:
+            self.skipped += len(positions)
+            return
+        self._max.append(np.atleast_1d(e.max))
+        self._mean.append(np.atleast_1d(e.mean))
+        self.latest = ErrorStats(*(float(np.atleast_1d(getattr(e, k))[-1]) for k in ("max", "mean", "rms", "tip")))
+
+    def __call__(self, frames: Frame, shapes: Shape | None, status) -> None:
+        v = frames.vendor
+        if not len(frames) or shapes is None or not v or len(v) <= self.sensor:
+            return
+        arrays = v[self.sensor]
+        sel = self._slots.take(arrays.present & shapes.all_valid, frames.timestamp)
+        if sel.size:
+            self.add(shapes.positions[sel], shapes.s, arrays.positions[sel], arrays.s)
+
+    @property
+    def frames_compared(self) -> int:
+        return int(sum(a.size for a in self._max))
+
+    def as_dict(self) -> dict:
+        """``vendor_frames_compared``, ``vendor_distance_max_mm`` (largest over frames),
+        ``vendor_distance_mean_mm`` (mean over frames of the mean distance); empty when nothing was compared."""
+        if not self._max:
+            return {}
+        mx, mean = np.concatenate(self._max), np.concatenate(self._mean)
+        return {"vendor_frames_compared": int(mx.size), "vendor_distance_max_mm": _mm(mx.max()),
+                "vendor_distance_mean_mm": _mm(mean.mean())}
+
+    def status_text(self) -> str | None:
+        """The latest compared frame's distance, for a status line (None before the first comparison)."""
+        e = self.latest
+        return None if e is None else f"vs interrogator max {e.max * 1e3:.2f} mm"
