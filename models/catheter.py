@@ -214,11 +214,11 @@ class CatheterSpec:
         ``<option tolerance>`` of the constraint solver. MuJoCo's default 1e-8 leaves a relative noise of
         ≈ 4e-6 on a settled twist rate; 1e-10 ≈ 5e-8, 1e-12 ≈ 6e-10 (≈ 15 % slower with connect constraints).
     solver_iterations : int
-        ``<option iterations>``: most Newton iterations per step (MuJoCo's default 100). With connect constraints
-        the warm-started solver stops after one iteration anyway; in a sheath (≈ 70 contacts) it takes 8 on
-        average and up to 16, and the last few, spent on the 1e-10 tolerance, cost most: capped at 10 the
-        sheath steps ≈ 1.6× faster, the rest carried by the warm start into the next step (docs/simulation.md
-        §8 gives the measured effect on the scenarios).
+        ``<option iterations>``: most Newton iterations per step (MuJoCo's default 100). MuJoCo 4.0's step costs
+        more the higher this cap is, whether the solver gets there or not: in a sheath (≈ 70 contacts, 8
+        iterations on average, at most 16) a cap of 30 steps ≈ 1.5× faster than 100 with bit-identical results
+        (docs/simulation.md §4). With connect constraints the warm-started solver stops after one iteration. A
+        scene with a fibre in a lumen keeps 100 (:func:`models.lumen_fiber.add_fiber`).
     """
 
     name: str = "cath"
@@ -241,7 +241,7 @@ class CatheterSpec:
     contact_solimp: tuple[float, float, float] = (0.95, 0.99, 0.001)
     dof_damping: float = 0.01
     solver_tolerance: float = 1e-10
-    solver_iterations: int = 10
+    solver_iterations: int = 30
 
     def __post_init__(self) -> None:
         owner = "CatheterSpec"
