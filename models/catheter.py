@@ -214,11 +214,10 @@ class CatheterSpec:
         ``<option tolerance>`` of the constraint solver. MuJoCo's default 1e-8 leaves a relative noise of
         ≈ 4e-6 on a settled twist rate; 1e-10 ≈ 5e-8, 1e-12 ≈ 6e-10 (≈ 15 % slower with connect constraints).
     solver_iterations : int
-        ``<option iterations>``: most Newton iterations per step (MuJoCo's default 100). MuJoCo 4.0's step costs
-        more the higher this cap is, whether the solver gets there or not: in a sheath (≈ 70 contacts, 8
-        iterations on average, at most 16) a cap of 30 steps ≈ 1.5× faster than 100 with bit-identical results
-        (docs/simulation.md §4). With connect constraints the warm-started solver stops after one iteration. A
-        scene with a fibre in a lumen keeps 100 (:func:`models.lumen_fiber.add_fiber`).
+        ``<option iterations>``: most Newton iterations per step; MuJoCo's default 100, kept. MuJoCo 4.0's step
+        costs more the higher this cap is, whether the solver gets there or not (a sheath step ≈ 1.5× faster at
+        30, bit-identical in ``sim://sheath-cycle``), but lower caps bind in the vascular sheath and for a glued
+        fibre, and change their physics (docs/simulation.md §4).
     """
 
     name: str = "cath"
@@ -241,7 +240,7 @@ class CatheterSpec:
     contact_solimp: tuple[float, float, float] = (0.95, 0.99, 0.001)
     dof_damping: float = 0.01
     solver_tolerance: float = 1e-10
-    solver_iterations: int = 30
+    solver_iterations: int = 100
 
     def __post_init__(self) -> None:
         owner = "CatheterSpec"

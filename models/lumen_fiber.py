@@ -56,8 +56,6 @@ __all__ = ["PLACEMENT_RAMP", "TRACTION_RAMP", "FiberHandle", "FiberSpec", "Lumen
 
 #: s, over which the lead's traction is ramped in from the first step (quasi-static loading)
 TRACTION_RAMP = 1.0
-#: ``<option iterations>`` of a scene with a fibre in a lumen (MuJoCo's default; see :func:`add_fiber`)
-FIBER_SOLVER_ITERATIONS = 100
 #: m, over which a randomly placed fibre leaves the axis beyond its most distal glue spot (place_fiber)
 PLACEMENT_RAMP = 0.01
 
@@ -222,10 +220,6 @@ def add_fiber(scene: Scene, rod: RodHandle, spec: FiberSpec | None = None, world
     """
     spec = spec or FiberSpec()
     cath = rod.spec
-    # MuJoCo's default cap on Newton iterations: the glue's equalities against a catheter moving in a sheath
-    # sometimes need more than 50 (a glued fibre's curvature then left the catheter's by up to 0.5 1/m with 20–50;
-    # docs/simulation.md §4), so a scene with a fibre keeps it whatever CatheterSpec.solver_iterations says
-    scene.options["iterations"] = FIBER_SOLVER_ITERATIONS
     l = cath.segment_length
     cs = cath.vertex_s
     lo = spec.base_s()

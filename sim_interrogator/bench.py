@@ -10,8 +10,8 @@ Setup: the default 8 Fr catheter (100 segments) held in the library helix by con
   the gratings, wavelengths with every effect); the truth attached to each frame is reported apart
   (``truth_us_per_frame``).
 * ``sheath_steps_per_s``: physics steps per wall second of the catheter in the default sheath
-  (``sim://sheath-cycle``: 100 segments, 2 ms, ≈ 70 contacts), the frames at 100 Hz — where the contact solver
-  bounds every sheath scenario and design study.
+  (``sim://sheath-cycle``: 100 segments, 2 ms, ≈ 70 contacts), the frames at 100 Hz — where the contact solve
+  bounds every sheath scenario and design study (docs/simulation.md §4).
 * ``realtime_factor_50_segments``: ``realtime_factor`` with a 50-segment rod (what the integration study's sheath
   cycles use); docs/simulation.md §8 gives the accuracy this costs.
 """
