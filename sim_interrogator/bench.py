@@ -13,7 +13,7 @@ Setup: the default 8 Fr catheter (100 segments) held in the library helix by con
   (``sim://sheath-cycle``: 100 segments, 2 ms, ≈ 70 contacts), the frames at 100 Hz — where the contact solve
   bounds every sheath scenario and design study (docs/simulation.md §4).
 * ``realtime_factor_50_segments``: ``realtime_factor`` with a 50-segment rod (what the integration study's sheath
-  cycles use); docs/simulation.md §8 gives the accuracy this costs.
+  cycles use); docs/simulation.md §4 gives the accuracy this costs.
 """
 
 from __future__ import annotations
