@@ -149,7 +149,7 @@ def test_round_trip_random_layouts(n, central, seed):
     rng = np.random.default_rng(seed)
     angles = np.sort(rng.uniform(0, 2 * np.pi, n))
     if np.min(np.abs(np.diff(np.r_[angles, angles[0] + 2 * np.pi]))) < 0.3:
-        angles = np.arange(n) * 2 * np.pi / n + rng.uniform(0, 1)
+        angles = (np.arange(n) * 2 * np.pi / n + rng.uniform(0, 1)) % (2 * np.pi)  # within the model's ±2π
     radii = rng.uniform(20e-6, 500e-6, n)
     if central:
         angles, radii = np.r_[0.0, angles], np.r_[0.0, radii]

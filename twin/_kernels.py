@@ -21,13 +21,13 @@ _SQRT3_12 = np.sqrt(3.0) / 12.0
 
 
 @njit(cache=True, nogil=True)
-def _rate(rates, f, j, i, frenet):
-    """Body angular rate u at sample i of step j of curve f."""
-    a = rates[f, 0, j, i]
-    b = rates[f, 1, j, i]
+def _rate(rates, j, i, frenet):
+    """Body angular rate u at sample i of step j of one curve's rates (C, n, m)."""
+    a = rates[0, j, i]
+    b = rates[1, j, i]
     if frenet:
         return a, 0.0, b
-    g = rates[f, 2, j, i] if rates.shape[1] > 2 else 0.0
+    g = rates[2, j, i] if rates.shape[0] > 2 else 0.0
     return -b, a, g
 
 
@@ -47,79 +47,88 @@ def exp_chain(rates, frenet, h, r0, pos, frames):
     Per step (docs/math.md §3.5): φ = h/2 (u1 + u2) + √3h²/12 (u1 × u2), ρ = h e_T + √3h²/12 (u1 − u2) × e_T,
     R⁺ = R exp(φ̂), p⁺ = p + R V(φ) ρ with V = I + B φ̂ + C φ̂².
     """
-    n_f, _, n, m = rates.shape
+    for f in range(rates.shape[0]):
+        exp_curve(rates[f], frenet, h, r0[f], pos[f], frames[f], True)
+
+
+@njit(cache=True, nogil=True)
+def exp_curve(rates, frenet, h, r0, pos, frames, store_frames):
+    """:func:`exp_chain` for one curve: rates (C, n, m), r0 (3, 3), pos (n + 1, 3), frames (n + 1, 3, 3) written
+    only when ``store_frames`` (else any array, untouched)."""
+    _, n, m = rates.shape
     c = _SQRT3_12 * h * h
     t0 = 1.0 if frenet else 0.0
     t2_ = 0.0 if frenet else 1.0
-    for f in range(n_f):
-        r00, r01, r02 = r0[f, 0, 0], r0[f, 0, 1], r0[f, 0, 2]
-        r10, r11, r12 = r0[f, 1, 0], r0[f, 1, 1], r0[f, 1, 2]
-        r20, r21, r22 = r0[f, 2, 0], r0[f, 2, 1], r0[f, 2, 2]
-        px = 0.0
-        py = 0.0
-        pz = 0.0
-        pos[f, 0, 0] = 0.0
-        pos[f, 0, 1] = 0.0
-        pos[f, 0, 2] = 0.0
+    r00, r01, r02 = r0[0, 0], r0[0, 1], r0[0, 2]
+    r10, r11, r12 = r0[1, 0], r0[1, 1], r0[1, 2]
+    r20, r21, r22 = r0[2, 0], r0[2, 1], r0[2, 2]
+    px = 0.0
+    py = 0.0
+    pz = 0.0
+    pos[0, 0] = 0.0
+    pos[0, 1] = 0.0
+    pos[0, 2] = 0.0
+    if store_frames:
         for i in range(3):
             for j in range(3):
-                frames[f, 0, i, j] = r0[f, i, j]
-        for j in range(n):
-            a0, a1, a2 = _rate(rates, f, j, 0, frenet)
-            b0, b1, b2 = _rate(rates, f, j, m - 1, frenet)
-            x0 = 0.5 * h * (a0 + b0) + c * (a1 * b2 - a2 * b1)
-            x1 = 0.5 * h * (a1 + b1) + c * (a2 * b0 - a0 * b2)
-            x2 = 0.5 * h * (a2 + b2) + c * (a0 * b1 - a1 * b0)
-            d0, d1, d2 = c * (a0 - b0), c * (a1 - b1), c * (a2 - b2)
-            # ρ = h e_T + d × e_T, with e_T = (t0, 0, t2_)
-            q0 = h * t0 + d1 * t2_
-            q1 = d2 * t0 - d0 * t2_
-            q2 = h * t2_ - d1 * t0
-            aa, bb, cc = exp_coefficients(x0 * x0 + x1 * x1 + x2 * x2)
-            # E = exp(φ̂) = I + A φ̂ + B φ̂²
-            e00 = 1.0 - bb * (x1 * x1 + x2 * x2)
-            e11 = 1.0 - bb * (x0 * x0 + x2 * x2)
-            e22 = 1.0 - bb * (x0 * x0 + x1 * x1)
-            e01 = -aa * x2 + bb * x0 * x1
-            e10 = aa * x2 + bb * x0 * x1
-            e02 = aa * x1 + bb * x0 * x2
-            e20 = -aa * x1 + bb * x0 * x2
-            e12 = -aa * x0 + bb * x1 * x2
-            e21 = aa * x0 + bb * x1 * x2
-            # v = V(φ) ρ = ρ + B φ×ρ + C φ×(φ×ρ)
-            w0 = x1 * q2 - x2 * q1
-            w1 = x2 * q0 - x0 * q2
-            w2 = x0 * q1 - x1 * q0
-            v0 = q0 + bb * w0 + cc * (x1 * w2 - x2 * w1)
-            v1 = q1 + bb * w1 + cc * (x2 * w0 - x0 * w2)
-            v2 = q2 + bb * w2 + cc * (x0 * w1 - x1 * w0)
-            px += r00 * v0 + r01 * v1 + r02 * v2
-            py += r10 * v0 + r11 * v1 + r12 * v2
-            pz += r20 * v0 + r21 * v1 + r22 * v2
-            n00 = r00 * e00 + r01 * e10 + r02 * e20
-            n01 = r00 * e01 + r01 * e11 + r02 * e21
-            n02 = r00 * e02 + r01 * e12 + r02 * e22
-            n10 = r10 * e00 + r11 * e10 + r12 * e20
-            n11 = r10 * e01 + r11 * e11 + r12 * e21
-            n12 = r10 * e02 + r11 * e12 + r12 * e22
-            n20 = r20 * e00 + r21 * e10 + r22 * e20
-            n21 = r20 * e01 + r21 * e11 + r22 * e21
-            n22 = r20 * e02 + r21 * e12 + r22 * e22
-            r00, r01, r02 = n00, n01, n02
-            r10, r11, r12 = n10, n11, n12
-            r20, r21, r22 = n20, n21, n22
-            pos[f, j + 1, 0] = px
-            pos[f, j + 1, 1] = py
-            pos[f, j + 1, 2] = pz
-            frames[f, j + 1, 0, 0] = r00
-            frames[f, j + 1, 0, 1] = r01
-            frames[f, j + 1, 0, 2] = r02
-            frames[f, j + 1, 1, 0] = r10
-            frames[f, j + 1, 1, 1] = r11
-            frames[f, j + 1, 1, 2] = r12
-            frames[f, j + 1, 2, 0] = r20
-            frames[f, j + 1, 2, 1] = r21
-            frames[f, j + 1, 2, 2] = r22
+                frames[0, i, j] = r0[i, j]
+    for j in range(n):
+        a0, a1, a2 = _rate(rates, j, 0, frenet)
+        b0, b1, b2 = _rate(rates, j, m - 1, frenet)
+        x0 = 0.5 * h * (a0 + b0) + c * (a1 * b2 - a2 * b1)
+        x1 = 0.5 * h * (a1 + b1) + c * (a2 * b0 - a0 * b2)
+        x2 = 0.5 * h * (a2 + b2) + c * (a0 * b1 - a1 * b0)
+        d0, d1, d2 = c * (a0 - b0), c * (a1 - b1), c * (a2 - b2)
+        # ρ = h e_T + d × e_T, with e_T = (t0, 0, t2_)
+        q0 = h * t0 + d1 * t2_
+        q1 = d2 * t0 - d0 * t2_
+        q2 = h * t2_ - d1 * t0
+        aa, bb, cc = exp_coefficients(x0 * x0 + x1 * x1 + x2 * x2)
+        # E = exp(φ̂) = I + A φ̂ + B φ̂²
+        e00 = 1.0 - bb * (x1 * x1 + x2 * x2)
+        e11 = 1.0 - bb * (x0 * x0 + x2 * x2)
+        e22 = 1.0 - bb * (x0 * x0 + x1 * x1)
+        e01 = -aa * x2 + bb * x0 * x1
+        e10 = aa * x2 + bb * x0 * x1
+        e02 = aa * x1 + bb * x0 * x2
+        e20 = -aa * x1 + bb * x0 * x2
+        e12 = -aa * x0 + bb * x1 * x2
+        e21 = aa * x0 + bb * x1 * x2
+        # v = V(φ) ρ = ρ + B φ×ρ + C φ×(φ×ρ)
+        w0 = x1 * q2 - x2 * q1
+        w1 = x2 * q0 - x0 * q2
+        w2 = x0 * q1 - x1 * q0
+        v0 = q0 + bb * w0 + cc * (x1 * w2 - x2 * w1)
+        v1 = q1 + bb * w1 + cc * (x2 * w0 - x0 * w2)
+        v2 = q2 + bb * w2 + cc * (x0 * w1 - x1 * w0)
+        px += r00 * v0 + r01 * v1 + r02 * v2
+        py += r10 * v0 + r11 * v1 + r12 * v2
+        pz += r20 * v0 + r21 * v1 + r22 * v2
+        n00 = r00 * e00 + r01 * e10 + r02 * e20
+        n01 = r00 * e01 + r01 * e11 + r02 * e21
+        n02 = r00 * e02 + r01 * e12 + r02 * e22
+        n10 = r10 * e00 + r11 * e10 + r12 * e20
+        n11 = r10 * e01 + r11 * e11 + r12 * e21
+        n12 = r10 * e02 + r11 * e12 + r12 * e22
+        n20 = r20 * e00 + r21 * e10 + r22 * e20
+        n21 = r20 * e01 + r21 * e11 + r22 * e21
+        n22 = r20 * e02 + r21 * e12 + r22 * e22
+        r00, r01, r02 = n00, n01, n02
+        r10, r11, r12 = n10, n11, n12
+        r20, r21, r22 = n20, n21, n22
+        pos[j + 1, 0] = px
+        pos[j + 1, 1] = py
+        pos[j + 1, 2] = pz
+        if store_frames:
+            frames[j + 1, 0, 0] = r00
+            frames[j + 1, 0, 1] = r01
+            frames[j + 1, 0, 2] = r02
+            frames[j + 1, 1, 0] = r10
+            frames[j + 1, 1, 1] = r11
+            frames[j + 1, 1, 2] = r12
+            frames[j + 1, 2, 0] = r20
+            frames[j + 1, 2, 1] = r21
+            frames[j + 1, 2, 2] = r22
 
 
 @njit(cache=True, nogil=True)
@@ -132,8 +141,8 @@ def _hat_mul(r, u, out):
 
 
 @njit(cache=True, nogil=True)
-def _rate_vec(rates, f, j, i, frenet, out):
-    a, b, c = _rate(rates, f, j, i, frenet)
+def _rate_vec(rates, j, i, frenet, out):
+    a, b, c = _rate(rates, j, i, frenet)
     out[0] = a
     out[1] = b
     out[2] = c
@@ -147,7 +156,14 @@ def rk4_chain(rates, frenet, h, r0, pos, frames):
     The frame is not re-orthonormalised (the drift is part of what the method comparison shows).
     Arrays as :func:`exp_chain`.
     """
-    n_f, _, n, _ = rates.shape
+    for f in range(rates.shape[0]):
+        rk4_curve(rates[f], frenet, h, r0[f], pos[f], frames[f], True)
+
+
+@njit(cache=True, nogil=True)
+def rk4_curve(rates, frenet, h, r0, pos, frames, store_frames):
+    """:func:`rk4_chain` for one curve; arrays as :func:`exp_curve`."""
+    _, n, _ = rates.shape
     tangent_axis = 0 if frenet else 2
     ul = np.empty(3)
     um = np.empty(3)
@@ -158,38 +174,39 @@ def rk4_chain(rates, frenet, h, r0, pos, frames):
     k3 = np.empty((3, 3))
     k4 = np.empty((3, 3))
     tmp = np.empty((3, 3))
-    for f in range(n_f):
-        p = np.zeros(3)
-        for i in range(3):
-            for j in range(3):
-                r[i, j] = r0[f, i, j]
-                frames[f, 0, i, j] = r[i, j]
-            pos[f, 0, i] = 0.0
-        for j in range(n):
-            _rate_vec(rates, f, j, 0, frenet, ul)
-            _rate_vec(rates, f, j, 1, frenet, um)
-            _rate_vec(rates, f, j, 2, frenet, ur)
-            _hat_mul(r, ul, k1)
-            for a in range(3):
+    p = np.zeros(3)
+    for i in range(3):
+        for j in range(3):
+            r[i, j] = r0[i, j]
+            if store_frames:
+                frames[0, i, j] = r[i, j]
+        pos[0, i] = 0.0
+    for j in range(n):
+        _rate_vec(rates, j, 0, frenet, ul)
+        _rate_vec(rates, j, 1, frenet, um)
+        _rate_vec(rates, j, 2, frenet, ur)
+        _hat_mul(r, ul, k1)
+        for a in range(3):
+            for b in range(3):
+                tmp[a, b] = r[a, b] + 0.5 * h * k1[a, b]
+        p2 = tmp[:, tangent_axis].copy()
+        _hat_mul(tmp, um, k2)
+        for a in range(3):
+            for b in range(3):
+                tmp[a, b] = r[a, b] + 0.5 * h * k2[a, b]
+        p3 = tmp[:, tangent_axis].copy()
+        _hat_mul(tmp, um, k3)
+        for a in range(3):
+            for b in range(3):
+                tmp[a, b] = r[a, b] + h * k3[a, b]
+        p4 = tmp[:, tangent_axis].copy()
+        _hat_mul(tmp, ur, k4)
+        for a in range(3):
+            p[a] += h / 6.0 * (r[a, tangent_axis] + 2.0 * p2[a] + 2.0 * p3[a] + p4[a])
+            for b in range(3):
+                r[a, b] += h / 6.0 * (k1[a, b] + 2.0 * k2[a, b] + 2.0 * k3[a, b] + k4[a, b])
+        for a in range(3):
+            pos[j + 1, a] = p[a]
+            if store_frames:
                 for b in range(3):
-                    tmp[a, b] = r[a, b] + 0.5 * h * k1[a, b]
-            p2 = tmp[:, tangent_axis].copy()
-            _hat_mul(tmp, um, k2)
-            for a in range(3):
-                for b in range(3):
-                    tmp[a, b] = r[a, b] + 0.5 * h * k2[a, b]
-            p3 = tmp[:, tangent_axis].copy()
-            _hat_mul(tmp, um, k3)
-            for a in range(3):
-                for b in range(3):
-                    tmp[a, b] = r[a, b] + h * k3[a, b]
-            p4 = tmp[:, tangent_axis].copy()
-            _hat_mul(tmp, ur, k4)
-            for a in range(3):
-                p[a] += h / 6.0 * (r[a, tangent_axis] + 2.0 * p2[a] + 2.0 * p3[a] + p4[a])
-                for b in range(3):
-                    r[a, b] += h / 6.0 * (k1[a, b] + 2.0 * k2[a, b] + 2.0 * k3[a, b] + k4[a, b])
-            for a in range(3):
-                pos[f, j + 1, a] = p[a]
-                for b in range(3):
-                    frames[f, j + 1, a, b] = r[a, b]
+                    frames[j + 1, a, b] = r[a, b]

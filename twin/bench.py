@@ -162,7 +162,8 @@ def naive_baseline(fiber, wavelengths: np.ndarray, step: float = 1e-3) -> np.nda
 
 
 def bench_reconstruct(quick: bool = False) -> dict:
-    """Latency (single frames) and throughput (batches) of the default and paper modes, and the naive baseline."""
+    """Latency (single frames) and throughput (batches) of the default and paper modes, and the naive baseline;
+    ``positions_*``: the default mode asked for positions only (``frames=False``)."""
     from twin import Reconstructor
 
     fiber, frames = _inputs(1200)
@@ -174,11 +175,15 @@ def bench_reconstruct(quick: bool = False) -> dict:
     n_batch = 5000 if quick else 20000
     _, batch = _inputs(n_batch, seed=1)
     default(batch[:100])
-    times = []
+    times, times_pos = [], []
     for _ in range(2 if quick else 4):
         t0 = time.perf_counter()
         default(batch)
-        times.append(time.perf_counter() - t0)
+        t1 = time.perf_counter()
+        default(batch, frames=False)  # positions only (the material frames not asked)
+        times.append(t1 - t0)
+        times_pos.append(time.perf_counter() - t1)
+    lat_pos = _latencies(lambda w: default(w, frames=False), frames, n_lat // 2)
     lat_base = _latencies(lambda w: naive_baseline(fiber, w), frames, 6 if quick else 40)
     p50 = float(np.percentile(lat, 50))
     unc_ratio, unc_latency_ratio = _uncertainty_cost(fiber, frames, batch[: n_batch // 4], quick)
@@ -186,6 +191,8 @@ def bench_reconstruct(quick: bool = False) -> dict:
         "latency_us_p50": round(p50, 2),
         "latency_us_p99": round(float(np.percentile(lat, 99)), 2),
         "batch_frames_per_s": round(n_batch / min(times)),
+        "positions_latency_us_p50": round(float(np.percentile(lat_pos, 50)), 2),
+        "positions_batch_frames_per_s": round(n_batch / min(times_pos)),
         "paper_latency_us_p50": round(float(np.percentile(lat_paper, 50)), 2),
         "baseline_latency_us_p50": round(float(np.percentile(lat_base, 50)), 1),
         "speedup_vs_baseline": round(float(np.percentile(lat_base, 50)) / p50, 1),

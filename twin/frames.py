@@ -9,6 +9,7 @@ is indexed along its batch axes only (``frames[3]``, ``frames[100:200]``, ``fram
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -532,8 +533,9 @@ class Shape:
         Arc length of each point from the base, m.
     positions : ndarray, shape (..., n_points, 3)
         Centreline in the fibre's base frame (base at the origin, tangent +z, d1 = +x), m.
-    frames : ndarray, shape (..., n_points, 3, 3)
-        Material frames [d1 d2 d3] as columns, in the base frame.
+    frames : ndarray, shape (..., n_points, 3, 3), or None
+        Material frames [d1 d2 d3] as columns, in the base frame; None when the reconstruction was asked for
+        positions only (``Reconstructor(...)(w, frames=False)``).
     curvature : ndarray, shape (..., n_gratings, 2)
         Curvature vector (k_x, k_y) at each grating, 1/m, after calibration (NaN where invalid).
     grating_s : ndarray, shape (n_gratings,)
@@ -549,7 +551,7 @@ class Shape:
 
     s: np.ndarray
     positions: np.ndarray
-    frames: np.ndarray
+    frames: np.ndarray | None
     curvature: np.ndarray
     grating_s: np.ndarray
     valid: np.ndarray
@@ -557,10 +559,31 @@ class Shape:
     curvature_covariance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        for name in ("s", "positions", "frames", "curvature", "grating_s", "valid", "covariance",
-                     "curvature_covariance"):
-            if getattr(self, name) is not None:
-                frozen(getattr(self, name))
+        for f in dataclasses.fields(self):
+            if getattr(self, f.name) is not None:
+                frozen(getattr(self, f.name))
+
+    @classmethod
+    def _trusted(cls, s, positions, frames, curvature, grating_s, valid) -> Shape:
+        """A Shape built without the dataclass machinery (private, for the reconstructor's hot path, where the
+        dataclass's init cost as much as the arithmetic): ``positions``, ``frames`` (or None), ``curvature`` and
+        ``valid`` are new arrays of the documented shapes and get frozen here; ``s`` and ``grating_s`` are read-only
+        already; other fields take their defaults. Nothing is checked."""
+        obj = object.__new__(cls)
+        d = obj.__dict__
+        d.update(_SHAPE_DEFAULTS)
+        d["s"] = s
+        d["positions"] = positions
+        d["frames"] = frames
+        d["curvature"] = curvature
+        d["grating_s"] = grating_s
+        d["valid"] = valid
+        positions.setflags(write=False)
+        curvature.setflags(write=False)
+        valid.setflags(write=False)
+        if frames is not None:
+            frames.setflags(write=False)
+        return obj
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -581,7 +604,7 @@ class Shape:
         return Shape(
             s=self.s,
             positions=self.positions[idx],
-            frames=self.frames[idx],
+            frames=None if self.frames is None else self.frames[idx],
             curvature=self.curvature[idx],
             grating_s=self.grating_s,
             valid=self.valid[idx],
@@ -631,6 +654,8 @@ class Shape:
         O(h⁴κ³) for point spacing h, far below a micrometre at the default 1 mm. ``s`` outside the reconstructed
         range is an error.
         """
+        if self.frames is None:
+            raise ValueError("positions_at needs the tangents: reconstruct with frames=True")
         s = np.atleast_1d(np.asarray(s, dtype=np.float64))
         lo, hi = self.s[0], self.s[-1]
         if np.any((s < lo - 1e-12) | (s > hi + 1e-12)):
@@ -645,3 +670,7 @@ class Shape:
         return (
             (2 * t3 - 3 * t2 + 1) * p0 + (t3 - 2 * t2 + t) * m0 + (-2 * t3 + 3 * t2) * p1 + (t3 - t2) * m1
         )
+
+
+#: the defaults of Shape's optional fields, for :meth:`Shape._trusted`
+_SHAPE_DEFAULTS = {f.name: f.default for f in dataclasses.fields(Shape) if f.default is not dataclasses.MISSING}

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from twin import curve
+from twin import _fused, curve
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.frames import Frame, Shape
@@ -73,11 +73,20 @@ class Reconstructor:
         1510 nm: beyond the breaking strain of silica fibre (a few %) and ten times the largest bending
         strain of a catheter fibre (g·κ ≈ 3e-3 at a 1 cm radius); only a corrupted or mis-assigned value lands
         there. None: no window.
+    fused : bool, optional
+        Run the fused compiled path (see below). Default: whenever the options allow it; False forces the
+        general path (the reference the fused path is tested against); True where it cannot run is an error.
 
     Calling the reconstructor on wavelengths of shape (..., n_gratings, n_cores) (nm; NaN for a missing peak),
     a :class:`~twin.frames.Frame` or a sequence of Frames returns a :class:`~twin.frames.Shape`. A grating
     whose curvature cannot be solved is dropped from the interpolation and marked in ``Shape.valid``; a frame
-    with no usable grating has NaN positions.
+    with no usable grating has NaN positions. ``frames=False`` leaves the material frames out of the Shape
+    (``Shape.frames`` None), saving their memory (72 bytes a point) when only positions are wanted.
+
+    The common case — the material method without twist, a linear interpolant (spline, linear, knn), any
+    integrator, either inversion — runs as one compiled call per batch (:mod:`twin._fused`, docs/math.md §3.8);
+    the attribute ``fused`` tells whether this reconstructor does. The paper's Frenet pipeline, PCHIP and the
+    twist of a spun fibre take the general path of numpy steps.
 
     Examples
     --------
@@ -100,6 +109,7 @@ class Reconstructor:
         twist: bool | None = None,
         wavelength_noise: float = 1e-3,
         peak_window: float | None = PEAK_WINDOW,
+        fused: bool | None = None,
     ):
         if not isinstance(fiber, FiberModel):
             raise TypeError(f"fiber must be a FiberModel, got {type(fiber).__name__}")
@@ -149,7 +159,16 @@ class Reconstructor:
         self._m = self._samples.shape[1]
         self._s_nodes = fiber.grating_s
         self._cache: dict[bytes, dict] = {}
+        possible = method == "material" and not self.twist and interpolation != "pchip"
+        if fused and not possible:
+            raise ValueError("fused=True needs method='material', a linear interpolant (not pchip) and no twist "
+                             f"measurement; got method={method!r}, interpolation={interpolation!r}, twist={self.twist}")
+        #: whether calls run the fused compiled path (class docstring)
+        self.fused = possible if fused is None else bool(fused)
+        self._no_frames = np.empty((1, 1, 3, 3))  # the kernels' frames argument when frames are not wanted
         self._full = self._prepare(np.ones(fiber.n_gratings, bool))
+        self.s.setflags(write=False)  # shared by every Shape
+        self._dims = (fiber.n_gratings, fiber.n_cores, self.s.size)
 
     def __repr__(self) -> str:
         return (
@@ -170,7 +189,8 @@ class Reconstructor:
 
     def _set_calibration(self, calibration: Calibration) -> None:
         self.calibration = calibration
-        self._lam0 = calibration.reference_for(self.fiber)
+        self._lam0 = np.ascontiguousarray(calibration.reference_for(self.fiber), dtype=np.float64)
+        self._const = None  # the fused kernel's constants, packed on first use (they depend on the calibration)
         self._solver = CurvatureSolver(
             calibration.design_for(self.fiber), method=self.inversion, central_core=self.fiber.central_core,
         )
@@ -198,7 +218,11 @@ class Reconstructor:
         linear = self.interpolation != "pchip"
         if self.method == "material":
             if linear:
-                prep["b_k"] = np.ascontiguousarray(curve.basis(s_nodes, flat, self.interpolation).T)
+                b = curve.basis(s_nodes, flat, self.interpolation)
+                prep["b_k"] = np.ascontiguousarray(b.T)
+                # the fused kernel's operator: (all gratings, samples), zero on the gratings left out
+                prep["b_fused"] = np.zeros((nodes.size, flat.size))
+                prep["b_fused"][nodes] = prep["b_k"]
         else:
             if linear:
                 prep["b_kappa"] = curve.basis(s_nodes, flat, self.interpolation)
@@ -216,8 +240,10 @@ class Reconstructor:
         return prep
 
     # ------------------------------------------------------------------ the call
-    def _wavelengths(self, data) -> np.ndarray:
-        if isinstance(data, Frame):
+    def _wavelengths(self, data, check_inf: bool = True) -> np.ndarray:
+        if type(data) is np.ndarray and data.dtype == np.float64:
+            w = data
+        elif isinstance(data, Frame):
             w = data.wavelengths
         elif isinstance(data, Sequence) and len(data) and isinstance(data[0], Frame):
             w = Frame.stack(data).wavelengths
@@ -234,8 +260,8 @@ class Reconstructor:
             raise ValueError(
                 f"wavelengths must have shape (..., {n_g}, {n_c}) (gratings × cores) for this fibre; got {w.shape}"
             )
-        if np.isinf(w).any():
-            raise ValueError("wavelengths contain ±inf; use NaN for a missing peak")
+        if check_inf and np.isinf(w).any():
+            raise ValueError(_INF)
         return w
 
     def strain(self, wavelengths) -> tuple[np.ndarray, np.ndarray]:
@@ -270,18 +296,55 @@ class Reconstructor:
         around their reference wavelength, or infinite; the reconstruction treats them as missing."""
         return self.strain(wavelengths)[1]
 
-    def __call__(self, wavelengths) -> Shape:
-        return self.from_strain(self.strain(self._wavelengths(wavelengths))[0])
+    def __call__(self, wavelengths, *, frames: bool = True) -> Shape:
+        if self.fused:
+            return self._fused_shapes(self._wavelengths(wavelengths, check_inf=False), True, frames)
+        return self._general(self.curvature(wavelengths), frames)
 
-    def from_strain(self, strain: np.ndarray) -> Shape:
+    def from_strain(self, strain: np.ndarray, *, frames: bool = True) -> Shape:
         """The shapes from the strain :meth:`strain` gives (the live loop's path: the strain once per batch).
 
         Parameters
         ----------
         strain : ndarray, shape (..., n_gratings, n_cores)
             Optical strain, NaN where missing or outside the window.
+        frames : bool
+            Whether the Shape carries the material frames.
         """
-        sol = self._solver.solve(strain)
+        if self.fused:
+            return self._fused_shapes(np.asarray(strain, dtype=np.float64), False, frames)
+        return self._general(self._solver.solve(strain), frames)
+
+    def _fused_shapes(self, x: np.ndarray, is_wavelength: bool, want_frames: bool) -> Shape:
+        """The fused compiled path (:mod:`twin._fused`) on wavelengths or strain (..., n_gratings, n_cores)."""
+        n_g, n_c, n_p = self._dims
+        batch = x.shape[:-2]
+        xf = np.ascontiguousarray(x).reshape(-1, n_g, n_c)
+        n_f = xf.shape[0]
+        k = np.empty((n_f, n_g, 2))
+        valid = np.empty((n_f, n_g), bool)
+        pos = np.empty((n_f, n_p, 3))
+        fr = np.empty((n_f, n_p, 3, 3)) if want_frames else self._no_frames
+        const = self._const
+        if const is None:
+            const = self._const = _fused.pack(self._lam0, self.peak_window or 0.0, self._solver.fused_operator(),
+                                              self._full["b_fused"], self._m, self.h, self.integrator == "rk4")
+        n_pending = _fused.reconstruct(xf, const, is_wavelength, k, valid, pos, fr, want_frames)
+        if n_pending < 0:
+            raise ValueError(_INF)
+        if n_pending:
+            # frames that lost a grating: one interpolation operator per pattern of valid gratings
+            sel = np.flatnonzero(~valid.all(axis=1))
+            patterns, which = np.unique(valid[sel], axis=0, return_inverse=True)
+            bases = np.stack([self._prepare(p)["b_fused"] if p.any() else self._full["b_fused"] for p in patterns])
+            which = np.where(patterns.any(axis=1)[which.ravel()], which.ravel(), -1)
+            _fused.integrate(k, valid, which, bases, sel, self.h, self.integrator == "rk4", pos, fr, want_frames)
+        return Shape._trusted(self.s, pos.reshape(*batch, n_p, 3),
+                              fr.reshape(*batch, n_p, 3, 3) if want_frames else None,
+                              k.reshape(*batch, n_g, 2), self.fiber.grating_s, valid.reshape(*batch, n_g))
+
+    def _general(self, sol, want_frames: bool) -> Shape:
+        """The general path: numpy steps around the compiled chain, for every mode."""
         k, valid = sol.curvature, sol.valid
         if self.twist:
             k = np.concatenate([k, sol.twist_rate[..., None]], axis=-1)  # rates (k_x, k_y, γ)
@@ -302,7 +365,7 @@ class Reconstructor:
         return Shape(
             s=self.s,
             positions=pos.reshape(batch + pos.shape[1:]),
-            frames=frames.reshape(batch + frames.shape[1:]),
+            frames=frames.reshape(batch + frames.shape[1:]) if want_frames else None,
             curvature=k[..., :2],
             grating_s=self.fiber.grating_s,
             valid=valid,
@@ -387,6 +450,9 @@ class Reconstructor:
         # material frame of a twist-free fibre: R = F Q(θ)ᵀ (docs/math.md §1)
         q = _frenet_from_material(np.cos(theta), np.sin(theta))
         return pos, f @ np.swapaxes(q, -1, -2)
+
+
+_INF = "wavelengths contain ±inf; use NaN for a missing peak"
 
 
 def _describe(data) -> str:

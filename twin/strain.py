@@ -242,6 +242,19 @@ class CurvatureSolver:
         d = design_matrix(fiber, core_angles=core_angles, gains=gains, twist=twist)
         return cls(d, method=method, central_core=fiber.central_core, weights=weights)
 
+    def fused_operator(self) -> tuple:
+        """This solver as the tuple the fused kernel takes (:mod:`twin._fused`): (pseudo-inverse (n_g, 2, n_c),
+        scaled design (n_g, n_c, 3), weights (n_g, n_c), column scale (3,), cores the paper method needs
+        (n_c,), rcond, paper?). Cached: the same arrays on every call."""
+        op = self.__dict__.get("_fused_op")
+        if op is None:
+            paper = self.method == "paper"
+            needed = self._needed if paper else np.zeros(self.n_cores, bool)
+            op = (np.ascontiguousarray(self._p), np.ascontiguousarray(self._ds), np.ascontiguousarray(self.weights),
+                  np.ascontiguousarray(self._scale), np.ascontiguousarray(needed), self.rcond, paper)
+            self._fused_op = op
+        return op
+
     def solve(self, strain) -> StrainSolution:
         """Invert optical strain ``e`` of shape (..., n_gratings, n_cores); NaN (and infinite) entries are missing
         peaks (the physical window is :func:`outside_window`'s, applied by the caller)."""
