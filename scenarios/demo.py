@@ -139,15 +139,21 @@ def _open_viewer(enabled: bool):
 
 
 def _warm_up(server: IllumisenseServer, fiber: FiberModel, cal) -> None:
-    """Encode, decode and reconstruct one record before the clock starts: on a fresh install the compiled
-    kernels of the wire format (the sensor blocks, the scanner) are built on first use, seconds that would
-    otherwise be taken from the live run."""
+    """Encode, decode and reconstruct a few records the way the live run will before its clock starts: on a
+    fresh install the compiled kernels of the wire format (the batch framing, the sensor blocks, the scanner)
+    and of the reconstruction are built on first use, seconds that would otherwise be taken from the live run
+    (a loaded machine then saw no frame at all in a short run)."""
     from twin.io.illumisense.stream import StreamDecoder
 
-    data = server.encode(Frame(fiber.lambda0.copy(), 0.0, 0))
-    decoder = StreamDecoder()
-    frames = decoder.feed(data) + decoder.finish()
-    Reconstructor(fiber, cal)([f.wavelengths for f in frames] or [fiber.lambda0])
+    data = b"".join(server.encode(Frame(fiber.lambda0.copy(), 0.01 * k, k)) for k in range(4))
+    for feed in ("feed", "feed_batch"):  # the single-record path (layout consensus) and the driver's batches
+        decoder = StreamDecoder()
+        getattr(decoder, feed)(data)
+        decoder.finish()
+    rec = Reconstructor(fiber, cal)
+    for n in (1, 4):  # the loop's calls: strain once, then the shapes from it, on one frame and on a batch
+        e, _ = rec.strain(np.broadcast_to(fiber.lambda0, (n, *fiber.lambda0.shape)).copy())
+        rec.from_strain(e)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,5 +1,7 @@
 """The linearised uncertainty (twin/uncertainty.py, docs/math.md §8) against Monte Carlo and closed forms."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -227,3 +229,64 @@ def test_fit_lowers_an_overstated_parameter_error():
     me = fit_model_error(unc, rec(w), w, truth)
     assert me.curvature == 0.0 and 0.0 < me.parameter_scale < 0.5
     assert coverage(unc.with_model_error(me)(w), truth) == pytest.approx(0.95, abs=0.01)
+
+
+@pytest.mark.parametrize("lost", [None, 9])
+def test_interpolation_term_equals_the_linear_interpolants_error_on_a_quadratic_profile(lost):
+    """The interpolation term (ModelError.interpolation, docs/math.md §8.1) with c = 1/12 against the actual
+    error of the linear interpolant of a quadratic curvature profile (in both components), on every piece
+    between valid gratings: each grating's white error carries, in variance, half the angle error ∫(k − k_lin)
+    ds of each of its pieces, σ_n² w_n² · 2 = ½ Σ |∫e|², w_n the half-sum of its pieces. Exact for a quadratic
+    (the second divided difference is k'' on any spacing; the integral is taken by Simpson's rule on a fine
+    grid, exact for the quadratic error), so 1e-9 relative; with grating 9 lost its neighbours' pieces are 20
+    mm long and their error 8 times a 10 mm piece's."""
+    s_n = FIBER.grating_s
+    valid = np.ones(s_n.size, bool)
+    if lost is not None:
+        valid[lost] = False
+
+    def profile(s):
+        return np.stack([40.0 * (s - 0.05) ** 2 + 3.0, -25.0 * (s - 0.12) ** 2], axis=-1)
+
+    k = profile(s_n)
+    k[~valid] = np.nan  # what the reconstruction has at a lost grating
+    sigma = ModelError(interpolation=1 / 12).interpolation_sigma(k, s_n, valid)
+    nodes = np.flatnonzero(valid)
+    var_angle = np.zeros(s_n.size)
+    for a, b in itertools.pairwise(nodes):
+        x = np.linspace(s_n[a], s_n[b], 201)
+        lin = k[a] + (x - s_n[a])[:, None] / (s_n[b] - s_n[a]) * (k[b] - k[a])
+        e = profile(x) - lin
+        wts = np.full(x.size, 2.0)
+        wts[1::2], wts[0], wts[-1] = 4.0, 1.0, 1.0
+        angle = (x[1] - x[0]) / 3 * wts @ e  # Simpson's rule, exact for the quadratic error
+        var_angle[[a, b]] += 0.5 * angle @ angle
+    w = np.zeros(s_n.size)
+    for a, b in itertools.pairwise(nodes):
+        w[[a, b]] += 0.5 * (s_n[b] - s_n[a])
+    expected = np.where(valid, np.sqrt(var_angle) / np.where(valid, w, 1.0) / np.sqrt(2.0), 0.0)
+    # the end gratings take their neighbour's k'', which for a quadratic is the same k''
+    np.testing.assert_allclose(sigma, expected, rtol=1e-9, atol=0.0)
+    if lost is not None:
+        inner = sigma[lost + 2]
+        assert sigma[lost - 1] == pytest.approx(inner * np.sqrt(0.5 * (1 + 64)) / 1.5, rel=1e-9)
+
+
+def test_interpolation_term_widens_the_tube_over_a_lost_grating():
+    """The interpolation term enters the position covariance: with it a lost grating's gap widens the tube
+    there (the 2h piece's error is 8 times a piece h's), and at zero curvature variation (an arc) it adds
+    nothing but rounding (the inverted curvatures differ by ~1e-13 1/m between gratings: σ < 1e-12 m)."""
+    rec = Reconstructor(FIBER)
+    me = ModelError(interpolation=0.134)
+    unc = Uncertainty(rec, wavelength_noise=0.0, model_error=me, parameters=False)
+    arc = unc(strain.forward(FIBER, np.broadcast_to([20.0, 0.0], (FIBER.n_gratings, 2))))
+    assert np.all(arc.sigma < 1e-12)
+    w = wavelengths("rotating-bend")
+    whole = unc(w)
+    w_lost = w.copy()
+    w_lost[9] = np.nan
+    gap = unc(w_lost)
+    assert not gap.valid[9]
+    i = np.searchsorted(rec.s, FIBER.grating_s[9])
+    # 1.42 times here: the gap's two neighbours carry 3.8 times their σ, the gratings before the gap as before
+    assert gap.sigma[i] > 1.2 * whole.sigma[i] > 0

@@ -208,16 +208,17 @@ def bench_reconstruct(quick: bool = False) -> dict:
 
 def _uncertainty_cost(fiber, frames: np.ndarray, batch: np.ndarray, quick: bool) -> tuple[float, float]:
     """The uncertainty's own cost (:meth:`twin.uncertainty.Uncertainty.propagate` on shapes already
-    reconstructed: noise, both calibration parameters, a model error with a base angle) over the reconstruction's,
+    reconstructed: noise, both calibration parameters, a model error with the interpolation term and a base
+    angle) over the reconstruction's,
     for a batch and for single frames (p50 over p50), measured interleaved so the machine's load hits both."""
     from twin import Calibration, Reconstructor
     from twin.calibration import nominal_delta_theta, nominal_gain
-    from twin.uncertainty import ModelError, Uncertainty
+    from twin.uncertainty import TWIN_INTERPOLATION, ModelError, Uncertainty
 
     cal = Calibration(delta_theta=nominal_delta_theta(fiber), gain=nominal_gain(fiber), delta_theta_std=1e-3,
                       gain_std=1e-2 * nominal_gain(fiber))
     rec = Reconstructor(fiber, cal)
-    unc = Uncertainty(rec, model_error=ModelError(0.05, base_angle=1e-3))
+    unc = Uncertainty(rec, model_error=ModelError(0.05, base_angle=1e-3, interpolation=TWIN_INTERPOLATION))
     shapes = rec(batch)
     unc.propagate(shapes[:10], batch[:10])
     t_rec, t_unc = [], []

@@ -10,9 +10,10 @@ Three sources are propagated:
     every grating, so it enters the positions as a low-rank term with its correlation along the fibre;
 (c) **the model error** (:class:`ModelError`): what the reconstruction's model leaves — interpolating between
     gratings, the grating's length, the catheter's twist, drift of the reference — as a white per-grating
-    curvature error of 1σ ``curvature`` + ``relative``·|k| per component (and optionally an error of the base
-    frame's angle, and a factor on the stated parameter errors), calibrated on shapes of known truth with
-    :func:`fit_model_error`.
+    curvature error of 1σ ``curvature`` + ``relative``·|k| per component, the interpolation error between
+    gratings estimated per frame from the measured curvature's second differences (``interpolation``; a lost
+    grating's gap widens it), and optionally an error of the base frame's angle and a factor on the stated
+    parameter errors, calibrated on shapes of known truth with :func:`fit_model_error`.
 
 A curvature error δk(s) rotates everything beyond s about p(s) by R(s) δu(s) ds, δu = (−δk_y, δk_x, 0), so to
 first order δp(s_j) = ∫_0^{s_j} (R δu)(s) × (p(s_j) − p(s)) ds, with δk(s) the interpolation basis applied to
@@ -39,7 +40,8 @@ from twin.calibration import Calibration, nominal_delta_theta, nominal_gain
 from twin.frames import Shape
 from twin.reconstruct import Reconstructor
 
-__all__ = ["TWIN_MODEL_ERROR", "ModelError", "Uncertainty", "coverage", "fit_model_error", "inside", "lateral_errors"]
+__all__ = ["TWIN_INTERPOLATION", "TWIN_MODEL_ERROR", "ModelError", "Uncertainty", "coverage", "fit_model_error",
+           "inside", "lateral_errors"]
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,12 @@ class ModelError:
         Absolute part, 1/m.
     relative : float
         Part proportional to the measured |k| (dimensionless): σ = ``curvature`` + ``relative``·|k|.
+    interpolation : float
+        Constant c of the interpolation error between gratings (dimensionless; :meth:`interpolation_sigma`): per
+        frame, the curvature's second divided difference k''_n over the valid gratings, times the pieces'
+        lengths, gives each grating a white error that carries the interpolant's error over its pieces. For a
+        linear interpolant and a quadratic curvature profile c = 1/12 is exact (docs/math.md §8.1); a lost
+        grating leaves a piece of 2h, whose error is 8 times that of a piece h (h³), so the tube widens there.
     base_angle : float
         1σ of the base frame's orientation about each of its axes, rad: the reconstruction starts from the base
         frame as given (a clamp, a tracked hub), which sits off the fibre's true first tangent and roll by this
@@ -67,34 +75,74 @@ class ModelError:
     curvature: float = 0.0
     relative: float = 0.0
     base_angle: float = 0.0
+    interpolation: float = 0.0
     parameter_scale: float = 1.0
     source: str = ""
 
     def __post_init__(self) -> None:
-        for name in ("curvature", "relative", "base_angle", "parameter_scale"):
+        for name in ("curvature", "relative", "base_angle", "parameter_scale", "interpolation"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"ModelError.{name}: expected a finite value >= 0, got {v}")
             object.__setattr__(self, name, float(v))
 
-    def sigma(self, curvature: np.ndarray) -> np.ndarray:
-        """1σ per component at each grating, 1/m, shape (..., n_gratings), from curvature (..., n_gratings, 2)."""
-        return self.curvature + self.relative * np.hypot(curvature[..., 0], curvature[..., 1])
+    def sigma(self, curvature: np.ndarray, grating_s: np.ndarray | None = None,
+              valid: np.ndarray | None = None) -> np.ndarray:
+        """1σ per component at each grating, 1/m, shape (..., n_gratings), from curvature (..., n_gratings, 2):
+        the white part and, with the gratings' arc lengths ``grating_s`` (n_gratings,) m and ``valid``
+        (..., n_gratings) bool, the interpolation part (:meth:`interpolation_sigma`), added in variance."""
+        white = self.curvature + self.relative * np.hypot(curvature[..., 0], curvature[..., 1])
+        if not self.interpolation or grating_s is None:
+            return np.broadcast_to(white, curvature.shape[:-1])
+        if valid is None:
+            valid = np.ones(curvature.shape[:-1], bool)
+        return np.hypot(white, self.interpolation_sigma(curvature, grating_s, valid))
+
+    def interpolation_sigma(self, curvature: np.ndarray, grating_s: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """The interpolation part of the per-grating 1σ per component, 1/m (..., n_gratings); 0 at invalid
+        gratings.
+
+        Between valid gratings a and b (a piece of length H) an interpolant that is exact for straight lines errs
+        by e(s) = k''/2 (s − s_a)(s − s_b) for a quadratic profile, so the piece's angle is off by
+        ∫e ds = −k'' H³/12. Each piece's angle error is shared half-and-half (in variance) by its two end
+        gratings and represented by a white error of the grating, whose angle is σ_n w_n with w_n the half-sum of
+        its pieces (the basis' integral): σ_n = c |k''_n| √(½ Σ H⁶) / w_n · (1/√2 per component), c = 1/12.
+        k''_n is the second divided difference of the measured curvature over the valid neighbours (the end
+        gratings take their neighbour's), so for gratings h apart σ_n = c |Δ²k_n| / √2, and next to a lost
+        grating (a piece of 2h) about 3.8 times that."""
+        k = np.asarray(curvature, dtype=np.float64)
+        valid = np.broadcast_to(np.asarray(valid, bool), k.shape[:-1])
+        flat_k = np.ascontiguousarray(k.reshape(-1, *k.shape[-2:]))
+        flat_v = np.ascontiguousarray(valid.reshape(-1, valid.shape[-1]))
+        out = np.empty(flat_v.shape)
+        _interpolation_kernel(flat_k, flat_v, np.ascontiguousarray(grating_s, dtype=np.float64), out)
+        return self.interpolation * out.reshape(valid.shape)
 
     def replace(self, **changes) -> ModelError:
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict:
         return {"curvature_1_per_m": self.curvature, "relative": self.relative, "base_angle_rad": self.base_angle,
+                "interpolation": self.interpolation,
                 "parameter_scale": self.parameter_scale, "source": self.source}
 
 
-#: The model error of the default pipeline in the twin: a white curvature error of 0.076 1/m per component and
-#: grating, the mean of the two folds' fits in ``twin run static-shapes`` (12 library shapes held by connect
-#: constraints, realistic optics, lab calibration; each fold's fitted on the other fold's shapes: 0.077 and
-#: 0.075 1/m; docs/math.md §8.4). A real sensor's is larger — the AMIRo needle's held-out curvature error in its
-#: jig is 0.13 1/m (docs/jig.md) — so fit your own (:func:`fit_model_error`).
-TWIN_MODEL_ERROR = ModelError(curvature=0.076, source="twin static-shapes, two folds (docs/math.md §8.4)")
+#: The interpolation constant c of the default pipeline (the spline, gratings 10 mm apart) in the twin: fitted on
+#: a sheath run other than the one scored (``twin run sheath-motion --start-mm 40 --travel-mm 150 --friction
+#: 0.2 --seed 1 --no-return --no-sheath-icp --json``: ``uncertainty.model_error_needed_in_sample``, with the
+#: lab's other terms held), where bends of 8 mm radius sampled every 10 mm make the interpolation the largest
+#: error; 1.6 times the linear interpolant's 1/12 (docs/math.md §8.4).
+TWIN_INTERPOLATION = 0.134
+
+#: The model error of the default pipeline in the twin: the interpolation term (:data:`TWIN_INTERPOLATION`) and
+#: a white curvature error of 0.014 1/m per component and grating fitted on top of it in ``twin run
+#: static-shapes`` (12 library shapes held by connect constraints, realistic optics, lab calibration; one
+#: fold's shapes need 0.014 1/m, the other's none; docs/math.md §8.4). A real sensor's is larger — the AMIRo
+#: needle's held-out curvature error in its jig is 0.13 1/m (docs/jig.md) — so fit your own
+#: (:func:`fit_model_error`).
+TWIN_MODEL_ERROR = ModelError(curvature=0.014, interpolation=TWIN_INTERPOLATION,
+                              source="twin: interpolation on a sheath run, white part on static-shapes "
+                                     "(docs/math.md §8.4)")
 
 
 def lateral_errors(shape: Shape, truth: np.ndarray) -> np.ndarray:
@@ -186,8 +234,9 @@ class Uncertainty:
             if missing.any() or outside.any():
                 ck, sens_op = self._masked(~(missing | outside))
         ck = np.broadcast_to(ck, (*batch, n_g, 2, 2))
-        sig_m = self.model_error.sigma(k)
-        if self.model_error.curvature or self.model_error.relative:
+        me = self.model_error
+        sig_m = me.sigma(k, self.reconstructor.fiber.grating_s, valid)
+        if me.curvature or me.relative or me.interpolation:
             ck = ck + (sig_m**2)[..., None, None] * np.eye(2)
         sens = None
         if sens_op is not None:
@@ -278,9 +327,8 @@ class Uncertainty:
         if all_valid:
             bases, which = self._full_basis, np.zeros(n_f, np.int64)
         else:
-            patterns, which = np.unique(vf, axis=0, return_inverse=True)
+            patterns, which = _patterns(vf)
             bases = np.stack([self._basis(p) for p in patterns])
-            which = which.ravel().astype(np.int64)
             # an invalid grating is not interpolated through: its column of the basis is zero already
         out = np.empty((n_f, n_p, 3, 3))
         q = self._quad
@@ -291,6 +339,68 @@ class Uncertainty:
         if not all_valid:
             out[~vf.any(axis=-1)] = np.nan
         return out.reshape((*shape.positions.shape[:-1], 3, 3))
+
+
+def _patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of ``valid`` (F, n) bool and each row's index among them (F,) int64: as np.unique over
+    rows, but with a row packed into one integer where it fits (~20 times faster than sorting rows)."""
+    if valid.shape[-1] >= 63:
+        patterns, which = np.unique(valid, axis=0, return_inverse=True)
+        return patterns, which.ravel().astype(np.int64)
+    key = valid @ (np.int64(1) << np.arange(valid.shape[-1], dtype=np.int64))
+    _, first, which = np.unique(key, return_index=True, return_inverse=True)
+    return valid[first], which.ravel().astype(np.int64)
+
+
+@njit(cache=True, nogil=True)
+def _interpolation_kernel(k, valid, s, out):  # pragma: no cover (compiled)
+    """|k''_n| √(½ Σ H⁶) / (w_n √2) per frame and grating (:meth:`ModelError.interpolation_sigma` without c):
+    k (F, n, 2), valid (F, n), s (n,), out (F, n); k''_n the second divided difference over the valid
+    neighbours, the end gratings taking their neighbour's; 0 at invalid gratings, and k'' = 0 with fewer than 3
+    valid."""
+    n_f, n = valid.shape
+    prev = np.empty(n, np.int64)
+    nxt = np.empty(n, np.int64)
+    d2 = np.zeros(n)
+    for f in range(n_f):
+        last = -1
+        for i in range(n):
+            prev[i] = last
+            if valid[f, i]:
+                last = i
+        last = n
+        for i in range(n - 1, -1, -1):
+            nxt[i] = last
+            if valid[f, i]:
+                last = i
+        first_v, last_v, count = -1, -1, 0
+        for i in range(n):
+            d2[i] = 0.0
+            out[f, i] = 0.0
+            if not valid[f, i]:
+                continue
+            count += 1
+            if first_v < 0:
+                first_v = i
+            last_v = i
+            a, b = prev[i], nxt[i]
+            if a >= 0 and b < n:
+                hm, hp = s[i] - s[a], s[b] - s[i]
+                c = 2.0 / (hm + hp)
+                x = c * ((k[f, b, 0] - k[f, i, 0]) / hp - (k[f, i, 0] - k[f, a, 0]) / hm)
+                y = c * ((k[f, b, 1] - k[f, i, 1]) / hp - (k[f, i, 1] - k[f, a, 1]) / hm)
+                d2[i] = np.sqrt(x * x + y * y)
+        if count >= 3:  # the end gratings take their neighbour's
+            d2[first_v] = d2[nxt[first_v]]
+            d2[last_v] = d2[prev[last_v]]
+        if count < 2:
+            continue
+        for i in range(n):
+            if not valid[f, i]:
+                continue
+            hm = s[i] - s[prev[i]] if prev[i] >= 0 else 0.0
+            hp = s[nxt[i]] - s[i] if nxt[i] < n else 0.0
+            out[f, i] = d2[i] * np.sqrt(0.5 * (hm**6 + hp**6)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
 
 
 def _quadrature(rec: Reconstructor) -> dict:
@@ -555,7 +665,8 @@ def coverage(shape: Shape, truth: np.ndarray, level: float = 0.95, where: np.nda
 
 
 def fit_model_error(uncertainty: Uncertainty, shape: Shape, wavelengths, truth: np.ndarray, *,
-                    level: float = 0.95, template: ModelError | None = None, source: str = "") -> ModelError:
+                    level: float = 0.95, template: ModelError | None = None, fixed: ModelError | None = None,
+                    source: str = "") -> ModelError:
     """The model error that makes the level-% tube hold ``level`` of the true points of shapes of known truth
     (never the ones to be scored).
 
@@ -577,15 +688,22 @@ def fit_model_error(uncertainty: Uncertainty, shape: Shape, wavelengths, truth: 
         The true centreline at the shape's arc lengths in its base frame, m.
     level : float
     template : ModelError, optional
-        The model error's form; its ``curvature``, ``relative`` and ``base_angle`` are scaled together.
+        The model error's form; its ``curvature``, ``relative``, ``base_angle`` and ``interpolation`` are scaled
+        together.
+    fixed : ModelError, optional
+        Terms held while the template's are fitted (those the template sets replace them): e.g. the
+        interpolation constant fitted elsewhere, with the white part fitted here; its ``parameter_scale`` is
+        kept unless the parameters alone over-cover.
     source : str
         A note for the result.
     """
     t = template or ModelError(curvature=1.0)
+    base = fixed or ModelError()
+    names = [n for n in ("curvature", "relative", "base_angle", "interpolation") if getattr(t, n)]
 
-    def scaled(k: float, p: float = 1.0) -> ModelError:
-        return ModelError(curvature=k * t.curvature, relative=k * t.relative, base_angle=k * t.base_angle,
-                          parameter_scale=p, source=source)
+    def scaled(k: float, p: float | None = None) -> ModelError:
+        return base.replace(**{n: k * getattr(t, n) for n in names}, source=source,
+                            parameter_scale=base.parameter_scale if p is None else p)
 
     def cover(me: ModelError) -> float:
         return coverage(uncertainty.with_model_error(me).propagate(shape, wavelengths), truth, level)
@@ -597,7 +715,7 @@ def fit_model_error(uncertainty: Uncertainty, shape: Shape, wavelengths, truth: 
             lo, hi = (mid, hi) if low == rising else (lo, mid)
         return hi if rising else lo
 
-    if cover(scaled(0.0)) >= level:  # the parameters alone over-cover: trust their stated 1σ less
+    if cover(scaled(0.0)) >= level:  # the parameters (and the fixed terms) over-cover: trust the stated 1σ less
         if cover(scaled(0.0, 0.0)) >= level:
             return scaled(0.0, 0.0)
         return scaled(0.0, bisect(lambda p: scaled(0.0, p), 0.0, 1.0, rising=True))
