@@ -216,7 +216,7 @@ class CatheterSpec:
     solver_iterations : int
         ``<option iterations>``: most Newton iterations per step; MuJoCo's default 100, kept. MuJoCo 4.0's step
         costs more the higher this cap is, whether the solver gets there or not (a sheath step ≈ 1.5× faster at
-        30, bit-identical in ``sim://sheath-cycle``), but lower caps bind in the vascular sheath and for a glued
+        30, the same rod over 2 s of ``sim://sheath-cycle``), but such caps bind in the vascular sheath and for a glued
         fibre, and change their physics (docs/simulation.md §4).
     """
 
