@@ -12,6 +12,13 @@ from numba import njit
 from twin.so3 import exp_entries, log_entries
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _qdot(frames, i, j, k):
+    """Entry (j, k) of R_iᵀ R_{i+1}: column j of edge i's frame dotted with column k of edge i + 1's."""
+    return (frames[i, 0, j] * frames[i + 1, 0, k] + frames[i, 1, j] * frames[i + 1, 1, k]
+            + frames[i, 2, j] * frames[i + 1, 2, k])
+
+
 @njit(cache=True, nogil=True)
 def frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux):
     """Material frames per edge and discrete Darboux vectors per interior vertex.
@@ -61,13 +68,10 @@ def frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux):
         frames[e, 1, 2] = ty
         frames[e, 2, 2] = tz
     for i in range(ne - 1):
-        # Q = R_{i}ᵀ R_{i+1}; only its antisymmetric part and trace are needed
-        q = np.zeros((3, 3))
-        for j in range(3):
-            for k in range(3):
-                q[j, k] = (frames[i, 0, j] * frames[i + 1, 0, k] + frames[i, 1, j] * frames[i + 1, 1, k]
-                           + frames[i, 2, j] * frames[i + 1, 2, k])
-        w0, w1, w2 = log_entries(q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2], q[2, 0], q[2, 1], q[2, 2])
+        # Q = R_{i}ᵀ R_{i+1}; only its antisymmetric part and trace are needed (scalars: no allocation per vertex)
+        w0, w1, w2 = log_entries(_qdot(frames, i, 0, 0), _qdot(frames, i, 0, 1), _qdot(frames, i, 0, 2),
+                                 _qdot(frames, i, 1, 0), _qdot(frames, i, 1, 1), _qdot(frames, i, 1, 2),
+                                 _qdot(frames, i, 2, 0), _qdot(frames, i, 2, 1), _qdot(frames, i, 2, 2))
         darboux[i, 0] = w0 * inv_lbar[i]
         darboux[i, 1] = w1 * inv_lbar[i]
         darboux[i, 2] = w2 * inv_lbar[i]
@@ -89,3 +93,28 @@ def frames_at(edge_s, edge_frames, darboux, s, out):
             out[q, r, 0] = f0 * e00 + f1 * e10 + f2 * e20
             out[q, r, 1] = f0 * e01 + f1 * e11 + f2 * e21
             out[q, r, 2] = f0 * e02 + f1 * e12 + f2 * e22
+
+
+@njit(cache=True, nogil=True)
+def positions_at(s_grid, positions, s, out):
+    """Linear interpolation of the vertex positions (n_vertices, 3) along the polyline at arc lengths ``s``,
+    clamped to the rod (``np.interp``'s arithmetic per coordinate), into ``out`` (len(s), 3)."""
+    n = s_grid.size
+    for q in range(s.size):
+        sq = s[q]
+        if sq != sq:  # NaN in, NaN out (as np.interp)
+            for k in range(3):
+                out[q, k] = np.nan
+            continue
+        if sq <= s_grid[0]:
+            for k in range(3):
+                out[q, k] = positions[0, k]
+            continue
+        if sq >= s_grid[n - 1]:
+            for k in range(3):
+                out[q, k] = positions[n - 1, k]
+            continue
+        i = np.searchsorted(s_grid, sq, side="right") - 1
+        a = (sq - s_grid[i]) / (s_grid[i + 1] - s_grid[i])
+        for k in range(3):
+            out[q, k] = positions[i, k] + a * (positions[i + 1, k] - positions[i, k])

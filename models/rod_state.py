@@ -90,6 +90,15 @@ class _Interpolator:
         self.grid = np.asarray(grid, dtype=np.float64)
         self.max_entries = max_entries
         self._cache: dict[tuple, np.ndarray] = {}
+        self._truth_s: np.ndarray | None = None
+
+    def truth_s(self, s: np.ndarray, sensed_length: float) -> np.ndarray:
+        """0, the vertices ``s`` inside (0, sensed_length) and sensed_length (one rod: computed once)."""
+        if self._truth_s is None:
+            inside = s[(s > 0.0) & (s < sensed_length)]
+            self._truth_s = np.concatenate([[0.0], inside, [sensed_length]])
+            self._truth_s.setflags(write=False)
+        return self._truth_s
 
     def basis(self, s, method: str) -> np.ndarray:
         q = np.ascontiguousarray(s, dtype=np.float64).ravel()
@@ -211,8 +220,8 @@ class RodState:
     def positions_at(self, s) -> np.ndarray:
         """Centreline positions at arc lengths ``s`` (linear along the polyline; clamped to the rod), m."""
         q = np.asarray(s, dtype=np.float64)
-        flat = q.ravel()
-        out = np.stack([np.interp(flat, self.s, self.positions[:, k]) for k in range(3)], axis=-1)
+        out = np.empty((q.size, 3))
+        _rod_kernels.positions_at(self.s, self.positions, np.ascontiguousarray(q.ravel()), out)
         return out.reshape((*q.shape, 3))
 
     def to_truth(
@@ -237,19 +246,22 @@ class RodState:
             Passed through to :class:`twin.frames.Truth`.
         """
         g = np.asarray(grating_s, dtype=np.float64)
-        if sample_s is None:
-            inside = self.s[(self.s > 0.0) & (self.s < self.sensed_length)]
-            sample_s = np.concatenate([[0.0], inside, [self.sensed_length]])
-        ss = np.asarray(sample_s, dtype=np.float64)
+        ss = self.truth_s() if sample_s is None else np.asarray(sample_s, dtype=np.float64)
+        d = self.darboux_at(g, method)
         return Truth(
             s=ss,
             positions=self.positions_at(ss),
             frames=self.frames_at(ss),
-            curvature=self.curvature_at(g, method),
-            twist=self.twist_at(g, method),
+            curvature=np.stack([d[..., 1], -d[..., 0]], axis=-1),
+            twist=d[..., 2],
             temperature=temperature,
             fixture=fixture,
         )
+
+    def truth_s(self) -> np.ndarray:
+        """The default samples of :meth:`to_truth`: 0, the vertices inside the sensed region and
+        ``sensed_length``, m (computed once per rod and shared by its states)."""
+        return self._interp.truth_s(self.s, self.sensed_length)
 
 
 class RodReader:
@@ -307,6 +319,7 @@ class RodReader:
         self._tw_edges = np.flatnonzero(ids >= 0)
         self._tw_qadr = model.jnt_qposadr[ids[ids >= 0]].astype(np.int64)
         self._all_twist = self._tw_edges.size == ne
+        self._theta_buf = np.zeros(ne)
         self._site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"{name}_base")
         self._no_site = np.zeros(3)
 
@@ -319,11 +332,11 @@ class RodReader:
         return self._interp.basis(s, method)
 
     def _theta(self, data: mujoco.MjData) -> np.ndarray:
+        """Twist-joint angle per edge (0 for the clamped edge), rad, in a buffer the reader reuses."""
         if self._all_twist:
-            return data.qpos[self._tw_qadr]  # fancy indexing: a new contiguous array
-        th = np.zeros(self._ne)
-        th[self._tw_edges] = data.qpos[self._tw_qadr]
-        return th
+            return np.take(data.qpos, self._tw_qadr, out=self._theta_buf)
+        self._theta_buf[self._tw_edges] = data.qpos[self._tw_qadr]
+        return self._theta_buf
 
     def _restart_frames(self, t: np.ndarray, data: mujoco.MjData) -> np.ndarray:
         """Reference directors as MuJoCo restarts them (plastic still zero): twist-free from edge 0."""
@@ -338,9 +351,11 @@ class RodReader:
             out[e] = _transport(t[e - 1, :, None], t[e, :, None], out[e - 1, :, None])[:, 0]
         return out
 
-    def compute(self, data: mujoco.MjData, frames: np.ndarray, darboux: np.ndarray) -> np.ndarray:
-        """Fill ``frames`` (n_edges, 3, 3) and ``darboux`` (n_vertices − 2, 3) from ``data``; return the vertex
-        positions (a view of ``data``). The lean path for callers that keep their own buffers."""
+    def kernel_inputs(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What :func:`models._rod_kernels.frames_and_darboux` reads from ``data``: vertex positions (n_vertices, 3)
+        (a view of ``data``), MuJoCo's reference frames (6 n_edges,), twist angles (n_edges,) (a buffer the reader
+        reuses) and the base site's x axis (3,). For callers that fuse the rod read into a compiled call of their
+        own (:mod:`sim_interrogator.frame_path`)."""
         x = data.flexvert_xpos[self._va : self._va + self._nv]
         p = data.plastic[self._pa : self._pa + 6 * self._ne]
         if not (p[3] or p[4] or p[5]):
@@ -349,8 +364,29 @@ class RodReader:
             t = seg / np.linalg.norm(seg, axis=1, keepdims=True)
             p = np.concatenate([t, self._restart_frames(t, data)], axis=1).ravel()
         site_x = data.site_xmat[self._site, 0::3] if self._site >= 0 else self._no_site
-        _rod_kernels.frames_and_darboux(x, p, self._theta(data), site_x, self._inv_lbar, frames, darboux)
+        return x, p, self._theta(data), site_x
+
+    @property
+    def inverse_lbar(self) -> np.ndarray:
+        """1 / mean rest length of the two edges at each interior vertex, 1/m, shape (n_vertices − 2,)."""
+        return self._inv_lbar
+
+    def compute(self, data: mujoco.MjData, frames: np.ndarray, darboux: np.ndarray) -> np.ndarray:
+        """Fill ``frames`` (n_edges, 3, 3) and ``darboux`` (n_vertices − 2, 3) from ``data``; return the vertex
+        positions (a view of ``data``). The lean path for callers that keep their own buffers."""
+        x, p, theta, site_x = self.kernel_inputs(data)
+        _rod_kernels.frames_and_darboux(x, p, theta, site_x, self._inv_lbar, frames, darboux)
         return x
+
+    def state(self, data: mujoco.MjData, frames: np.ndarray, darboux: np.ndarray) -> RodState:
+        """A :class:`RodState` from frames and Darboux vectors already computed for ``data`` (e.g. by
+        :meth:`compute` or a fused compiled call); copies them, so the caller may reuse its buffers."""
+        x = data.flexvert_xpos[self._va : self._va + self._nv].copy()
+        frames, darboux = frames.copy(), darboux.copy()
+        _readonly(x, frames, darboux)
+        return RodState(
+            float(data.time), self.s, x, self.edge_s, frames, darboux, self.sensed_length, self._interp
+        )
 
     def read(self, data: mujoco.MjData) -> RodState:
         """The rod's :class:`RodState` now (after ``mj_step``/``mj_forward``); the per-edge work is compiled."""

@@ -9,6 +9,11 @@ Setup: the default 8 Fr catheter (100 segments) held in the library helix by con
 * ``optics_overhead``: fraction of that wall time spent in the optics (reading the rod state, curvature at
   the gratings, wavelengths with every effect); the truth attached to each frame is reported apart
   (``truth_us_per_frame``).
+* ``sheath_steps_per_s``: physics steps per wall second of the catheter in the default sheath
+  (``sim://sheath-cycle``: 100 segments, 2 ms, ≈ 70 contacts), the frames at 100 Hz — where the contact solve
+  bounds every sheath scenario and design study (docs/simulation.md §4).
+* ``realtime_factor_50_segments``: ``realtime_factor`` with a 50-segment rod (what the integration study's sheath
+  cycles use); docs/simulation.md §4 gives the accuracy this costs.
 """
 
 from __future__ import annotations
@@ -21,7 +26,22 @@ from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
 
 
+def _frames(segments: int, duration: float) -> tuple[SimInterrogator, float, float]:
+    """Frames with truth at 1 kHz for ``duration`` simulated seconds: (source, simulated s, wall s)."""
+    sim = SimInterrogator(StaticShape("helix", "connect", segments=segments, timestep=1e-3), rate=1000.0)
+    for _ in range(20):  # load the compiled kernels before timing
+        sim.read()
+    sim.physics_time = sim.optics_time = sim.truth_time = 0.0
+    t_start = sim.time
+    t0 = time.perf_counter()
+    for _ in range(int(duration * sim.rate)):
+        sim.read()
+    return sim, sim.time - t_start, time.perf_counter() - t0
+
+
 def bench_sim(quick: bool = False) -> dict:
+    from twin import registry
+
     duration = 1.0 if quick else 4.0
     sim = SimInterrogator(StaticShape("helix", "connect", segments=100, timestep=1e-3), rate=1000.0)
     n = int(duration / sim.model.opt.timestep)
@@ -29,19 +49,19 @@ def bench_sim(quick: bool = False) -> dict:
     mujoco.mj_step(sim.model, sim.data, nstep=n)
     steps_per_s = n / (time.perf_counter() - t0)
 
-    sim = SimInterrogator(StaticShape("helix", "connect", segments=100, timestep=1e-3), rate=1000.0)
-    for _ in range(20):  # load the compiled kernels before timing
-        sim.read()
-    sim.physics_time = sim.optics_time = sim.truth_time = 0.0
-    t_start = sim.time
+    sim, simulated, wall = _frames(100, duration)
     frames = int(duration * sim.rate)
+    _, coarse_simulated, coarse_wall = _frames(50, duration)
+
+    sheath = SimInterrogator(registry.load("twin.sim_setups", "sheath-cycle")(), rate=100.0, truth=False)
+    n_frames = round((0.5 if quick else 2.0) * sheath.rate)
     t0 = time.perf_counter()
-    for _ in range(frames):
-        sim.read()
-    wall = time.perf_counter() - t0
+    for _ in range(n_frames):
+        sheath.read()
+    sheath_steps = sheath.time / sheath.model.opt.timestep / (time.perf_counter() - t0)
     return {
         "steps_per_s": round(steps_per_s),
-        "realtime_factor": round((sim.time - t_start) / wall, 2),
+        "realtime_factor": round(simulated / wall, 2),
         "optics_overhead": round(sim.optics_time / wall, 3),
         "frames_per_s": round(frames / wall),
         "optics_us_per_frame": round(sim.optics_time / frames * 1e6, 1),
@@ -49,4 +69,6 @@ def bench_sim(quick: bool = False) -> dict:
         "segments": 100,
         "timestep_s": sim.model.opt.timestep,
         "frame_rate_hz": sim.rate,
+        "realtime_factor_50_segments": round(coarse_simulated / coarse_wall, 2),
+        "sheath_steps_per_s": round(sheath_steps),
     }

@@ -277,19 +277,39 @@ class Optics:
         noise, quantisation and peak loss (:func:`_apply_effects`): one implementation for the design form and
         the spun fibre's exact path lengths, so a straight fibre gets the same noise from the same seed."""
         cfg = self.config
-        step = 0.0
-        if cfg.drift and t is not None:
-            if self._t_last is not None and t > self._t_last:
-                step = cfg.drift * np.sqrt(t - self._t_last)
-            self._t_last = t
-        # one draw per call: drift increments (first slice) and white noise
-        z = self._rng.standard_normal((e.shape[0] + 1, *e.shape[1:])) if cfg.noise or step else self._no_noise
+        step, z = self.random_draw(t, e.shape[0])
         w = np.empty(e.shape)
         status = np.zeros(e.shape, np.uint8)
         _apply_effects(e, self.true_fiber.lambda0, self.nominal.lambda0, self._drift, step, z, cfg.noise,
                        cfg.quantisation, cfg.slot_half_width or 0.0, cfg.min_peak_separation, float(cfg.band[0]),
                        float(cfg.band[1]), self._order, self._lost_flag, w, status)
         return w, status
+
+    def random_draw(self, t: float | None, n_states: int) -> tuple[float, np.ndarray]:
+        """The drift's step (nm, from the time since the last call) and the normal draws of one call for
+        ``n_states`` states: ``z[0]`` drives the drift, ``z[1 + f]`` the noise of state f (a (1, 1, 1) zero
+        array when neither is on). Shared by :meth:`_effects` and the compiled frame path
+        (:mod:`sim_interrogator.frame_path`), so both draw the same numbers from the same seed."""
+        cfg = self.config
+        step = 0.0
+        if cfg.drift and t is not None:
+            if self._t_last is not None and t > self._t_last:
+                step = cfg.drift * np.sqrt(t - self._t_last)
+            self._t_last = t
+        # one draw per call: drift increments (first slice) and white noise
+        if cfg.noise or step:
+            return step, self._rng.standard_normal((n_states + 1, *self._drift.shape))
+        return step, self._no_noise
+
+    def effect_arguments(self) -> tuple:
+        """The constant arguments of :func:`_apply_effects` after ``e`` … ``z`` (λ0s, drift state, noise,
+        quantisation, slot, separation, band, order, lost flag) and of :func:`_design_strain` (design,
+        S_ε, S_T, offset), for a compiled caller that runs both in one call (:mod:`sim_interrogator.frame_path`)."""
+        cfg, f = self.config, self.true_fiber
+        return (self._design, float(f.strain_sensitivity), self._s_t, float(cfg.fiber_offset),
+                f.lambda0, self.nominal.lambda0, self._drift, float(cfg.noise), float(cfg.quantisation),
+                float(cfg.slot_half_width or 0.0), float(cfg.min_peak_separation), float(cfg.band[0]),
+                float(cfg.band[1]), self._order, self._lost_flag)
 
     def _per_grating(self, value, batch: tuple, n_f: int) -> np.ndarray:
         """A scalar or (..., n_gratings) value as a (n_f, n_gratings) array (a zero-stride view if scalar)."""

@@ -21,6 +21,7 @@ import numpy as np
 
 from models.catheter import WARNINGS_NOTE, collect_warnings
 from models.rod_state import RodReader
+from sim_interrogator.frame_path import FramePath
 from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.setups import Setup
 from twin import FiberModel, Frame
@@ -80,14 +81,23 @@ class SimInterrogator(FrameByFrame):
         self._optics_roll = getattr(setup, "optics_roll", None)
         self._disturb = getattr(setup, "disturb_peaks", None)
         # Darboux vectors (κ1, κ2, τ) at the interior vertices → (k_x, k_y) = (κ2, −κ1) averaged over each
-        # grating's length (models/rod_state.py), as one fixed matrix (2, n_g, n_interior)
-        basis = self.optics_reader.interpolation_matrix(self.optics.sample_s)
-        n_g = self.fiber.n_gratings
-        avg = np.einsum("gsv,s->gv", basis.reshape(n_g, -1, basis.shape[-1]), self.optics.sample_weights)
-        self._darboux_buf = np.empty((basis.shape[-1], 3))
-        self._frames_buf = np.empty((basis.shape[-1] + 1, 3, 3))
-        self._grating_average = avg
+        # grating's length (models/rod_state.py), as one fixed matrix (n_g, n_interior); a fibre with straight
+        # cores takes the compiled frame path (one numba call per frame, sim_interrogator/frame_path.py), a spun
+        # one the general optics (its exact path lengths need the twist rate too)
+        self._path = None if self.optics.true_fiber.spin_rate else FramePath(self.optics_reader, self.optics)
+        if self._path is not None:
+            self._grating_average = self._path.average
+            self._frames_buf, self._darboux_buf = self._path.frames, self._path.darboux
+        else:
+            basis = self.optics_reader.interpolation_matrix(self.optics.sample_s)
+            n_g = self.fiber.n_gratings
+            self._grating_average = np.einsum("gsv,s->gv", basis.reshape(n_g, -1, basis.shape[-1]),
+                                              self.optics.sample_weights)
+            self._darboux_buf = np.empty((basis.shape[-1], 3))
+            self._frames_buf = np.empty((basis.shape[-1] + 1, 3, 3))
         self._sign = np.array([1.0, -1.0])
+        # the truth reuses the optics' rod read when both read the same rod
+        self._truth_from_optics = self.optics_reader is self.reader
         self.physics_time = 0.0  # wall seconds in mj_step
         self.optics_time = 0.0  # wall seconds reading the rod and making wavelengths
         self.truth_time = 0.0  # wall seconds making the truth and the frame
@@ -134,16 +144,12 @@ class SimInterrogator(FrameByFrame):
 
     def _frame(self, t: float) -> Frame:
         t0 = time.perf_counter()
-        self.optics_reader.compute(self.data, self._frames_buf, self._darboux_buf)
         delta_t, axial = self.setup.conditions(t, self.fiber.grating_s)
-        d = self._grating_average @ self._darboux_buf  # (κ1, κ2, τ) averaged over each grating
-        if self._optics_roll is not None:
-            r = self._optics_roll()  # rad
-            c, s = np.cos(r), np.sin(r)
-            k1, k2 = d[:, 0].copy(), d[:, 1].copy()
-            d[:, 0], d[:, 1] = c * k1 + s * k2, c * k2 - s * k1  # (κ1, κ2) in the frame rolled by r about d3
-        k = d[:, 1::-1] * self._sign  # (k_x, k_y) = (κ2, −κ1)
-        w, status = self.optics.wavelengths(k, axial, delta_t, t=t, twist_rate=d[:, 2])
+        roll = 0.0 if self._optics_roll is None else self._optics_roll()  # rad
+        if self._path is not None:
+            w, status = self._path(self.data, axial, delta_t, t, roll)
+        else:
+            w, status = self._general_optics(t, delta_t, axial, roll)
         if self._disturb is not None:
             self._disturb(t, w, status)
         t1 = time.perf_counter()
@@ -151,12 +157,25 @@ class SimInterrogator(FrameByFrame):
         truth = None
         if self.with_truth:
             temp = np.broadcast_to(np.asarray(delta_t, float), self.fiber.grating_s.shape).copy()
-            state = self.reader.read(self.data)
+            if self._truth_from_optics:
+                state = self.reader.state(self.data, self._frames_buf, self._darboux_buf)
+            else:
+                state = self.reader.read(self.data)
             truth = state.to_truth(self.fiber.grating_s, temperature=temp, fixture=self._fixture)
         frame = Frame(w, timestamp=self.optics.timestamp(t), sequence=self._k, status=status, truth=truth)
         self._k += 1
         self.truth_time += time.perf_counter() - t1
         return frame
+
+    def _general_optics(self, t: float, delta_t, axial, roll: float) -> tuple[np.ndarray, np.ndarray]:
+        """The optics through :meth:`Optics.wavelengths` (a spun fibre: it needs the twist rate too)."""
+        self.optics_reader.compute(self.data, self._frames_buf, self._darboux_buf)
+        d = self._grating_average @ self._darboux_buf  # (κ1, κ2, τ) averaged over each grating
+        c, s = np.cos(roll), np.sin(roll)
+        k1, k2 = d[:, 0].copy(), d[:, 1].copy()
+        d[:, 0], d[:, 1] = c * k1 + s * k2, c * k2 - s * k1  # (κ1, κ2) in the frame rolled by r about d3
+        k = d[:, 1::-1] * self._sign  # (k_x, k_y) = (κ2, −κ1)
+        return self.optics.wavelengths(k, axial, delta_t, t=t, twist_rate=d[:, 2])
 
     @property
     def poses(self) -> tuple[str, ...]:

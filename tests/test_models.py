@@ -467,3 +467,20 @@ def test_tube_every_spatial_shape(name, n):
 @pytest.mark.parametrize("name", [c.name for c in shapes.library() if c.planar])
 def test_groove_every_planar_shape(name):
     _check_groove(name, 100)
+
+
+def test_positions_at_is_linear_interpolation_along_the_rod():
+    """The compiled centreline interpolation (models/_rod_kernels.py) is np.interp per coordinate: clamped at
+    the ends, exact at the vertices, NaN for NaN."""
+    from models import _rod_kernels
+
+    rng = np.random.default_rng(3)
+    s = np.sort(rng.uniform(-0.01, 0.2, 40))
+    p = rng.normal(size=(40, 3))
+    q = np.concatenate([rng.uniform(-0.05, 0.25, 300), s, [np.nan]])
+    out = np.empty((q.size, 3))
+    _rod_kernels.positions_at(s, p, q, out)
+    ref = np.stack([np.interp(q, s, p[:, k]) for k in range(3)], axis=-1)
+    np.testing.assert_allclose(out[:-1], ref[:-1], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(out[300:-1], p)
+    assert np.isnan(out[-1]).all()

@@ -65,17 +65,39 @@ def run(args: argparse.Namespace) -> int:
     return 1 if result.failed else 0
 
 
+def integration_seconds_per_task(quick: bool = False) -> dict:
+    """Wall seconds of one task of the integration study at its standard point, in this process (one core).
+
+    The standard point is the study's baseline design (clearance 0.1 mm, μ 0.2, two fixations, Δx_prox 15 mm,
+    Δx_dist 2 mm) with the study's own task parameters: four static shapes × three frames and three sheath cycles
+    (:class:`scenarios.integration.Params`); ``quick`` runs one shape and one cycle. The task is what ``twin study
+    integration`` runs per design point and seed, MuJoCo physics almost all of it.
+    """
+    from scenarios.integration import BASELINE
+    from scenarios.studies.definitions import integration_task
+
+    task = {"label": "clearance 0.1 mm", **BASELINE, "seed": 0}
+    if quick:
+        task |= {"shapes": ["helix"], "cycles": 1}
+    t0 = time.perf_counter()
+    integration_task(task)
+    return {"seconds_per_task_integration": round(time.perf_counter() - t0, 2),
+            "integration_task": "quick" if quick else "standard"}
+
+
 def bench_study(quick: bool = False) -> dict:
-    """``twin bench`` section ``study``: sensor-design tasks per minute with 1 and 2 local workers.
+    """``twin bench`` section ``study``: one integration task at the standard point on the pinned core
+    (:func:`integration_seconds_per_task`), then sensor-design tasks per minute with 1 and 2 local workers.
 
     ``twin bench`` pins its measuring process to one CPU; the workers must not inherit that, so the affinity is
-    widened to every CPU this process may use before the clusters start.
+    widened to every CPU this process may use before the clusters start (after the single-core figure).
     """
     import tempfile
 
     from scenarios.studies.definitions import sensor_design_study
     from scenarios.studies.runner import run_study
 
+    single = integration_seconds_per_task(quick)
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, range(os.cpu_count() or 1))
     study = sensor_design_study(seeds=1 if quick else 2, quick=False)
@@ -104,4 +126,4 @@ def bench_study(quick: bool = False) -> dict:
         out[f"startup_s_{workers}"] = round(t1 - t0, 2)
     out["scaling_2"] = round(out["tasks_per_min_2"] / out["tasks_per_min_1"], 3)
     out["tasks"] = len(tasks)
-    return out
+    return out | single
