@@ -138,3 +138,39 @@ def test_a_spec_client_decodes_shapes_at_20_hz_beside_a_stalled_client_and_a_thi
     summary = json.loads(out)
     assert summary["foxglove_clients"] == 2 and summary["foxglove_clients_refused"] == 1
     assert summary["foxglove_errors"] == 0 and summary["foxglove_frames"] >= len(scenes)
+
+
+def _upgrade_status(port: int, host: str, origin: str | None) -> int:
+    """The HTTP status a raw WebSocket upgrade request with these ``Host`` and ``Origin`` headers gets."""
+    import socket
+
+    head = (f"GET / HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            f"Sec-WebSocket-Key: {base64.b64encode(bytes(16)).decode()}\r\nSec-WebSocket-Version: 13\r\n"
+            f"Sec-WebSocket-Protocol: {SUBPROTOCOL}\r\n" + (f"Origin: {origin}\r\n" if origin else "") + "\r\n")
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        s.sendall(head.encode("latin-1"))
+        reply = b""
+        while b"\r\n" not in reply:
+            chunk = s.recv(4096)
+            if not chunk:
+                break
+            reply += chunk
+    return int(reply.split(b" ", 2)[1])
+
+
+def test_foreign_host_or_origin_is_forbidden_foxglove_app_and_loopback_are_served():
+    """DNS rebinding (another site's name resolved to 127.0.0.1 arrives as the Host) and pages of other sites
+    (their Origin) get 403; a program (no Origin), a loopback page and Foxglove's app get the upgrade (101)."""
+    from twin.foxglove import FoxgloveServer
+
+    with FoxgloveServer(port=0, max_clients=8) as server:
+        port = server.address[1]
+        assert _upgrade_status(port, f"evil.example:{port}", None) == 403
+        assert _upgrade_status(port, f"127.0.0.1:{port + 1}", None) == 403  # another port's name
+        assert _upgrade_status(port, f"127.0.0.1:{port}", "http://evil.example") == 403
+        assert _upgrade_status(port, f"localhost:{port}", f"http://evil.example:{port}") == 403
+        assert server.clients_forbidden == 4
+        assert _upgrade_status(port, f"127.0.0.1:{port}", None) == 101
+        assert _upgrade_status(port, f"localhost:{port}", "https://app.foxglove.dev") == 101
+        assert _upgrade_status(port, f"[::1]:{port}", f"http://localhost:{port}") == 101
+        assert server.clients_forbidden == 4

@@ -74,6 +74,8 @@ class FoxgloveServer:
     ----------
     address : (str, int)
     clients_seen, clients_refused : int
+    clients_forbidden : int
+        Connections refused with 403 for a foreign ``Host`` or ``Origin`` (:meth:`_admitted`).
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8765, *, max_clients: int = 4, backlog: int = 64,
@@ -93,7 +95,7 @@ class FoxgloveServer:
             raise OSError(f"Foxglove: cannot listen on {host}:{port} ({exc.strerror or exc})") from None
         self._listener.settimeout(0.2)
         self.address = self._listener.getsockname()[:2]
-        self.clients_seen = self.clients_refused = 0
+        self.clients_seen = self.clients_refused = self.clients_forbidden = 0
         self._lock = threading.Lock()
         self._pairs: list[tuple[socket.socket, socket.socket]] = []
         self._closed = threading.Event()
@@ -132,11 +134,19 @@ class FoxgloveServer:
         then relay both ways."""
         pair: tuple = (conn,)
         try:
+            head, rest = _read_head(conn)
+            if not self._admitted(head):
+                with self._lock:
+                    self.clients_forbidden += 1
+                with contextlib.suppress(OSError):
+                    conn.sendall(_FORBIDDEN)
+                self._drop(pair)
+                return
             inner = socket.create_connection(self._inner, timeout=5.0)
             pair = (conn, inner)
             with self._lock:
                 self._pairs[self._pairs.index((conn,))] = pair
-            _handshake(conn, inner)
+            _handshake(head, rest, conn, inner)
         except (OSError, ValueError):
             self._drop(pair)
             return
@@ -145,6 +155,19 @@ class FoxgloveServer:
         done = threading.Barrier(2, action=lambda: self._drop(pair))
         threading.Thread(target=_relay, args=(inner, conn, done), name="foxglove-relay", daemon=True).start()
         _relay(conn, inner, done)
+
+    def _admitted(self, head: bytes) -> bool:
+        """DNS rebinding and foreign pages: the ``Host`` must name this server by a loopback name (or the address
+        it was told to listen on) and its port; an ``Origin``, when a browser sends one, must be a loopback page
+        of that port or Foxglove's own app (:data:`FOXGLOVE_APP_ORIGINS`), which is what opens this server."""
+        from twin.viewer.server import LOOPBACK_NAMES, host_allowed, origin_allowed
+
+        headers = _headers(head)
+        names = (*LOOPBACK_NAMES, str(self.address[0]).strip("[]"))
+        port = int(self.address[1])
+        origin = headers.get("origin")
+        return host_allowed(headers.get("host", ""), port, names) and (
+            origin in FOXGLOVE_APP_ORIGINS or origin_allowed(origin, port, names))
 
     def _drop(self, pair) -> None:
         with self._lock:
@@ -210,11 +233,25 @@ def _swap_protocol(head: bytes, old: str, new: str) -> tuple[bytes, bool]:
     return b"\r\n".join(lines), changed
 
 
-def _handshake(client: socket.socket, server: socket.socket) -> None:
-    """Pass the WebSocket opening handshake between a client and the SDK's server, letting a client that asks
-    for the specification's subprotocol name have it (the SDK answers to its own name for the same protocol;
-    the accept key does not depend on the subprotocol)."""
-    head, rest = _read_head(client)
+#: the origins of Foxglove's hosted app, the client this server is for (a browser page elsewhere is refused)
+FOXGLOVE_APP_ORIGINS = frozenset({"https://app.foxglove.dev"})
+_FORBIDDEN = b"HTTP/1.1 403 Forbidden\r\nContent-Length: 0\r\nConnection: close\r\n\r\n"
+
+
+def _headers(head: bytes) -> dict[str, str]:
+    """An HTTP head's header fields, names in lower case (the request line left out)."""
+    out = {}
+    for line in head.split(b"\r\n")[1:]:
+        name, sep, value = line.partition(b":")
+        if sep:
+            out[name.strip().lower().decode("latin-1")] = value.strip().decode("latin-1")
+    return out
+
+
+def _handshake(head: bytes, rest: bytes, client: socket.socket, server: socket.socket) -> None:
+    """Pass the WebSocket opening handshake (the client's ``head`` and what followed it) between a client and
+    the SDK's server, letting a client that asks for the specification's subprotocol name have it (the SDK
+    answers to its own name for the same protocol; the accept key does not depend on the subprotocol)."""
     head, asked_spec = _swap_protocol(head, SPEC_SUBPROTOCOL, SDK_SUBPROTOCOL)
     server.sendall(head + rest)
     reply, rest = _read_head(server)

@@ -239,6 +239,7 @@ def run(args: argparse.Namespace) -> int:
         out["foxglove_frames"] = foxglove_sink.frames_sent
         out["foxglove_clients"] = foxglove_sink.server.clients_seen
         out["foxglove_clients_refused"] = foxglove_sink.server.clients_refused
+        out["foxglove_clients_forbidden"] = foxglove_sink.server.clients_forbidden  # foreign Host or Origin
         out["foxglove_errors"] = foxglove_sink.errors
     if args.json:
         print(jsonout.dumps(out))
@@ -300,7 +301,10 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
     if "foxglove_frames" in out:
         lines.append(f"  Foxglove: {out['foxglove_frames']} updates, {out['foxglove_clients']} clients"
                      + (f", {out['foxglove_clients_refused']} refused (over the cap)" if out["foxglove_clients_refused"]
-                        else "") + (f", {out['foxglove_errors']} errors" if out["foxglove_errors"] else ""))
+                        else "")
+                     + (f", {out['foxglove_clients_forbidden']} forbidden (foreign Host or Origin)"
+                        if out["foxglove_clients_forbidden"] else "")
+                     + (f", {out['foxglove_errors']} errors" if out["foxglove_errors"] else ""))
     for r in out.get("recordings", ()):
         lines.append(f"  recorded {r['frames']} frames to {r['file']}"
                      + (f"; {r['vendor_dropped']} sensor blocks not stored (a layout other than the "
