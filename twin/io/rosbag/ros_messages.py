@@ -27,7 +27,6 @@ __all__ = [
     "SCHEMAS",
     "Layout",
     "decode_path",
-    "decode_pose",
     "decode_vendor",
     "decode_wavelengths",
     "encode_path",
@@ -303,14 +302,6 @@ def encode_pose(positions: np.ndarray, quaternions: np.ndarray, t, frame_id: str
     lay.put(buf, "orientation", quaternions)
     raw = buf.tobytes()
     return [raw[i * lay.size:(i + 1) * lay.size] for i in range(n)]
-
-
-def decode_pose(payloads: list[bytes], what: str = "geometry_msgs/PoseStamped") -> dict:
-    buf = _rows(payloads, what)
-    lay = _pose_layout(_one(_u32(buf, 12), f"{what}: frame_id") - 1)
-    _check(lay, buf, what)
-    return {"frame_id": _frame_id(buf, lay), "sec": lay.get(buf, "sec")[:, 0], "nanosec": lay.get(buf, "nanosec")[:, 0],
-            "position": lay.get(buf, "position"), "orientation": lay.get(buf, "orientation")}
 
 
 # ------------------------------------------------------------------------------------------------ FbgWavelengths
