@@ -198,7 +198,11 @@ def test_validation_states_intervals_only_with_an_error_model():
     phys = leave_one_rotation_out(NEEDLE, poses, model="physical")
     nz = leave_one_rotation_out(NEEDLE, poses, model="nuisance")
     assert phys.coverage_95 is None and phys.n_coverage == 0
-    assert nz.n_coverage > 0 and 0.0 <= nz.coverage_95 <= 1.0
+    assert nz.n_coverage > 0
+    # the session holds only what the nuisance model describes (rolls, reference offsets): its 95 % intervals
+    # must not under-cover beyond sampling (3 binomial σ); they may over-cover (the error budget's prior
+    # dominates the variances of 4 rotations: 160 of 160 covered here)
+    assert nz.coverage_95 >= 0.95 - 3 * np.sqrt(0.95 * 0.05 / nz.n_coverage)
     d = nz.to_dict()
     assert d["score"]["bands"] == "clinical" and d["score_all_levels"]["bands"] == "all levels"
 

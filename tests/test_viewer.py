@@ -33,7 +33,7 @@ from twin import Reconstructor
 from twin.frames import Frame, Shape, Truth
 from twin.io.illumisense import VendorSensor
 from twin.io.illumisense.vendor import VENDOR_FROM_BASE
-from twin.live import LiveLoop, LiveStatus
+from twin.live import LiveLoop, LiveStatus, latest_usable
 from twin.reference_errors import vendor_distance
 from twin.synthetic import SyntheticSource
 from twin.viewer import CAMERA_FOV_DEG, Viewer, ViewerConfig, ViewerError, ViewerSink, keep_open
@@ -278,9 +278,9 @@ def test_latest_usable_skips_unusable_and_nan_frames():
     pos = np.stack([one.positions, one.positions, np.full_like(one.positions, np.nan), one.positions])
     shapes = Shape(s=one.s, positions=pos, frames=np.stack([one.frames] * 4), curvature=np.stack([one.curvature] * 4),
                    grating_s=one.grating_s, valid=np.ones((4, 18), bool))
-    assert geo.latest_usable(shapes, np.array([0, 0, 0, 4], np.uint8), 4) == 1  # 3 unusable, 2 NaN
-    assert geo.latest_usable(shapes, np.zeros(4, np.uint8), 4) == 3
-    assert geo.latest_usable(shapes, np.array([4, 4, 0, 4], np.uint8), 4) is None
+    assert latest_usable(shapes, np.array([0, 0, 0, 4], np.uint8), 4) == 1  # 3 unusable, 2 NaN
+    assert latest_usable(shapes, np.zeros(4, np.uint8), 4) == 3
+    assert latest_usable(shapes, np.array([4, 4, 0, 4], np.uint8), 4) is None
 
 
 # ------------------------------------------------------------------------------------------------ wire format

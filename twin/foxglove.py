@@ -306,7 +306,7 @@ class FoxgloveSink:
 
     def __init__(self, server: FoxgloveServer, rate: float = 30.0, *, calibration: str | None = None,
                  close_server: bool = True, stream: TextIO | None = None):
-        from twin.viewer.geometry import LatestUsable
+        from twin.live import LatestUsable
 
         self.latest = LatestUsable(rate, "FoxgloveSink")
         foxglove = require("foxglove", "Foxglove")

@@ -381,7 +381,7 @@ class IgtlSink:
 
     def __init__(self, server: IgtlServer, rate: float = 30.0, *, close_server: bool = True,
                  stream: TextIO | None = None, uncertainty=None):
-        from twin.viewer.geometry import LatestUsable
+        from twin.live import LatestUsable
 
         self.latest = LatestUsable(rate, "IgtlSink")
         self.server, self.close_server, self.stream = server, close_server, stream

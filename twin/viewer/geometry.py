@@ -6,27 +6,23 @@ piece is tested on its own. Lengths are in whatever unit the caller passes (the 
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from twin.frames import Frame, Shape, Truth
+from twin.frames import Shape, Truth
 
 __all__ = [
     "VIRIDIS",
     "FrameScene",
-    "LatestUsable",
     "camera_distance",
     "colorbar_stops",
     "colormap",
     "envelope",
     "frame_scene",
     "interp_curve",
-    "latest_usable",
     "local_error",
     "merge_meshes",
-    "next_due",
     "nice_length",
     "placement",
     "scale_bar",
@@ -302,19 +298,6 @@ def placement(shape: Shape, truth: Truth | None = None, base_pose=None) -> tuple
     return R, p, "kabsch"
 
 
-def latest_usable(shapes: Shape, flags: np.ndarray, n: int) -> int | None:
-    """Index of the last frame of a batch whose shape can be drawn (not flagged unusable, finite points)."""
-    from twin.live import FrameFlag
-
-    flags = np.asarray(flags)
-    finite = np.all(np.isfinite(shapes.positions.reshape(len(shapes.positions), -1)), axis=1)[:n]
-    ok = finite.copy()
-    m = min(len(flags), n)
-    ok[:m] &= (flags[:m] & int(FrameFlag.UNUSABLE)) == 0
-    idx = np.flatnonzero(ok)
-    return int(idx[-1]) if idx.size else None
-
-
 @dataclass(frozen=True, eq=False)
 class FrameScene:
     """One frame as every live display shows it (the browser viewer, Foxglove), in world coordinates, m.
@@ -429,50 +412,3 @@ def view_direction(points, min_elevation_deg: float = 15.0, max_elevation_deg: f
 def camera_distance(radius: float, fov_deg: float = 75.0, fill: float = 0.75) -> float:
     """Camera distance at which a sphere of ``radius`` spans ``fill`` of the view's height (same unit)."""
     return radius / (fill * np.tan(np.radians(fov_deg) / 2))
-
-
-def next_due(due: float, now: float, period: float) -> float:
-    """The rate limiter's next slot: one period after the last slot (keeps the average rate at 1/period when
-    frames come in batches); a limiter that fell behind restarts from now rather than drawing a burst."""
-    return max(due + period, now) if np.isfinite(due) else now + period
-
-
-class LatestUsable:
-    """The rate limit every live display sink shares (the viewer's, OpenIGTLink's, Foxglove's).
-
-    Each batch offers its latest usable frame (:func:`latest_usable`), which replaces one still held; :meth:`take`
-    hands the held frame over when its slot is due (:func:`next_due`, at most ``rate`` a second), or at once with
-    ``force``. A frame held back by the rate is thus shown at the next call (a heartbeat), never lost.
-
-    Parameters
-    ----------
-    rate : float
-        Most frames handed over per second, Hz.
-    who : str
-        The sink, for the error on a rate that is not positive.
-    """
-
-    def __init__(self, rate: float, who: str):
-        if not rate > 0:
-            raise ValueError(f"{who}: rate must be positive, got {rate}")
-        self.period = 1.0 / rate
-        self.held: tuple[Frame, Shape] | None = None
-        self.due = -float("inf")
-
-    def offer(self, frames: Frame, shapes: Shape | None, flags: np.ndarray) -> None:
-        """Hold the batch's latest usable frame and its shape (a batch with none leaves the held one)."""
-        if len(frames) and shapes is not None:
-            i = latest_usable(shapes, flags, len(frames))
-            if i is not None:
-                self.held = (frames[i], shapes[i])
-
-    def take(self, *, force: bool = False) -> tuple[Frame, Shape] | None:
-        """The held frame and shape when their slot is due (or ``force``), else None; taking books the next slot."""
-        if self.held is None:
-            return None
-        now = time.monotonic()
-        if not (force or now >= self.due):
-            return None
-        held, self.held = self.held, None
-        self.due = next_due(self.due, now, self.period)
-        return held

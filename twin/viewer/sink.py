@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, TextIO
 import numpy as np
 
 from twin.frames import Frame, Shape
-from twin.viewer import geometry as geo
+from twin.live import LatestUsable
 from twin.viewer.client import ViewerError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -47,7 +47,7 @@ class ViewerSink:
                  stream: TextIO | None = None, uncertainty=None):
         self.viewer = viewer
         self.uncertainty = uncertainty
-        self.latest = geo.LatestUsable(rate, "ViewerSink")
+        self.latest = LatestUsable(rate, "ViewerSink")
         self.close_viewer = close_viewer
         self.stream = stream
         self.errors = 0

@@ -20,6 +20,7 @@ from typing import TextIO
 import numpy as np
 
 from twin.frames import Shape, Truth
+from twin.live import next_due
 from twin.viewer import commands as cmd
 from twin.viewer import geometry as geo
 from twin.viewer.client import SceneClient, ViewerError
@@ -324,7 +325,7 @@ class Viewer:
             self._client.send_many(self._queue)
         finally:
             self._queue = None
-        self._due = geo.next_due(self._due, now, 1.0 / self.config.max_fps)
+        self._due = next_due(self._due, now, 1.0 / self.config.max_fps)
         self.frames_shown += 1
         self._update_hud(now, force=label is not None or self.frames_shown == 1)
         return True
