@@ -32,6 +32,7 @@ import numpy as np
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.frames import Frame, Truth, VendorArrays
+from twin.io.errors import brief
 from twin.io.hdf5 import (
     FORMAT,
     FRAME_FIELDS,
@@ -174,7 +175,7 @@ class RecordingReader:
             self._file.close()
             if isinstance(exc, ValueError | OSError) and str(exc).startswith(str(self.path)):
                 raise
-            raise ValueError(f"{self.path}: not a readable twin recording ({_brief(exc)})") from None
+            raise ValueError(f"{self.path}: not a readable twin recording ({brief(exc)})") from None
 
     def _check_layout(self) -> None:
         """Check every dataset's shape and type against the layout (:mod:`twin.io.hdf5`) before anything is read.
@@ -272,7 +273,7 @@ class RecordingReader:
         except Exception as exc:
             if self._n and not self._closed_cleanly:  # a writer caught mid-flush: try again later
                 return self._n
-            raise ValueError(f"{self.path}: not a readable twin recording ({_brief(exc)})") from None
+            raise ValueError(f"{self.path}: not a readable twin recording ({brief(exc)})") from None
         if count < 0:
             self._damaged(0, f"frames/count is {count}")
             count = 0
@@ -364,7 +365,7 @@ class RecordingReader:
                 try:
                     parts.append(ds[row:nxt])
                 except Exception as exc:
-                    self._damaged(row, f"{name} rows {row}–{nxt - 1} unreadable ({_brief(exc)})", part)
+                    self._damaged(row, f"{name} rows {row}–{nxt - 1} unreadable ({brief(exc)})", part)
                     break
                 row = nxt
             end = row
@@ -475,10 +476,6 @@ def _size(path: Path) -> int:
         return path.stat().st_size
     except OSError:
         return 0
-
-
-def _brief(exc: BaseException) -> str:
-    return (str(exc).strip() or type(exc).__name__).splitlines()[0][:200]
 
 
 def _text(v) -> str:
