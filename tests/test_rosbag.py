@@ -407,3 +407,29 @@ def test_hostile_lengths_are_damage_at_their_byte_and_allocate_nothing(big, tmp_
 def _write(path: Path, data: bytes) -> Path:
     path.write_bytes(data)
     return path
+
+
+def test_sensor_blocks_of_another_layout_are_counted_not_stored(run, tmp_path):
+    """A sensor keeps the layout of its first block (G gratings, N points, spacing), as in HDF5 recordings:
+    later blocks of another layout are counted in vendor_dropped, and the file reads back undamaged."""
+    from dataclasses import replace
+
+    from twin.frames import VendorSensor
+    from twin.io.illumisense.vendor import vendor_sensors
+
+    with open_recording(run / "x.mcap") as r:
+        frames, fiber = r.frames(0, 40), r.fiber
+        shapes = Reconstructor(fiber, r.calibration)(frames.wavelengths)
+    blocks = vendor_sensors(shapes)
+    short = [VendorSensor(b.curvature, b.angle, b.positions[:-5], b.spacing) for b in blocks]
+    first = [replace(f, vendor=(blocks[i],)) for i, f in enumerate(frames[:20])]
+    later = [replace(f, vendor=(short[i],)) for i, f in enumerate(frames[20:], 20)]
+    with McapRecorder(tmp_path / "v.mcap", fiber=fiber) as m:
+        m.append(first)
+        m.append(later)  # one batch of the other layout
+    assert m.vendor_written == 20 and m.vendor_dropped == 20
+    with open_recording(tmp_path / "v.mcap") as r:
+        assert not r.damaged and len(r) == 40
+        (a,) = r.vendor()
+        assert a.present.tolist() == [True] * 20 + [False] * 20
+        assert np.array_equal(a.positions[:20], np.stack([b.positions for b in blocks[:20]]))
