@@ -34,7 +34,7 @@ import os
 import stat
 import tomllib
 import zlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -46,6 +46,7 @@ from twin.extras import require
 from twin.fiber import FiberModel
 from twin.frames import Frame, Truth, VendorArrays
 from twin.io.errors import brief
+from twin.io.reading import ReaderBase
 from twin.io.rosbag import ros_messages as msgs
 from twin.io.rosbag.bag_writer import FORMAT
 
@@ -76,7 +77,7 @@ class _Damaged(Exception):
     """A record that cannot be read: the message names its place."""
 
 
-class McapRecording:
+class McapRecording(ReaderBase):
     """A twin MCAP recording opened for reading (module docstring); the interface of
     :class:`twin.io.record.RecordingReader`.
 
@@ -438,17 +439,6 @@ class McapRecording:
         return tuple(out)
 
     # ---------------------------------------------------------------- the RecordingReader interface
-    @property
-    def complete(self) -> bool:
-        return self._closed_cleanly and not self.damage
-
-    @property
-    def damaged(self) -> bool:
-        return bool(self.damage)
-
-    def __len__(self) -> int:
-        return self._n
-
     def damage_line(self) -> str:
         """One line for a damaged file: the file, frames readable of how many, the first damage, what to do."""
         why = self.damage[0] if self.damage else "no damage"
@@ -470,10 +460,6 @@ class McapRecording:
     def refresh(self) -> int:
         """Frames available (the file is indexed when opened)."""
         return self._n
-
-    def _span(self, start: int, stop: int | None) -> tuple[int, int]:
-        stop = self._n if stop is None else min(stop, self._n)
-        return max(0, min(start, stop)), stop
 
     def frames(self, start: int = 0, stop: int | None = None, *, truth: bool = True) -> Frame:
         """Frames ``start:stop`` as one batch (with their truth when recorded and ``truth``)."""
@@ -503,20 +489,9 @@ class McapRecording:
             return np.zeros(0)
         return self._span_columns(*self._span(start, stop))["log"] * 1e-9
 
-    def chunks(self, size: int = 1024, *, truth: bool = True) -> Iterator[tuple[int, Frame]]:
-        """(start, batch) for consecutive slices of ``size`` frames."""
-        for start in range(0, self._n, max(1, size)):
-            yield start, self.frames(start, start + size, truth=truth)
-
     def close(self) -> None:
         self._fh.close()
         self._cache = self._unit_cache = (None, None)
-
-    def __enter__(self) -> McapRecording:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:
