@@ -289,15 +289,16 @@ def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.nd
 
     The curvature error covariance of a pose at grating n, in the fibre frame, is
 
-        C = M Σ_e Mᵀ + σ_along² u uᵀ + σ_across² w wᵀ + κ² (σ_roll² w wᵀ + σ_gain² u uᵀ)
+        C = M Σ_e Mᵀ + (1 + π/2n_o)(σ_along² u uᵀ + σ_across² w wᵀ) + κ² (σ_roll² w wᵀ + σ_gain² u uᵀ)
             + κ² (1 + 1/n) (σ_roll,n² w wᵀ + σ_gain,n² u uᵀ) + M (I ⊗ k̂ᵀ) Σ_p (I ⊗ k̂) Mᵀ,
 
     with M the calibration's strain → curvature map (rows 1–2 of the design's pseudo-inverse), Σ_e the per-pose
     strain error covariance (pose + groove seating), u the jig's bend direction and w ⟂ u, σ_along, σ_across the
-    scatter of the rotations' reference curvature, σ_roll and σ_gain that of the seatings' roll and gain shared
-    by the gratings, σ_roll,n and σ_gain,n what each grating adds — twice: the pose's own seating, and the map,
-    which took it from the n fitted rotations on the pose's axis (1 when none is) — and Σ_p the covariance of the
-    design's bend columns (the parameters). The stated σ is that of the radial
+    scatter of the rotations' reference curvature (a new rotation's zero about the jig's zero, the median of the
+    n_o fitted rotations', whose own variance is ≈ π/2n_o times theirs), σ_roll and σ_gain that of the seatings'
+    roll and gain shared by the gratings, σ_roll,n and σ_gain,n what each grating adds — twice: the pose's own
+    seating, and the map, which took it from the n fitted rotations on the pose's axis (1 when none is) — and Σ_p
+    the covariance of the design's bend columns (the parameters). The stated σ is that of the radial
     component, ûᵀ C û with û = k̂/|k̂|. Gratings the error model does not cover get NaN.
     """
     fit_g = list(prov.get("jig_gratings", []))
@@ -307,6 +308,9 @@ def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.nd
     ref_std = np.asarray(prov["jig_reference_std_1_per_m"], dtype=np.float64)
     l_roll, l_gain = float(prov["jig_local_roll_std_rad"]), float(prov["jig_local_gain_std"])
     fitted = np.asarray(prov["jig_orientations_rad"], dtype=np.float64)
+    # a new rotation's zero scatters about the jig's zero, itself the median of the fitted rotations' zeros, whose
+    # variance is ≈ π/2 × that of their mean (the asymptotic value; larger than the exact one for n ≤ 4)
+    zero_err = 1.0 + np.pi / (2.0 * fitted.size)
     psi = float(prov["jig_roll_rad"]) - np.arctan2(k[:, 1], k[:, 0])  # each pose's rotation, from its label
     n_axis = np.maximum(np.sum(np.abs(np.sin(psi[:, None] - fitted[None, :])) < np.sin(np.deg2rad(10.0)), axis=1),
                         1)
@@ -329,9 +333,10 @@ def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.nd
         kh = k_hat[:, i]
         lift = np.einsum("ce,pk->pcek", np.eye(n_c), kh).reshape(-1, n_c, 2 * n_c)  # (I ⊗ k̂ᵀ)
         ml = np.einsum("ac,pcx->pax", m, lift)
-        cov = m @ strain_cov[f] @ m.T + ref_part + jig_part + np.einsum("pax,xy,pby->pab", ml, pos_cov[f], ml)
+        pose_cov = m @ strain_cov[f] @ m.T + np.einsum("pax,xy,pby->pab", ml, pos_cov[f], ml)
         r = np.hypot(kh[:, 0], kh[:, 1])
         uh = kh / np.where(r > 0, r, np.nan)[:, None]
+        cov = pose_cov + zero_err * ref_part + jig_part
         out[:, i] = np.sqrt(np.einsum("pa,pab,pb->p", uh, cov, uh))
     return out
 
