@@ -215,6 +215,37 @@ class JigPoses:
         np.add.at(sums, self._index[ref], np.where(np.isfinite(w), w, 0.0))
         return sums / self._ref_counts
 
+    def reference_scatter(self) -> np.ndarray:
+        """How far the trials of each orientation's reference disagree, against the table's usual trial scatter.
+
+        Per orientation, grating and core: the standard deviation over its reference rows divided by the median,
+        over every groove (reference or bent) of every orientation with two or more trials, of that standard
+        deviation at the same grating and core. A reference whose trials disagree ten times more than the
+        grooves' usually do has a disturbed peak (docs/jig.md, "The jig's zero"); its zero is uncertain.
+
+        Returns
+        -------
+        ndarray, shape (n_orientations, n_gratings, n_cores)
+            NaN where an orientation has a single reference row or the table has no groove with two trials.
+        """
+        _, groove = np.unique(np.stack([self._index, self.curvature]), axis=1, return_inverse=True)
+        groove = np.ravel(groove)
+        n_groove = int(groove.max()) + 1
+        onehot = np.eye(n_groove)[groove]  # (P, S)
+        ok = np.isfinite(self.wavelengths)
+        lam = np.where(ok, self.wavelengths, 0.0)
+        n = np.einsum("ps,pgc->sgc", onehot, ok.astype(float))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.einsum("ps,pgc->sgc", onehot, lam) / n
+            dev = np.where(ok, lam - mean[groove], 0.0)
+            sd = np.sqrt(np.einsum("ps,pgc->sgc", onehot, dev**2) / (n - 1))
+        sd = np.where(n >= 2, sd, np.nan)
+        usual = np.nanmedian(sd, axis=0) if np.isfinite(sd).any() else np.full(sd.shape[1:], np.nan)
+        ref_groove = np.full(self._orientations.size, -1)
+        ref_groove[self._index[self.is_reference]] = groove[self.is_reference]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return sd[ref_groove] / usual
+
     def strain(self) -> tuple[np.ndarray, np.ndarray | None]:
         """Optical strain relative to the reference of each row's own orientation.
 
