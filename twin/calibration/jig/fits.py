@@ -16,7 +16,6 @@ from twin.calibration.jig.poses import MODELS, JigPoses, _rot, _wrap, jig_curvat
 from twin.fiber import FiberModel
 from twin.strain import CurvatureSolver, design_matrix
 
-
 #: A reference whose trials scatter this many times more than the table's grooves usually do is reported
 #: (:meth:`~twin.calibration.jig.poses.JigPoses.reference_scatter`): on the two AMIRo tables every reference is
 #: within 4 times, and needle_3CH_3AA's 270° reference, whose CH2 AA2 peak is disturbed, 21 times.

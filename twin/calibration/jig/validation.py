@@ -168,7 +168,7 @@ def validate(
     roll: float | None = None,
     fit_roll: bool = False,
     min_curvature: float = 0.8,
-    jig_zero: bool = True,
+    jig_zero: bool = False,
 ) -> JigValidation:
     """Compare a calibration's curvature with the jig's on ``poses``.
 
@@ -192,8 +192,8 @@ def validate(
         Add the jig's zero the calibration carries (``provenance['jig_zero_1_per_m']``) to every k̂, turned into
         the sensor's frame by the pose's rotation: the poses' strain is taken against this jig's flat groove, which
         holds the sensor slightly bent, and k̂ + zero is the absolute curvature the label states (docs/jig.md,
-        "The jig's zero"). False: k̂ is the change from each rotation's reference. Only for poses zeroed in the
-        jig the calibration was made in.
+        "The jig's zero"). False (default): k̂ is the change from each rotation's reference, as if that reference
+        were straight. Only for poses zeroed in the jig the calibration was made in.
     """
     prov = calibration.provenance
     if calibration.design is not None:
@@ -350,7 +350,7 @@ def cross_validate(
     gratings=None,
     trust_references: bool = False,
     min_curvature: float = 0.8,
-    jig_zero: bool = True,
+    jig_zero: bool = False,
 ) -> tuple[JigFit, JigValidation]:
     """Fit on the orientations not in ``holdout`` and validate on those in it — how to judge a calibration.
 
@@ -418,7 +418,7 @@ class LoroStatistics:
     model: str = "physical"
     coverage_95: float | None = None
     n_coverage: int = 0
-    jig_zero: bool = True
+    jig_zero: bool = False
 
     @property
     def kappa_error(self) -> float:
@@ -471,7 +471,7 @@ def leave_one_rotation_out(
     trust_references: bool = False,
     min_curvature: float = 0.8,
     terms=None,
-    jig_zero: bool = True,
+    jig_zero: bool = False,
 ) -> LoroStatistics:
     """Fit on all orientations but one, validate on that one, for each orientation in turn (and once on all).
 
