@@ -18,7 +18,7 @@ from twin.strain import CurvatureSolver, design_matrix
 
 #: A reference whose trials scatter this many times more than the table's grooves usually do is reported
 #: (:meth:`~twin.calibration.jig.poses.JigPoses.reference_scatter`): on the two AMIRo tables every reference is
-#: within 4 times, and needle_3CH_3AA's 270° reference, whose CH2 AA2 peak is disturbed, 21 times.
+#: within 3 times, and needle_3CH_3AA's 270° reference, whose CH2 AA2 peak is disturbed, 14 times.
 DISTURBED_REFERENCE = 10.0
 
 
@@ -484,11 +484,11 @@ def fit(
             "the fitted core layout is the mirror image of the nominal one: is the sense of orientation_rad "
             "reversed? ψ counts counter-clockwise about +d3 (the tangent from base to tip), like the core angles"
         )
-    scatter = poses.reference_scatter()[:, fit_g]  # (O, G, C)
-    for o, i, c in zip(*np.nonzero(scatter > DISTURBED_REFERENCE), strict=True):
+    scatter = poses.reference_scatter()[:, fit_g]  # (O, G)
+    for o, i in zip(*np.nonzero(scatter > DISTURBED_REFERENCE), strict=True):
         warnings.append(f"orientation {np.rad2deg(poses.orientations[o]):.4g}°: the reference trials disagree at "
-                        f"grating {int(fit_g[i])} core {int(c)} {scatter[o, i, c]:.0f} times more than a groove's "
-                        "trials usually do; a disturbed peak? That rotation's zero is uncertain")
+                        f"grating {int(fit_g[i])} {scatter[o, i]:.0f} times more than a groove's trials usually do "
+                        "(common shift removed); a disturbed peak? That rotation's zero is uncertain")
     dev = np.abs(_wrap(angles - fiber.core_angles))[:, fiber.bending_cores]
     if np.any(dev > np.deg2rad(15)):
         i, c = np.unravel_index(int(np.argmax(dev)), dev.shape)
