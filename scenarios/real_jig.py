@@ -18,7 +18,10 @@ real session would). ``ratio`` is twin / real; the twin reproduces the table whe
 error-model ``nuisance`` fit, with each of its jig terms dropped in turn) by the one score
 (:mod:`twin.calibration.jig.score`): on both real tables leave one rotation out, and on the twin over the sessions,
 three ways — held-out rotations (leave one out), a second session of the same sensor in the same jig (one global
-roll fitted) and the truth (exact bends of the true sensor, no jig at all: the calibration's own error).
+roll fitted) and the truth (exact bends of the true sensor, no jig at all: the calibration's own error). Poses
+zeroed in the jig (the real tables, held-out rotations, the second session) are scored with the jig's zero added
+to the curvature and without (docs/jig.md, "The jig's zero"); the truth session, zeroed straight, without. The
+three figures of the twin beside the real table (and ``--budget``) are the jig's raw statistics: without it.
 """
 
 from __future__ import annotations
@@ -72,7 +75,8 @@ EFFECTS: dict[str, dict] = {
 
 
 def real_statistics(poses_path: str | Path, fiber: FiberModel, gratings) -> dict:
-    """The three figures (and the per-level arrays) of a real jig table."""
+    """The three figures (and the per-level arrays) of a real jig table: its raw statistics, k̂ as the change from
+    each rotation's reference (no jig zero added), as the twin's :func:`loro` computes them."""
     poses = read_poses(poses_path, fiber=fiber)
     return leave_one_rotation_out(fiber, poses, gratings=gratings, min_curvature=MIN_CURVATURE).to_dict()
 
