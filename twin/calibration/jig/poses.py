@@ -233,7 +233,7 @@ class JigPoses:
         groove = np.ravel(groove)
         onehot = np.eye(int(groove.max()) + 1)[groove]  # (P, S)
         with np.errstate(invalid="ignore", divide="ignore"):
-            lam = self.wavelengths - np.nanmean(self.wavelengths, axis=2, keepdims=True)
+            lam = self.wavelengths - np.mean(self.wavelengths, axis=2, keepdims=True)  # NaN: a lost peak
             ok = np.all(np.isfinite(lam), axis=2)  # (P, G): rows with every peak of the grating
             lam = np.where(ok[..., None], lam, 0.0)
             n = np.einsum("ps,pg->sg", onehot, ok.astype(float))
