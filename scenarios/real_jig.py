@@ -259,7 +259,7 @@ def _print_models(models: dict, out) -> None:
                 cover = r[f"{key}_coverage_95"]
                 line += (f"{_f(r[f'{key}_all_kappa_1_per_m'], '8.4f')}{_f(r[f'{key}_all_direction_deg'], '7.2f')}°"
                          f"{_f(r[f'{key}_clinical_kappa_1_per_m'], '10.4f')}"
-                         f"{_f(None if cover is None else 100 * cover, '7.1f')}{'' if cover is None else '%'}")
+                         f"{'—' if cover is None else f'{100 * cover:.1f}%':>8s}")
             print(f"{r['variant']:28s}{line}", file=out)
     tw = models["twin"]
     print(f"\nTwin of needle_3CH_4AA_v2, median of {tw['seeds']} sessions (in brackets: fraction of sessions better "
