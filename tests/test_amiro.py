@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from scenarios.real_jig import EFFECTS, FACTOR, KEYS, compare, real_statistics
-from sim_interrogator.needle_jig import AMIRO, amiro_fiber, loro
+from sim_interrogator.needle_jig import AMIRO, amiro_fiber, loro, simulate
 from twin import Calibration, FiberModel
 from twin.calibration import jig
 from twin.cli import main
@@ -233,3 +233,33 @@ def test_every_model_on_both_needles_as_documented():
         for key, cover in zip(("loro", "loro_raw"), coverage[table], strict=True):
             assert scores["nuisance"][f"{key}_coverage_95"] == pytest.approx(cover, abs=5e-4)
             assert scores["linear"][f"{key}_coverage_95"] is None
+
+
+def test_twin_jig_zero_is_the_simulated_flat_groove():
+    """On the twin, whose flat groove holds the needle bent by 0.14 1/m along the bend and 0.10 across in every
+    session (AMIRO.reference_bias) plus 0.10 1/m of scatter per rotation: the nuisance calibration's jig zero, mean
+    over the gratings, median of 5 sessions, is that bend to 0.02 1/m; the plain linear map, which took the
+    references as straight and absorbed most of the bend into its gain, reads less than half of it."""
+    fiber = amiro_fiber()
+    found = {"nuisance": [], "linear": []}
+    for seed in range(5):
+        poses, truth = simulate(replace(AMIRO, seed=seed), fiber)
+        for model, zeros in found.items():
+            cal = jig.fit(fiber, poses, model=model, gratings=truth["gratings_in_groove"]).calibration
+            zeros.append(np.mean(cal.provenance["jig_zero_1_per_m"], axis=0))
+    np.testing.assert_allclose(np.median(found["nuisance"], axis=0), AMIRO.reference_bias, atol=0.02)
+    assert np.all(np.median(found["linear"], axis=0) < 0.5 * np.array(AMIRO.reference_bias))
+
+
+def test_model_study_scores_with_and_without_the_jig_zero():
+    """`twin run real-jig --models` on the twin: every variant scored on held-out rotations and a second session
+    with the jig's zero and without, and on the truth session (straight references) without."""
+    from scenarios.real_jig import VARIANTS, model_study
+
+    out = model_study(replace(AMIRO, seed=0), amiro_fiber(), 1, variants=(VARIANTS[0], VARIANTS[3]))
+    assert out["seeds"] == 1 and set(out["variants"]) == {"linear", "nuisance"}
+    med = out["variants"]["nuisance"]["median"]
+    for key in ("loro", "second", "loro_raw", "second_raw", "truth"):
+        assert med[f"{key}_all_kappa_1_per_m"] > 0 and med[f"{key}_all_direction_deg"] > 0
+    assert 0 < med["loro_coverage_95"] <= 1 and "loro_coverage_95" not in out["variants"]["linear"]["median"]
+    assert out["variants"]["linear"]["better_than_linear"]["truth_all_kappa_1_per_m"] == 0.0
