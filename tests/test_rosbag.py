@@ -348,7 +348,7 @@ def test_reading_a_recording_takes_memory_bounded_by_the_record_bound_and_the_sl
     finally:
         tracemalloc.stop()
     assert n == 3 * len(frames)
-    assert opened < size / 20 and read < size / 10, (opened, read, size)
+    assert opened < size / 20 and read < size / 8, (opened, read, size)  # measured: 0.19 and 0.61 MB of 7.1
 
 
 def _patched(data: bytes, at: int, value: bytes) -> bytes:
