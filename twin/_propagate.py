@@ -117,8 +117,8 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
     o += 3 * 12 * n_int
     gh = work[o:o + 36].reshape((3, 12))
     o += 36
-    x = work[o:o + n_g * 12 * kk].reshape((n_g, 12, kk))
-    o += n_g * 12 * kk
+    xn = work[o:o + 12 * kk].reshape((12, kk))  # one grating's X_n
+    o += 12 * kk
     y = work[o:o + 36 * kk].reshape((6, 6, kk))
     o += 36 * kk
     z = work[o:o + 6 * n_par * kk].reshape((6, n_par, kk))
@@ -139,13 +139,15 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
             _integrand(pos, fr, points[j, e], g[e, :, j])
     for e in range(3):
         _integrand(pos, fr, half_points[e], gh[e])
-    # the running integrals at the breakpoints (and the first piece's middle point), grating by grating: each
-    # piece's increment along the pieces (vectorised), then the running sum with the 12 rows side by side (the
-    # sum along one row alone would wait on its own additions)
+    # grating by grating (one grating's integrals stay in the first-level cache): the running integrals X_n at
+    # the breakpoints and the first piece's middle point — each piece's increment along the pieces (vectorised),
+    # then the running sum with the 12 rows side by side (the sum along one row alone would wait on its own
+    # additions) — then Y += X_n V_n X_nᵀ (upper triangle) and Z += X_n S_n σ_p, element-wise along the lanes
+    y[:] = 0.0
+    z[:] = 0.0
     for n in range(n_g):
         if not use[n]:
             continue
-        xn = x[n]
         for rc in range(12):
             for j in range(n_int):
                 xn[rc, j + 1] = wb[0, n, j] * g[0, rc, j] + wb[1, n, j] * g[1, rc, j] + wb[2, n, j] * g[2, rc, j]
@@ -156,13 +158,6 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
         for j in range(1, n_int):
             for rc in range(12):
                 xn[rc, j + 1] += xn[rc, j]
-    # Y = Σ_n X_n V_n X_nᵀ (upper triangle) and Z = Σ_n X_n S_n σ_p, element-wise along the breakpoints
-    y[:] = 0.0
-    z[:] = 0.0
-    for n in range(n_g):
-        if not use[n]:
-            continue
-        xn = x[n]
         v00, v01, v11 = v[n, 0, 0], v[n, 0, 1], v[n, 1, 1]
         for r in range(6):
             for i in range(kk):
@@ -273,7 +268,7 @@ def _lanes(n_b):  # pragma: no cover (compiled)
 def _work_size(n_g, n_b, n_par):  # pragma: no cover (compiled)
     kk = _lanes(n_b)
     # g, gh, x, y, z, xv, m, pt, cb, pc
-    return 36 * (n_b - 1) + 36 + n_g * 12 * kk + 36 * kk + 6 * n_par * kk + 12 * kk + 36 * kk + 6 * kk + 18 * kk \
+    return 36 * (n_b - 1) + 36 + 12 * kk + 36 * kk + 6 * n_par * kk + 12 * kk + 36 * kk + 6 * kk + 18 * kk \
         + 36 * (n_b - 1)
 
 
