@@ -295,7 +295,9 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     """All of :meth:`twin.uncertainty.Uncertainty.propagate` for F frames: ``pos`` (F, n_p, 3), ``frames``
     (F, n_p, 3, 3), curvature ``k`` (F, n_g, 2) (NaN where invalid), ``valid`` (F, n_g), wavelengths ``w``
     (F, n_g, n_c) nm (or (0, n_g, n_c): every peak of a valid grating present) → ``cov_out`` (F, n_p, 3, 3) m²,
-    ``ck_out`` (F, n_g, 2, 2) (1/m)², NaN at invalid gratings."""
+    ``ck_out`` (F, n_g, 2, 2) (1/m)², NaN at invalid gratings. ``which`` (F,) each frame's row of ``bases``; or
+    empty: then ``bases[0]`` is the intact pattern's, and the frames that lost a grating are left out of
+    ``cov_out`` (not of ``ck_out``) for a second call with their patterns. Returns the number left out."""
     (grating_s, lam0, ck_table, sens_table, par_sd, breaks, points, interval, hw, first,
      half_points) = _unpack(const)
     n_f, n_g = k.shape[0], k.shape[1]
@@ -310,6 +312,7 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     prev = np.empty(n_g, np.int64)
     nxt = np.empty(n_g, np.int64)
     d2 = np.empty(n_g)
+    left_out = 0
     for f in range(n_f):
         n_valid = 0
         for n in range(n_g):
@@ -348,8 +351,13 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
         if n_valid == 0:
             cov_out[f] = np.nan
             continue
-        _frame(pos[f], frames[f], v, sp, valid[f], base_var, const[11], bases[which[f]], breaks, points,
-               interval, hw, first, half_points, work, cov_out[f])
+        if which.size == 0 and n_valid < n_g:
+            left_out += 1
+            continue
+        row = bases[0] if which.size == 0 else bases[which[f]]
+        _frame(pos[f], frames[f], v, sp, valid[f], base_var, const[11], row, breaks, points, interval, hw, first,
+               half_points, work, cov_out[f])
+    return left_out
 
 
 @njit(cache=True, nogil=True)

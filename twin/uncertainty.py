@@ -229,14 +229,21 @@ class Uncertainty:
             w = self._no_wavelengths
         else:
             w = _wavelengths(wavelengths).reshape(n_f, n_g, -1)
-        vf = valid.reshape(n_f, n_g)
-        bases, which = self._patterns(vf)
+        vf = np.ascontiguousarray(valid.reshape(n_f, n_g))
+        args = (np.ascontiguousarray(shape.positions.reshape(n_f, n_p, 3)),
+                np.ascontiguousarray(shape.frames.reshape(n_f, n_p, 3, 3)),
+                np.ascontiguousarray(k.reshape(n_f, n_g, 2)), vf, np.ascontiguousarray(w, dtype=np.float64))
         cov = np.empty((n_f, n_p, 3, 3))
         ck = np.empty((n_f, n_g, 2, 2))
-        _propagate.propagate(self._const(), np.ascontiguousarray(shape.positions.reshape(n_f, n_p, 3)),
-                             np.ascontiguousarray(shape.frames.reshape(n_f, n_p, 3, 3)),
-                             np.ascontiguousarray(k.reshape(n_f, n_g, 2)), np.ascontiguousarray(vf),
-                             np.ascontiguousarray(w, dtype=np.float64), bases, which, cov, ck)
+        const = self._const()
+        # intact frames with the intact pattern; those that lost a grating, if any, again with their patterns
+        if _propagate.propagate(const, *args, self._full_weights, _NO_FRAMES, cov, ck):
+            lost = np.flatnonzero(~vf.all(axis=1))
+            bases, which = self._patterns(vf[lost])
+            sub = [a[lost] if a.shape[0] else a for a in args]
+            sub_cov, sub_ck = np.empty((lost.size, n_p, 3, 3)), np.empty((lost.size, n_g, 2, 2))
+            _propagate.propagate(const, *sub, bases, which, sub_cov, sub_ck)
+            cov[lost] = sub_cov
         return shape._with_uncertainty(cov.reshape(*batch, n_p, 3, 3), ck.reshape(*batch, n_g, 2, 2))
 
     # ------------------------------------------------------------------ curvature
@@ -342,6 +349,9 @@ class Uncertainty:
                               np.ascontiguousarray(shape.frames.reshape(n_f, n_p, 3, 3)), v, sp, vf, bases, which,
                               out)
         return out.reshape((*shape.positions.shape[:-1], 3, 3))
+
+
+_NO_FRAMES = np.zeros(0, np.int64)
 
 
 def _patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
