@@ -42,6 +42,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from models import _rod_kernels
+from twin._numba_entry import compiled_entry
 from twin.frames import Truth
 
 __all__ = ["RodReader", "RodState", "RodTruth", "RodView", "read_rod", "so3_exp", "so3_log"]
@@ -433,6 +434,8 @@ class RodView:
         self.theta = np.zeros(r._ne)  # the clamped edge's entry stays 0
         self.frames = np.empty((r._ne, 3, 3))
         self.darboux = np.empty((r._ne - 1, 3))
+        # past numba's dispatcher (twin/_numba_entry.py): these arguments keep their types
+        self._kernel = compiled_entry(_rod_kernels.bound_frames_and_darboux, *self.kernel_arguments())
 
     def kernel_arguments(self) -> tuple:
         """The arguments of :func:`models._rod_kernels.bound_frames_and_darboux`, for callers that fuse the rod
@@ -443,7 +446,7 @@ class RodView:
 
     def compute(self) -> None:
         """Fill :attr:`frames` and :attr:`darboux` from the bound ``mjData`` now (after ``mj_step``)."""
-        if not _rod_kernels.bound_frames_and_darboux(*self.kernel_arguments()):
+        if not self._kernel(*self.kernel_arguments()):
             self.restart()
 
     def restart(self) -> None:
@@ -492,6 +495,10 @@ class RodTruth:
         sq = np.clip(s, es[0], es[-1])
         self._frame_edge = np.clip(np.searchsorted(es, sq, side="right") - 1, 0, es.size - 2).astype(np.int64)
         self._frame_h = sq - es[self._frame_edge]
+        self._kernel = compiled_entry(  # past numba's dispatcher (twin/_numba_entry.py): the types of every call
+            _rod_kernels.truth_samples, view.positions, view.frames, view.darboux, self._lerp_index,
+            self._lerp_weight, self._frame_edge, self._frame_h, self._basis_t, np.empty((self._m, 3)),
+            np.empty((self._m, 3, 3)), np.empty((self._n_g, 2)), np.empty(self._n_g))
 
     def __call__(self, temperature: np.ndarray, fixture: np.ndarray | None = None) -> Truth:
         """The truth now, with ``temperature`` (n_gratings,) K (copied) and ``fixture`` passed through."""
@@ -500,9 +507,8 @@ class RodTruth:
         frames = np.empty((self._m, 3, 3))
         curvature = np.empty((self._n_g, 2))
         twist = np.empty(self._n_g)
-        _rod_kernels.truth_samples(v.positions, v.frames, v.darboux, self._lerp_index, self._lerp_weight,
-                                   self._frame_edge, self._frame_h, self._basis_t, positions, frames, curvature,
-                                   twist)
+        self._kernel(v.positions, v.frames, v.darboux, self._lerp_index, self._lerp_weight, self._frame_edge,
+                     self._frame_h, self._basis_t, positions, frames, curvature, twist)
         return Truth._trusted(self.s, positions, frames, curvature, twist, temperature.copy(), fixture)
 
 

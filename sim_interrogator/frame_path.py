@@ -6,18 +6,20 @@ the rod, average its curvature over each grating, roll it into the fibre's frame
 overhead around a few microseconds of arithmetic. :func:`frame_wavelengths` does the same arithmetic in one
 compiled call into buffers allocated once:
 
-1. material frames and Darboux vectors of every edge (:func:`models._rod_kernels.frames_and_darboux`);
+1. material frames and Darboux vectors of every edge, read through views of ``mjData`` taken once
+   (:class:`models.rod_state.RodView`, :func:`models._rod_kernels.bound_frames_and_darboux`);
 2. (κ1, κ2, τ) averaged over each grating's length: a fixed matrix (n_gratings, n_interior) that folds the
-   cubic interpolation to the grating's Gauss points and their weights (:meth:`models.rod_state.RodReader.
-   interpolation_matrix`, :attr:`sim_interrogator.optics.Optics.sample_weights`);
+   cubic interpolation to the grating's Gauss points and their weights (:func:`grating_average`);
 3. the optional roll of (κ1, κ2) into a fibre frame turned by r about d3 (the fibre-in-lumen setups);
 4. (k_x, k_y) = (κ2, −κ1), the design-form strain and the interrogator's effects
    (:func:`sim_interrogator.optics._design_strain`, :func:`sim_interrogator.optics._apply_effects`).
 
-What stays in Python per frame: the setup's conditions (temperature, axial strain), one normal draw of the
-noise (:meth:`~sim_interrogator.optics.Optics.random_draw`, so the numbers are those of
+What stays in Python per frame: the setup's conditions (temperature, axial strain: a Python float is spread over
+the gratings in the compiled call), the drift's step and the offset of the frame's normal draws in the optics'
+:class:`~sim_interrogator.optics.NormalStream` (so the numbers are those of
 :meth:`~sim_interrogator.optics.Optics.wavelengths` from the same seed) and the two output arrays the frame
-keeps. The result equals the numpy path's to rounding (tests/test_sim.py). A spun fibre's exact path lengths
+keeps. The call goes to the compiled function directly, past numba's dispatcher (:mod:`twin._numba_entry`). The
+result equals the numpy path's to rounding (tests/test_sim.py). A spun fibre's exact path lengths
 (:meth:`~sim_interrogator.optics.Optics.spun_wavelengths`) keep the general path.
 """
 
@@ -32,6 +34,7 @@ from numba import njit
 from models._rod_kernels import bound_frames_and_darboux
 from models.rod_state import RodReader, RodView
 from sim_interrogator.optics import Optics, _apply_effects, _design_strain
+from twin._numba_entry import compiled_entry
 
 __all__ = ["FramePath", "frame_wavelengths", "grating_average"]
 
@@ -48,21 +51,24 @@ def grating_average(reader: RodReader, optics: Optics) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def frame_wavelengths(x, plastic, qpos, twist_edges, twist_qadr, theta, site_row, inv_lbar, frames, darboux,
-                      have_frames, average_t, roll, axial_value, temp_value, axial, temp, curvature, strain, design, s_t, lam0, lam0_nominal,
-                      drift, drift_step, normals, z_offset, order, scalars, lost_flag, w, status):
+                      have_frames, average_t, roll, axial_value, temp_value, axial, temp, curvature, strain, design,
+                      s_t, lam0, lam0_nominal, drift, drift_step, normals, z_offset, order, scalars, lost_flag, w,
+                      status):
     """Rod state → curvature at the gratings → wavelengths, in one call (see the module docstring).
 
     The first ten arguments are those of :func:`models._rod_kernels.bound_frames_and_darboux` (views of
     ``mjData`` and the buffers ``frames`` (n_edges, 3, 3), ``darboux`` (n_interior, 3) it fills); with
     ``have_frames`` the buffers are taken as they are. Returns False, computing nothing, when the rod has no
     frames yet (``plastic`` still zero: the caller fills the buffers and calls again with ``have_frames``).
-    ``average_t`` is :func:`grating_average` transposed, (n_interior, n_gratings); ``roll`` rad; ``axial``, ``temp`` (1, n_gratings) the axial strain and
-    temperature change at the gratings, set to ``axial_value``, ``temp_value`` unless these are NaN; ``curvature``
-    (1, n_gratings, 2) receives (k_x, k_y) at the gratings, 1/m; ``strain`` (1, n_gratings, n_cores) the optical
-    strain; ``w`` and ``status`` (n_gratings, n_cores) the wavelengths (nm, NaN where lost) and their status.
-    ``normals[z_offset:]`` holds the frame's 2 · n_gratings · n_cores normal draws
-    (:meth:`~sim_interrogator.optics.Optics.random_draw`'s ``z``, read only with drift or noise); ``scalars`` holds S_ε, the fibre's offset, noise, quantisation, slot, separation and the band's ends
-    (:meth:`FramePath.__init__`); the remaining arguments are those of
+
+    ``average_t`` is :func:`grating_average` transposed, (n_interior, n_gratings); ``roll`` rad; ``axial``,
+    ``temp`` (1, n_gratings) the axial strain and temperature change at the gratings, set to ``axial_value``,
+    ``temp_value`` unless these are NaN; ``curvature`` (1, n_gratings, 2) receives (k_x, k_y) at the gratings,
+    1/m; ``strain`` (1, n_gratings, n_cores) the optical strain; ``w`` and ``status`` (n_gratings, n_cores) the
+    wavelengths (nm, NaN where lost) and their status. ``normals[z_offset:]`` holds the frame's
+    2 · n_gratings · n_cores normal draws (:meth:`~sim_interrogator.optics.Optics.random_draw`'s ``z``, read only
+    with drift or noise); ``scalars`` holds S_ε, the fibre's offset, noise, quantisation, slot, separation and the
+    band's ends (:class:`FramePath`); the remaining arguments are those of
     :func:`~sim_interrogator.optics._design_strain` and :func:`~sim_interrogator.optics._apply_effects`.
     """
     if axial_value == axial_value:  # a number for every grating (NaN: ``axial`` holds them already)
@@ -146,6 +152,12 @@ class FramePath:
         self._rod_args = rod.kernel_arguments()
         self._design, self._s_t, self._lam0, self._lam0_nominal = design, s_t, lam0, lam0_nominal
         self._drift, self._order, self._lost_flag = drift, order, lost_flag
+        # the compiled function itself, past numba's dispatcher (twin/_numba_entry.py): the arguments' types
+        # below are those of every call
+        self._kernel = compiled_entry(
+            frame_wavelengths, *self._rod_args, False, self._average_t, 0.0, 0.0, 0.0, self._axial, self._temp,
+            self._curvature, self._strain, design, s_t, lam0, lam0_nominal, drift, 0.0, self._no_draw, 0, order,
+            self._scalars, lost_flag, np.empty(self._shape), np.zeros(self._shape, np.uint8))
 
     def __call__(self, data: mujoco.MjData, axial, delta_t, t: float, roll: float = 0.0
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -176,10 +188,10 @@ class FramePath:
             normals, offset = self._no_draw, 0
         w = np.empty(self._shape)
         status = np.zeros(self._shape, np.uint8)
-        args = (*self._rod_args, False, self._average_t, roll, axial_value, temp_value, self._axial, self._temp, self._curvature, self._strain,
-                self._design, self._s_t, self._lam0, self._lam0_nominal, self._drift, step, normals, offset,
-                self._order, self._scalars, self._lost_flag, w, status)
-        if not frame_wavelengths(*args):
+        args = (*self._rod_args, False, self._average_t, roll, axial_value, temp_value, self._axial, self._temp,
+                self._curvature, self._strain, self._design, self._s_t, self._lam0, self._lam0_nominal, self._drift,
+                step, normals, offset, self._order, self._scalars, self._lost_flag, w, status)
+        if not self._kernel(*args):
             self.rod.restart()
-            frame_wavelengths(*args[:10], True, *args[11:])
+            self._kernel(*args[:10], True, *args[11:])
         return w, status

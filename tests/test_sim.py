@@ -2,11 +2,13 @@
 
 import re
 
+import mujoco
 import numpy as np
 import pytest
 
-from scenarios import static_shapes
 from models.rod_state import RodTruth
+from scenarios import static_shapes
+from sim_interrogator.frame_path import FramePath
 from sim_interrogator.optics import NormalStream, Optics, OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
@@ -234,6 +236,19 @@ def test_rod_truth_is_the_rod_states_truth():
     view.compute()
     after = truth(temp[:4])
     assert not np.shares_memory(after.positions, got.positions) and np.array_equal(got.positions, before)
+    # before the first step (mjData.plastic still zero) the view and the frame path rebuild the frames as MuJoCo
+    # restarts them, as the reader does
+    data = mujoco.MjData(sim.model)
+    mujoco.mj_forward(sim.model, data)
+    fresh = sim.reader.bind(data)
+    path = FramePath(fresh, Optics(FIBER, OpticsConfig.ideal()))
+    w, _ = path(data, 0.0, 0.0, None)
+    want = sim.reader.read(data)
+    np.testing.assert_allclose(fresh.frames, want.edge_frames, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fresh.darboux, want.darboux, rtol=0, atol=1e-12)
+    fresh.compute()
+    np.testing.assert_allclose(fresh.darboux, want.darboux, rtol=0, atol=1e-12)
+    assert np.isfinite(w).all()
 
 
 def test_sim_url():
