@@ -355,8 +355,8 @@ class RodReader:
     def kernel_inputs(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What :func:`models._rod_kernels.frames_and_darboux` reads from ``data``: vertex positions (n_vertices, 3)
         (a view of ``data``), MuJoCo's reference frames (6 n_edges,), twist angles (n_edges,) (a buffer the reader
-        reuses) and the base site's x axis (3,). For callers that fuse the rod read into a compiled call of their
-        own (:mod:`sim_interrogator.frame_path`)."""
+        reuses) and the base site's x axis (3,); before the first step, the frames as MuJoCo restarts them. (Callers
+        at the sensor rate read through a :class:`RodView` instead.)"""
         x = data.flexvert_xpos[self._va : self._va + self._nv]
         p = data.plastic[self._pa : self._pa + 6 * self._ne]
         if not (p[3] or p[4] or p[5]):
