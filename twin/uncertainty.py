@@ -41,7 +41,7 @@ from twin.frames import Shape
 from twin.reconstruct import Reconstructor
 
 __all__ = ["TWIN_INTERPOLATION", "TWIN_MODEL_ERROR", "ModelError", "Uncertainty", "coverage", "fit_model_error",
-           "inside", "lateral_errors"]
+           "inside", "lateral_errors", "truth_in_base"]
 
 
 @dataclass(frozen=True)
@@ -64,6 +64,13 @@ class ModelError:
         1σ of the base frame's orientation about each of its axes, rad: the reconstruction starts from the base
         frame as given (a clamp, a tracked hub), which sits off the fibre's true first tangent and roll by this
         much; it moves every point by δφ × p.
+    twist : float
+        1σ of the catheter's twist rate that the fibre does not measure, rad/m, taken as constant along the
+        fibre: a fibre without a twist measurement reconstructs as if the material frame did not turn about the
+        tangent, which is the true curvature rotated back by the twist angle ψ(s) = τ s, an error
+        δk(s) = ψ(s) J k(s) (:meth:`twist_sensitivity`). One error shared by every grating, so it keeps its
+        correlation along the fibre, and it grows with s and |k|: in a sheath, where friction twists the
+        catheter, the distal tube's largest term.
     parameter_scale : float
         Factor on the calibration's stated 1σ of Δθ and g (1: as identified). :func:`fit_model_error` lowers it
         only when noise and the parameters alone already hold more than the level on the fitting shapes: an
@@ -78,9 +85,10 @@ class ModelError:
     interpolation: float = 0.0
     parameter_scale: float = 1.0
     source: str = ""
+    twist: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("curvature", "relative", "base_angle", "parameter_scale", "interpolation"):
+        for name in ("curvature", "relative", "base_angle", "parameter_scale", "interpolation", "twist"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"ModelError.{name}: expected a finite value >= 0, got {v}")
@@ -118,21 +126,37 @@ class ModelError:
         _interpolation_kernel(flat_k, flat_v, np.ascontiguousarray(grating_s, dtype=np.float64), out)
         return self.interpolation * out.reshape(valid.shape)
 
+    def twist_sensitivity(self, curvature: np.ndarray, grating_s: np.ndarray) -> np.ndarray | None:
+        """The curvature error at each grating per 1σ of the unmeasured twist rate (:attr:`twist`), 1/m,
+        (..., n_gratings, 2, 1), from the measured curvature (..., n_gratings, 2) at arc lengths ``grating_s``
+        (n_gratings,) m from the base; None without the term.
+
+        Integrating the material frame's rates (k_x, k_y, τ) is, exactly, integrating (Rψ k, 0) with Rψ the
+        rotation by ψ(s) = ∫_0^s τ about the tangent (the frame without twist keeps the same tangent), so a
+        reconstruction that takes τ = 0 errs by δk = (Rψ − I) k ≈ ψ J k, J k = (−k_y, k_x); for a constant
+        twist rate τ, ψ = τ s and ∂k_n/∂τ = s_n J k_n (docs/math.md §8.1)."""
+        if not self.twist:
+            return None
+        k = np.asarray(curvature, dtype=np.float64)
+        jk = np.stack([-k[..., 1], k[..., 0]], axis=-1)
+        return (self.twist * np.asarray(grating_s, dtype=np.float64)[:, None] * jk)[..., None]
+
     def replace(self, **changes) -> ModelError:
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict:
         return {"curvature_1_per_m": self.curvature, "relative": self.relative, "base_angle_rad": self.base_angle,
-                "interpolation": self.interpolation,
+                "interpolation": self.interpolation, "twist_rad_per_m": self.twist,
                 "parameter_scale": self.parameter_scale, "source": self.source}
 
 
-#: The interpolation constant c of the default pipeline (the spline, gratings 10 mm apart) in the twin: fitted on
-#: a sheath run other than the one scored (``twin run sheath-motion --start-mm 40 --travel-mm 150 --friction
-#: 0.2 --seed 1 --no-return --no-sheath-icp --json``: ``uncertainty.model_error_needed_in_sample``, with the
-#: lab's other terms held), where bends of 8 mm radius sampled every 10 mm make the interpolation the largest
-#: error; 1.6 times the linear interpolant's 1/12 (docs/math.md §8.4).
-TWIN_INTERPOLATION = 0.134
+#: The interpolation constant c of the default pipeline (the spline, gratings 10 mm apart) in the twin, derived
+#: from the rod's exact truth on a sheath run other than the one scored (``python -m scenarios._common.coverage``,
+#: :func:`scenarios._common.coverage.interpolation_constant`: the actual angle error of the spline through the true
+#: curvature at the gratings on every piece, against the model's variance at c = 1), where bends of 8 mm radius
+#: sampled every 10 mm make the interpolation a large error: 1.6 times the linear interpolant's 1/12
+#: (docs/math.md §8.4; 0.123 on sheath-motion's scored run).
+TWIN_INTERPOLATION = 0.132
 
 #: The model error of the default pipeline in the twin: the interpolation term (:data:`TWIN_INTERPOLATION`) and
 #: a white curvature error of 0.014 1/m per component and grating fitted on top of it in ``twin run
@@ -239,11 +263,16 @@ class Uncertainty:
         if me.curvature or me.relative or me.interpolation:
             ck = ck + (sig_m**2)[..., None, None] * np.eye(2)
         sens = None
+        sd = self._par_sd * me.parameter_scale
         if sens_op is not None:
             sens = np.einsum("...nipj,...nj->...nip", sens_op, k)  # (..., n_g, 2, n_par)
-        cov = self.position_covariance(shape, ck, sens, valid)
+        twist = me.twist_sensitivity(k, self.reconstructor.fiber.grating_s)  # per 1σ: (..., n_g, 2, 1)
+        if twist is None:
+            cov = self.position_covariance(shape, ck, sens, valid)
+        else:  # one more error shared by the gratings; it moves the positions, not the measured curvature
+            shared = twist if sens is None else np.concatenate([sens, twist], axis=-1)
+            cov = self.position_covariance(shape, ck, shared, valid, shared_sd=np.append(sd, 1.0))
         if sens is not None:
-            sd = self._par_sd * self.model_error.parameter_scale
             ck = ck + np.einsum("...nip,p,...njp->...nij", sens, sd**2, sens)
         ck = np.where(valid[..., None, None], ck, np.nan)
         return dataclasses.replace(shape, covariance=cov, curvature_covariance=ck)
@@ -302,11 +331,12 @@ class Uncertainty:
         return b
 
     def position_covariance(self, shape: Shape, curvature_covariance: np.ndarray, sensitivity: np.ndarray | None,
-                            valid: np.ndarray) -> np.ndarray:
+                            valid: np.ndarray, shared_sd: np.ndarray | None = None) -> np.ndarray:
         """Position covariance (..., n_points, 3, 3), m², from the per-grating curvature covariance of the
         errors independent between gratings (noise, model error; (..., n_g, 2, 2)) and the curvature's
-        sensitivity to the shared parameters (..., n_g, 2, n_par) or None; invalid gratings (not interpolated
-        through) carry nothing. Frames without a usable grating get NaN.
+        sensitivity to the shared errors (..., n_g, 2, n_par) or None, whose 1σ are ``shared_sd`` (n_par,)
+        (default the calibration's parameters' scaled by ``parameter_scale``); invalid gratings (not
+        interpolated through) carry nothing. Frames without a usable grating get NaN.
 
         Exact first-order sensitivities J_n(s) = ∫_0^s B_n(u) (R E)(u) × (p(s) − p(u)) du at the breakpoints of
         the interpolant (the gratings and the ends), by the 3-point rule on each piece (Simpson's where the
@@ -332,7 +362,9 @@ class Uncertainty:
             # an invalid grating is not interpolated through: its column of the basis is zero already
         out = np.empty((n_f, n_p, 3, 3))
         q = self._quad
-        _covariance_kernel(pos, frames, bases, which, v, sens, self._par_sd * self.model_error.parameter_scale,
+        if shared_sd is None:
+            shared_sd = self._par_sd * self.model_error.parameter_scale
+        _covariance_kernel(pos, frames, bases, which, v, sens, np.asarray(shared_sd, dtype=np.float64),
                            self.model_error.base_angle**2,
                            q["points"], q["weights"], q["breaks"], q["interval"], q["t"], q["h"], q["first"],
                            q["half_points"], q["half_weights"], out)
@@ -644,6 +676,18 @@ def _wavelengths(data) -> np.ndarray:
     return np.asarray(data, dtype=np.float64)
 
 
+def truth_in_base(truth_s: np.ndarray, positions: np.ndarray, base_frames: np.ndarray, base_positions: np.ndarray,
+                  s: np.ndarray) -> np.ndarray:
+    """The true centreline (..., m, 3) world, m, at arc lengths ``truth_s`` (m,), in the base frame (R
+    (..., 3, 3), p (..., 3)) at arc lengths ``s``: (..., len(s), 3), by a cubic spline in arc length (a linear
+    one would cut a simulator's ~2 mm vertices' corners by h²κ/8, up to 0.03 mm). No registration: the tube is
+    checked as it is used, from the base frame."""
+    from scipy.interpolate import CubicSpline
+
+    local = np.einsum("...mi,...ij->...mj", positions - base_positions[..., None, :], base_frames)
+    return CubicSpline(truth_s, local, axis=-2)(s)
+
+
 def inside(shape: Shape, truth: np.ndarray, level: float = 0.95) -> np.ndarray:
     """Whether each true point lies in the shape's level-% tube, bool (..., n_points).
 
@@ -688,8 +732,8 @@ def fit_model_error(uncertainty: Uncertainty, shape: Shape, wavelengths, truth: 
         The true centreline at the shape's arc lengths in its base frame, m.
     level : float
     template : ModelError, optional
-        The model error's form; its ``curvature``, ``relative``, ``base_angle`` and ``interpolation`` are scaled
-        together.
+        The model error's form; its ``curvature``, ``relative``, ``base_angle``, ``interpolation`` and ``twist``
+        are scaled together.
     fixed : ModelError, optional
         Terms held while the template's are fitted (those the template sets replace them): e.g. the
         interpolation constant fitted elsewhere, with the white part fitted here; its ``parameter_scale`` is
@@ -699,7 +743,7 @@ def fit_model_error(uncertainty: Uncertainty, shape: Shape, wavelengths, truth: 
     """
     t = template or ModelError(curvature=1.0)
     base = fixed or ModelError()
-    names = [n for n in ("curvature", "relative", "base_angle", "interpolation") if getattr(t, n)]
+    names = [n for n in ("curvature", "relative", "base_angle", "interpolation", "twist") if getattr(t, n)]
 
     def scaled(k: float, p: float | None = None) -> ModelError:
         return base.replace(**{n: k * getattr(t, n) for n in names}, source=source,
