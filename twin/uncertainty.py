@@ -41,7 +41,7 @@ from twin.frames import Shape
 from twin.reconstruct import Reconstructor
 
 __all__ = ["TWIN_INTERPOLATION", "TWIN_MODEL_ERROR", "ModelError", "Uncertainty", "coverage", "fit_model_error",
-           "inside", "lateral_errors", "truth_in_base"]
+           "inside", "interpolation_order", "lateral_errors", "truth_in_base"]
 
 
 @dataclass(frozen=True)
@@ -95,20 +95,31 @@ class ModelError:
             object.__setattr__(self, name, float(v))
 
     def sigma(self, curvature: np.ndarray, grating_s: np.ndarray | None = None,
-              valid: np.ndarray | None = None) -> np.ndarray:
+              valid: np.ndarray | None = None, order: int = 2) -> np.ndarray:
         """1σ per component at each grating, 1/m, shape (..., n_gratings), from curvature (..., n_gratings, 2):
         the white part and, with the gratings' arc lengths ``grating_s`` (n_gratings,) m and ``valid``
-        (..., n_gratings) bool, the interpolation part (:meth:`interpolation_sigma`), added in variance."""
+        (..., n_gratings) bool, the interpolation part (:meth:`interpolation_sigma` of ``order``), added in
+        variance."""
         white = self.curvature + self.relative * np.hypot(curvature[..., 0], curvature[..., 1])
         if not self.interpolation or grating_s is None:
             return np.broadcast_to(white, curvature.shape[:-1])
         if valid is None:
             valid = np.ones(curvature.shape[:-1], bool)
-        return np.hypot(white, self.interpolation_sigma(curvature, grating_s, valid))
+        return np.hypot(white, self.interpolation_sigma(curvature, grating_s, valid, order))
 
-    def interpolation_sigma(self, curvature: np.ndarray, grating_s: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    def interpolation_sigma(self, curvature: np.ndarray, grating_s: np.ndarray, valid: np.ndarray,
+                            order: int = 2) -> np.ndarray:
         """The interpolation part of the per-grating 1σ per component, 1/m (..., n_gratings); 0 at invalid
-        gratings.
+        gratings. ``order`` is the interpolant's: 2 for one exact for straight lines (linear: c = 1/12 is exact
+        on a quadratic profile, below), 4 for the cubic spline, whose error on a piece H is ∝ k⁽⁴⁾ H⁴ and its
+        angle error ∝ k⁽⁴⁾ H⁵: the same sharing, with k⁽⁴⁾_n (4! times the fourth divided difference over five
+        valid gratings) and H⁵ in place of k'' and H³ (for gratings h apart σ_n = c |Δ⁴k_n| / √2; next to a
+        lost grating √(½(1 + 2¹⁰))/1.5 ≈ 15 times an inner grating's at the same k⁽⁴⁾). A second difference
+        charges the spline for a smooth bending it follows exactly: against the spline's actual error on the
+        twin's exact truth it over-states 24 times more on static shapes than in a sheath, the fourth
+        difference 3.3 times (docs/math.md §8.4).
+
+        For order 2:
 
         Between valid gratings a and b (a piece of length H) an interpolant that is exact for straight lines errs
         by e(s) = k''/2 (s − s_a)(s − s_b) for a quadratic profile, so the piece's angle is off by
@@ -123,7 +134,9 @@ class ModelError:
         flat_k = np.ascontiguousarray(k.reshape(-1, *k.shape[-2:]))
         flat_v = np.ascontiguousarray(valid.reshape(-1, valid.shape[-1]))
         out = np.empty(flat_v.shape)
-        _interpolation_kernel(flat_k, flat_v, np.ascontiguousarray(grating_s, dtype=np.float64), out)
+        if order not in (2, 4):
+            raise ValueError(f"interpolation_sigma: order must be 2 or 4, got {order}")
+        _interpolation_kernel(flat_k, flat_v, np.ascontiguousarray(grating_s, dtype=np.float64), order, out)
         return self.interpolation * out.reshape(valid.shape)
 
     def twist_sensitivity(self, curvature: np.ndarray, grating_s: np.ndarray) -> np.ndarray | None:
@@ -150,13 +163,14 @@ class ModelError:
                 "parameter_scale": self.parameter_scale, "source": self.source}
 
 
-#: The interpolation constant c of the default pipeline (the spline, gratings 10 mm apart) in the twin, derived
-#: from the rod's exact truth on a sheath run other than the one scored (``python -m scenarios._common.coverage``,
-#: :func:`scenarios._common.coverage.interpolation_constant`: the actual angle error of the spline through the true
-#: curvature at the gratings on every piece, against the model's variance at c = 1), where bends of 8 mm radius
-#: sampled every 10 mm make the interpolation a large error: 1.6 times the linear interpolant's 1/12
-#: (docs/math.md §8.4; 0.123 on sheath-motion's scored run).
-TWIN_INTERPOLATION = 0.132
+#: The interpolation constant c of the default pipeline (the spline, gratings 10 mm apart; the fourth-difference
+#: form, :meth:`ModelError.interpolation_sigma`) in the twin, derived from the rod's exact truth on a sheath run
+#: other than the one scored (``python -m scenarios._common.coverage``,
+#: :func:`scenarios._common.coverage.interpolation_constant`: the actual angle error of the spline through the
+#: true curvature at the gratings on every piece, against the model's variance at c = 1), where bends of 8 mm
+#: radius sampled every 10 mm make the interpolation a large error (docs/math.md §8.4; 0.042 on sheath-motion's
+#: scored run, 0.013 on the static library shapes).
+TWIN_INTERPOLATION = 0.0435
 
 #: The model error of the default pipeline in the twin: the interpolation term (:data:`TWIN_INTERPOLATION`) and
 #: a white curvature error of 0.014 1/m per component and grating fitted on top of it in ``twin run
@@ -167,6 +181,13 @@ TWIN_INTERPOLATION = 0.132
 TWIN_MODEL_ERROR = ModelError(curvature=0.014, interpolation=TWIN_INTERPOLATION,
                               source="twin: interpolation on a sheath run, white part on static-shapes "
                                      "(docs/math.md §8.4)")
+
+
+def interpolation_order(interpolation: str) -> int:
+    """The difference order of the interpolation term (:meth:`ModelError.interpolation_sigma`) for a
+    reconstructor's ``interpolation``: the cubic spline's error follows the curvature's fourth derivative (4),
+    an interpolant exact only for straight lines its second (2)."""
+    return 4 if interpolation == "spline" else 2
 
 
 def lateral_errors(shape: Shape, truth: np.ndarray) -> np.ndarray:
@@ -215,6 +236,7 @@ class Uncertainty:
         self.reconstructor = rec
         self.wavelength_noise = sigma
         self.model_error = TWIN_MODEL_ERROR if model_error is None else model_error
+        self.interpolation_order = interpolation_order(rec.interpolation)
         fiber, cal = rec.fiber, rec.calibration
         self._design = cal.design_for(fiber)  # (n_g, n_c, 3)
         self._var_e = (sigma / cal.reference_for(fiber)) ** 2  # (n_g, n_c): variance of the optical strain
@@ -259,7 +281,7 @@ class Uncertainty:
                 ck, sens_op = self._masked(~(missing | outside))
         ck = np.broadcast_to(ck, (*batch, n_g, 2, 2))
         me = self.model_error
-        sig_m = me.sigma(k, self.reconstructor.fiber.grating_s, valid)
+        sig_m = me.sigma(k, self.reconstructor.fiber.grating_s, valid, self.interpolation_order)
         if me.curvature or me.relative or me.interpolation:
             ck = ck + (sig_m**2)[..., None, None] * np.eye(2)
         sens = None
@@ -385,54 +407,42 @@ def _patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True, nogil=True)
-def _interpolation_kernel(k, valid, s, out):  # pragma: no cover (compiled)
-    """|k''_n| √(½ Σ H⁶) / (w_n √2) per frame and grating (:meth:`ModelError.interpolation_sigma` without c):
-    k (F, n, 2), valid (F, n), s (n,), out (F, n); k''_n the second divided difference over the valid
-    neighbours, the end gratings taking their neighbour's; 0 at invalid gratings, and k'' = 0 with fewer than 3
-    valid."""
+def _interpolation_kernel(k, valid, s, order, out):  # pragma: no cover (compiled)
+    """|k⁽ᵖ⁾_n| √(½ Σ H^(2p+2)) / (w_n √2) per frame and grating (:meth:`ModelError.interpolation_sigma`
+    without c), p = ``order`` (2 or 4): k (F, n, 2), valid (F, n), s (n,), out (F, n); k⁽ᵖ⁾_n is p! times the
+    p-th divided difference over p + 1 consecutive valid gratings centred on n (shifted inwards at the ends, so
+    the end gratings share their neighbours' stencil); 0 at invalid gratings, and with fewer than p + 1 valid."""
     n_f, n = valid.shape
-    prev = np.empty(n, np.int64)
-    nxt = np.empty(n, np.int64)
-    d2 = np.zeros(n)
+    idx = np.empty(n, np.int64)
+    tab = np.empty((order + 1, 2))
+    fact = 1.0
+    for q in range(2, order + 1):
+        fact *= q
     for f in range(n_f):
-        last = -1
+        m = 0
         for i in range(n):
-            prev[i] = last
-            if valid[f, i]:
-                last = i
-        last = n
-        for i in range(n - 1, -1, -1):
-            nxt[i] = last
-            if valid[f, i]:
-                last = i
-        first_v, last_v, count = -1, -1, 0
-        for i in range(n):
-            d2[i] = 0.0
             out[f, i] = 0.0
-            if not valid[f, i]:
-                continue
-            count += 1
-            if first_v < 0:
-                first_v = i
-            last_v = i
-            a, b = prev[i], nxt[i]
-            if a >= 0 and b < n:
-                hm, hp = s[i] - s[a], s[b] - s[i]
-                c = 2.0 / (hm + hp)
-                x = c * ((k[f, b, 0] - k[f, i, 0]) / hp - (k[f, i, 0] - k[f, a, 0]) / hm)
-                y = c * ((k[f, b, 1] - k[f, i, 1]) / hp - (k[f, i, 1] - k[f, a, 1]) / hm)
-                d2[i] = np.sqrt(x * x + y * y)
-        if count >= 3:  # the end gratings take their neighbour's
-            d2[first_v] = d2[nxt[first_v]]
-            d2[last_v] = d2[prev[last_v]]
-        if count < 2:
+            if valid[f, i]:
+                idx[m] = i
+                m += 1
+        if m < order + 1:
             continue
-        for i in range(n):
-            if not valid[f, i]:
-                continue
-            hm = s[i] - s[prev[i]] if prev[i] >= 0 else 0.0
-            hp = s[nxt[i]] - s[i] if nxt[i] < n else 0.0
-            out[f, i] = d2[i] * np.sqrt(0.5 * (hm**6 + hp**6)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
+        for j in range(m):
+            start = min(max(j - order // 2, 0), m - order - 1)
+            for q in range(order + 1):
+                tab[q, 0] = k[f, idx[start + q], 0]
+                tab[q, 1] = k[f, idx[start + q], 1]
+            for lev in range(1, order + 1):  # divided differences in place
+                for q in range(order, lev - 1, -1):
+                    d = s[idx[start + q]] - s[idx[start + q - lev]]
+                    tab[q, 0] = (tab[q, 0] - tab[q - 1, 0]) / d
+                    tab[q, 1] = (tab[q, 1] - tab[q - 1, 1]) / d
+            dk = fact * np.sqrt(tab[order, 0] ** 2 + tab[order, 1] ** 2)
+            i = idx[j]
+            hm = s[i] - s[idx[j - 1]] if j > 0 else 0.0
+            hp = s[idx[j + 1]] - s[i] if j < m - 1 else 0.0
+            e = 2 * order + 2
+            out[f, i] = dk * np.sqrt(0.5 * (hm**e + hp**e)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
 
 
 def _quadrature(rec: Reconstructor) -> dict:

@@ -35,14 +35,22 @@ from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
 from twin import Calibration, FiberModel, Reconstructor, Shape, curve
 from twin.frames import Truth
-from twin.uncertainty import TWIN_INTERPOLATION, ModelError, Uncertainty, coverage, fit_model_error, truth_in_base
+from twin.uncertainty import (
+    TWIN_INTERPOLATION,
+    ModelError,
+    Uncertainty,
+    coverage,
+    fit_model_error,
+    interpolation_order,
+    truth_in_base,
+)
 
 __all__ = ["LEVEL", "SHEATH_TWIST", "fit_on_frames", "interpolation_constant", "lab_model_error", "sheath_terms",
            "summary", "truth_in_base", "truth_of_frames", "twist_sigma"]
 
 #: The tube every report checks, and its acceptance band (issue 21): 92–98 % of the truth points inside.
 LEVEL = 0.95
-_CACHE_VERSION = 6  # 6: the twist term derived from the shapes' truth and held with the interpolation term
+_CACHE_VERSION = 7  # 7: the twist term derived from the shapes' truth; the interpolation term's constant in the key
 
 #: 1σ of the constant twist rate the twin's catheter takes in its sheath, rad/m (the fibre does not measure it):
 #: the RMS over frames of the least-squares τ in ψ(s) = τ s fitted to the rod's true twist angle on a sheath run
@@ -134,7 +142,8 @@ def interpolation_constant(rec: Reconstructor, truth_s: np.ndarray, frames: np.n
     w = np.zeros(len(g))
     w[:-1] += 0.5 * np.diff(g)
     w[1:] += 0.5 * np.diff(g)
-    unit = ModelError(interpolation=1.0).interpolation_sigma(curvature, g, np.ones(curvature.shape[:-1], bool))
+    unit = ModelError(interpolation=1.0).interpolation_sigma(curvature, g, np.ones(curvature.shape[:-1], bool),
+                                                              interpolation_order(rec.interpolation))
     model = 2.0 * (unit * w) ** 2  # both components' angle variance at c = 1
     return float(np.sqrt(actual.sum() / model.sum()))
 
@@ -182,7 +191,7 @@ def lab_model_error(fiber: FiberModel, optics: OpticsConfig, cal: Calibration, *
     say = progress or (lambda msg: None)
     key = {"version": _CACHE_VERSION, "fiber": fiber.to_dict(), "calibration": cal.to_dict(),
            "optics": {k: v for k, v in optics.__dict__.items() if k not in ("seed", "thermal_mismatch")},
-           "shapes": list(names), "repeats": repeats}
+           "shapes": list(names), "repeats": repeats, "interpolation": TWIN_INTERPOLATION}
     digest = hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
     path = cache_dir() / f"lab-model-error-{digest}.json"
     if cache and path.is_file():
