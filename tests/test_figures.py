@@ -20,9 +20,9 @@ from twin.io.illumisense.vendor import vendor_sensors
 from twin.io.record import Recorder, open_recording
 from twin.io.source import open_source
 from twin.live import LiveLoop
-from twin.uncertainty import Uncertainty, inside, truth_in_base
 from twin.reference_errors import TruthError, TubeFigures, VendorDistance
 from twin.synthetic import multicore_fiber
+from twin.uncertainty import Uncertainty, inside, truth_in_base
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg"}

@@ -42,11 +42,12 @@ from twin.uncertainty import (
     coverage,
     fit_model_error,
     interpolation_order,
+    lateral_errors,
     truth_in_base,
 )
 
 __all__ = ["LEVEL", "SHEATH_TWIST", "fit_on_frames", "interpolation_constant", "lab_model_error", "sheath_terms",
-           "summary", "truth_in_base", "truth_of_frames", "twist_sigma"]
+           "summary", "truth_in_base", "truth_of_frames", "twist_sigma", "width"]
 
 #: The tube every report checks, and its acceptance band (issue 21): 92–98 % of the truth points inside.
 LEVEL = 0.95
@@ -81,9 +82,7 @@ def summary(shape: Shape, truth: np.ndarray) -> dict:
     s = shape.s
     edges = np.linspace(0, s[-1], 5)
     quarters = [coverage(shape, truth, LEVEL, where=(s > lo) & (s <= hi)) for lo, hi in itertools.pairwise(edges)]
-    sig = shape.sigma[..., s > 0]
-    out = {"coverage_95": coverage(shape, truth, LEVEL), "mean_sigma_mm": float(np.nanmean(sig) * 1e3),
-           "coverage_95_by_quarter": quarters}
+    out = {"coverage_95": coverage(shape, truth, LEVEL), **width(shape, truth), "coverage_95_by_quarter": quarters}
     lost = ~shape.valid.all(axis=-1)
     if shape.batch_shape and lost.any() and not lost.all():
         out["coverage_95_intact_frames"] = coverage(shape[~lost], truth[~lost], LEVEL)
@@ -168,6 +167,28 @@ def sheath_terms(progress: Say | None = None) -> dict:
     k = np.stack([t.curvature for t in truths])
     return {"interpolation": interpolation_constant(Reconstructor(fiber), truths[0].s, frames, k),
             "twist": twist_sigma(np.stack([t.twist for t in truths]), fiber.grating_s)}
+
+
+def width(shape: Shape | Sequence[Shape], truth: np.ndarray | Sequence[np.ndarray]) -> dict:
+    """How wide the tube is against the errors, over the points with s > 0 where both are finite (of one shape
+    batch, or pooled over several with their truths): ``mean_sigma_mm`` (mean 1σ lateral radius,
+    :attr:`~twin.frames.Shape.sigma`), ``rms_lateral_error_mm`` (RMS of the lateral error's length,
+    :func:`~twin.uncertainty.lateral_errors`) and ``width_ratio`` = √(2 ln 2) / median(|e|/σ): 1 when the
+    errors spread as the tube says (|e|/σ of a 2-D Gaussian of 1σ σ per axis is Rayleigh, median √(2 ln 2)),
+    above 1 a tube wider than its errors, point by point (a median: the σ of a few frames with a lost grating or
+    at an 8 mm bend would dominate a mean of them)."""
+    shapes_, truths = ([shape], [truth]) if isinstance(shape, Shape) else (shape, truth)
+    e_all, s_all = [], []
+    for shp, tru in zip(shapes_, truths, strict=True):
+        e = np.linalg.norm(lateral_errors(shp, tru), axis=-1)
+        sig = np.broadcast_to(shp.sigma, e.shape)
+        use = np.isfinite(e) & np.isfinite(sig) & (shp.s > 0)
+        e_all.append(e[use])
+        s_all.append(sig[use])
+    e, sig = np.concatenate(e_all), np.concatenate(s_all)
+    z = np.median(e[sig > 0] / sig[sig > 0]) if (sig > 0).any() else float("nan")
+    return {"mean_sigma_mm": float(np.mean(sig) * 1e3), "rms_lateral_error_mm": float(np.sqrt(np.mean(e**2))) * 1e3,
+            "width_ratio": float(np.sqrt(2.0 * np.log(2.0)) / z) if z > 0 else float("nan")}
 
 
 def fit_on_frames(fiber: FiberModel, cal: Calibration, frame_sets: Sequence, source: str) -> ModelError:
