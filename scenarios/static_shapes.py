@@ -276,8 +276,8 @@ def tube_coverage(params: Params, fiber: FiberModel, settled: list, per_shape: l
             truths.append(truth)
     total = {"coverage_95": float(np.mean(np.concatenate(inside))), **coverage.width(outs, truths)}
     say(f"    95 % tube: {total['coverage_95']:.1%} of the rod's points inside, mean 1σ "
-        f"{total['mean_sigma_mm']:.3f} mm ({total['width_ratio']:.2f} times the RMS lateral error "
-        f"{total['rms_lateral_error_mm']:.3f} mm)")
+        f"{total['mean_sigma_mm']:.3f} mm against an RMS lateral error of {total['rms_lateral_error_mm']:.3f} mm "
+        f"(width ratio {total['width_ratio']:.2f})")
     return {**total, "model_error": models, "shapes": rows}
 
 

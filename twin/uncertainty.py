@@ -173,13 +173,14 @@ class ModelError:
 TWIN_INTERPOLATION = 0.0435
 
 #: The model error of the default pipeline in the twin: the interpolation term (:data:`TWIN_INTERPOLATION`) and
-#: a white curvature error of 0.014 1/m per component and grating fitted on top of it in ``twin run
-#: static-shapes`` (12 library shapes held by connect constraints, realistic optics, lab calibration; one
-#: fold's shapes need 0.014 1/m, the other's none; docs/math.md §8.4). A real sensor's is larger — the AMIRo
-#: needle's held-out curvature error in its jig is 0.13 1/m (docs/jig.md) — so fit your own
-#: (:func:`fit_model_error`).
-TWIN_MODEL_ERROR = ModelError(curvature=0.014, interpolation=TWIN_INTERPOLATION,
-                              source="twin: interpolation on a sheath run, white part on static-shapes "
+#: a white curvature error of 0.056 1/m per component and grating fitted on top of it in ``twin run
+#: static-shapes`` (12 library shapes held by connect constraints, realistic optics, lab calibration; the two
+#: folds' fits, 0.051 and 0.061 1/m, in RMS; docs/math.md §8.4). No twist term: a catheter twisted in a sheath
+#: needs the sheath's (``ModelError.twist``; 0.82 rad/m in the twin's, scenarios/_common/coverage.py). A real
+#: sensor's white part is larger — the AMIRo needle's held-out curvature error in its jig is 0.13 1/m
+#: (docs/jig.md) — so fit your own (:func:`fit_model_error`).
+TWIN_MODEL_ERROR = ModelError(curvature=0.056, interpolation=TWIN_INTERPOLATION,
+                              source="twin: interpolation derived on a sheath run, white part on static-shapes "
                                      "(docs/math.md §8.4)")
 
 

@@ -56,8 +56,9 @@ _CACHE_VERSION = 7  # 7: the twist term derived from the shapes' truth; the inte
 #: 1σ of the constant twist rate the twin's catheter takes in its sheath, rad/m (the fibre does not measure it):
 #: the RMS over frames of the least-squares τ in ψ(s) = τ s fitted to the rod's true twist angle on a sheath run
 #: other than the one scored (:func:`sheath_terms`: hub from 40 mm, 150 mm in, friction 0.2, seed 1, no return;
-#: 600 frames). In the fixtures the rod twists ten times less (0.02–0.15 rad/m), so the fixtures' own value is
-#: used there (:func:`fit_on_frames`).
+#: 344 frames; sheath-motion's scored run has 1.45 rad/m, pushed further with more friction). In the fixtures
+#: the rod twists ten times less (the lab's grooves and tubes 0.08 rad/m, connect constraints none), so the
+#: fixtures' own value is used there (:func:`fit_on_frames`).
 SHEATH_TWIST = 0.820
 #: The sheath run :func:`sheath_terms` derives from (keyword arguments of sim_interrogator's SheathPath).
 SHEATH_FIT_RUN = {"start": 0.04, "travel": 0.15, "friction": 0.2, "return_trip": False, "seed": 1}
