@@ -4,6 +4,7 @@ the unmeasured twist's 1σ and the interpolation constant, against cases whose a
 import numpy as np
 import pytest
 
+from scenarios import static_shapes, temperature_bath
 from scenarios._common.coverage import darboux_curvature, interpolation_constant, twist_sigma
 from twin import FiberModel, Reconstructor, curve
 
@@ -37,3 +38,16 @@ def test_interpolation_constant_of_the_linear_interpolant_on_a_quadratic_profile
     np.testing.assert_allclose(k_back, k_mid, rtol=1e-9, atol=1e-9)
     c = interpolation_constant(rec, s, frames, profile(fiber.grating_s)[None])
     assert c == pytest.approx(1 / 12, rel=1e-3)
+
+
+@pytest.mark.slow
+def test_the_tube_holds_92_to_98_percent_of_the_static_shapes_and_the_bath():
+    """Issue 21 with the lab calibration: the 95 % tube holds 92–98 % of the rod's points in static-shapes (12
+    shapes, connect; 94.8 % measured) and temperature-bath (96 % measured); sheath-motion's in
+    tests/test_sheath.py. The static tube is no longer several times wider than its errors: its mean 1σ within
+    twice the RMS lateral error (0.073 against 0.055 mm measured; 0.25 mm with the second-difference term)."""
+    s = static_shapes.run_experiment(static_shapes.Params()).uncertainty
+    assert 0.92 <= s["coverage_95"] <= 0.98
+    assert s["mean_sigma_mm"] < 2 * s["rms_lateral_error_mm"]
+    b = temperature_bath.run_experiment(temperature_bath.Params()).summary()
+    assert 0.92 <= b["coverage_95"] <= 0.98

@@ -8,12 +8,13 @@ Three sources are propagated:
 (b) **the calibration's parameters**: the identified Δθ and g with their 1σ (:class:`~twin.Calibration`
     ``delta_theta_std``, ``gain_std``, taken as uncorrelated), through ∂x/∂p = −P (∂D/∂p) x; one error shared by
     every grating, so it enters the positions as a low-rank term with its correlation along the fibre;
-(c) **the model error** (:class:`ModelError`): what the reconstruction's model leaves — interpolating between
-    gratings, the grating's length, the catheter's twist, drift of the reference — as a white per-grating
-    curvature error of 1σ ``curvature`` + ``relative``·|k| per component, the interpolation error between
-    gratings estimated per frame from the measured curvature's second differences (``interpolation``; a lost
-    grating's gap widens it), and optionally an error of the base frame's angle and a factor on the stated
-    parameter errors, calibrated on shapes of known truth with :func:`fit_model_error`.
+(c) **the model error** (:class:`ModelError`): what the reconstruction's model leaves — the grating's length,
+    drift of the reference — as a white per-grating curvature error of 1σ ``curvature`` + ``relative``·|k| per
+    component; the interpolation error between gratings estimated per frame from the measured curvature's
+    second (linear interpolant) or fourth (spline) differences (``interpolation``; a lost grating's gap widens
+    it); the catheter's twist that the fibre cannot see, a constant twist rate shared by every grating
+    (``twist``); and optionally an error of the base frame's angle and a factor on the stated parameter errors,
+    calibrated on shapes of known truth with :func:`fit_model_error`.
 
 A curvature error δk(s) rotates everything beyond s about p(s) by R(s) δu(s) ds, δu = (−δk_y, δk_x, 0), so to
 first order δp(s_j) = ∫_0^{s_j} (R δu)(s) × (p(s_j) − p(s)) ds, with δk(s) the interpolation basis applied to
@@ -56,10 +57,11 @@ class ModelError:
         Part proportional to the measured |k| (dimensionless): σ = ``curvature`` + ``relative``·|k|.
     interpolation : float
         Constant c of the interpolation error between gratings (dimensionless; :meth:`interpolation_sigma`): per
-        frame, the curvature's second divided difference k''_n over the valid gratings, times the pieces'
-        lengths, gives each grating a white error that carries the interpolant's error over its pieces. For a
-        linear interpolant and a quadratic curvature profile c = 1/12 is exact (docs/math.md §8.1); a lost
-        grating leaves a piece of 2h, whose error is 8 times that of a piece h (h³), so the tube widens there.
+        frame, the curvature's second (linear interpolant) or fourth (spline) divided difference over the valid
+        gratings, times the pieces' lengths, gives each grating a white error that carries the interpolant's
+        error over its pieces. For a linear interpolant and a quadratic curvature profile c = 1/12 is exact
+        (docs/math.md §8.1); a lost grating leaves a piece of 2h, whose error is 8 (linear) or 32 (spline) times
+        that of a piece h, so the tube widens there. The constant belongs to its interpolant.
     base_angle : float
         1σ of the base frame's orientation about each of its axes, rad: the reconstruction starts from the base
         frame as given (a clamp, a tracked hub), which sits off the fibre's true first tangent and roll by this
