@@ -257,8 +257,8 @@ def run_coverage(fiber: FiberModel, optics: OpticsConfig, cal: Calibration | Non
     unc = Uncertainty(rec, model_error=me, wavelength_noise=rec.wavelength_noise / np.sqrt(averaged))
     out = unc.propagate(shape, wavelengths)
     # a diagnostic, not a calibration of this run: the interpolation constant that would have brought this run's
-    # own points to 95 % with the other terms held (how far the error model is from this regime; on a run other
-    # than the scored ones it is how TWIN_INTERPOLATION was fitted)
+    # own points to 95 % with the other terms held (how far the error model is from this regime; TWIN_INTERPOLATION
+    # itself is derived from the rod's truth, interpolation_constant)
     needed = fit_model_error(unc, shape, wavelengths, truth, level=LEVEL, template=ModelError(interpolation=1.0),
                              fixed=me, source="fitted on this run (diagnostic)")
     return {**summary(out, truth), "model_error": me.to_dict(), "model_error_needed_in_sample": needed.to_dict()}
