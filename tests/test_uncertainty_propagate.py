@@ -28,33 +28,36 @@ def batch() -> np.ndarray:
 
 def stepwise(unc: Uncertainty, shape, w):
     """The propagation from its parts: the inversion's covariance for each frame's present peaks, the model
-    error's σ (ModelError.sigma), ∂k/∂p = −P (∂D/∂p) k, then Uncertainty.position_covariance."""
+    error's σ (ModelError.sigma), ∂k/∂p = −P (∂D/∂p) k and the twist's column
+    (ModelError.twist_sensitivity), then Uncertainty.position_covariance."""
     rec = unc.reconstructor
     present = ~(np.isnan(w) | rec.peaks_outside(w))
     p, cov = _masked_inverse(unc._design, present, unc._var_e)
     k = np.nan_to_num(shape.curvature)
-    sig = unc.model_error.sigma(k, FIBER.grating_s, shape.valid)
+    me = unc.model_error
+    sig = me.sigma(k, FIBER.grating_s, shape.valid, unc.interpolation_order)
     ck = cov[..., 1:, 1:] + (sig**2)[..., None, None] * np.eye(2)
-    sens = None
-    if unc._dd is not None:
-        op = -np.einsum("...nic,pncj->...nipj", p[..., 1:, :], unc._dd)
-        sens = np.einsum("...nipj,...nj->...nip", op, k)
-    pos_cov = unc.position_covariance(shape, ck, sens, shape.valid)
-    if sens is not None:
-        sd = unc._par_sd * unc.model_error.parameter_scale
-        ck = ck + np.einsum("...nip,p,...njp->...nij", sens, sd**2, sens)
+    op = -np.einsum("...nic,pncj->...nipj", p[..., 1:, :], unc._dd)
+    sens = np.einsum("...nipj,...nj->...nip", op, k)
+    sd = unc._par_sd * me.parameter_scale
+    # the twist: one more shared column, per 1σ, that moves the positions and not the measured curvature
+    shared = np.concatenate([sens, me.twist_sensitivity(k, FIBER.grating_s)], axis=-1)
+    pos_cov = unc.position_covariance(shape, ck, shared, shape.valid, shared_sd=np.append(sd, 1.0))
+    ck = ck + np.einsum("...nip,p,...njp->...nij", sens, sd**2, sens)
     return pos_cov, np.where(shape.valid[..., None, None], ck, np.nan)
 
 
 @pytest.mark.parametrize("interpolation", ["spline", "linear"])
 def test_one_pass_equals_the_stepwise_propagation(interpolation):
     """Noise with missing and out-of-window peaks (the table of peak patterns), calibration parameters, every
-    model-error term (white, relative, interpolation, base angle, a parameter scale): the compiled pass equals
+    model-error term (white, relative, interpolation of the interpolant's order, base angle, twist, a parameter
+    scale): the compiled pass equals
     the propagation assembled from its parts to 1e-12 relative; a frame with no usable grating is NaN in both."""
     g = nominal_gain(FIBER)
     cal = Calibration(delta_theta=nominal_delta_theta(FIBER), gain=g, delta_theta_std=2e-3, gain_std=0.01 * g)
     rec = Reconstructor(FIBER, cal, interpolation=interpolation)
-    me = ModelError(curvature=0.03, relative=0.02, interpolation=0.134, base_angle=5e-4, parameter_scale=0.7)
+    me = ModelError(curvature=0.03, relative=0.02, interpolation=0.134, base_angle=5e-4, parameter_scale=0.7,
+                    twist=0.4)
     unc = Uncertainty(rec, model_error=me)
     w = batch()
     shape = rec(w)

@@ -30,7 +30,7 @@ _FAST = {"contract", "reassoc", "nsz", "arcp", "afn"}
 
 def pack(quad: dict, grating_s: np.ndarray, lam0: np.ndarray, window: float | None, ck_table: np.ndarray,
          sens_table: np.ndarray, par_sd: np.ndarray, curvature: float, relative: float, interpolation: float,
-         base_var: float) -> np.ndarray:
+         base_var: float, twist: float = 0.0, order: int = 2) -> np.ndarray:
     """The constants of :func:`propagate` and :func:`covariance` as one float64 array.
 
     ``quad`` the quadrature of :func:`twin.uncertainty._quadrature`; ``grating_s`` (n_g,) m; ``lam0`` (n_g, n_c)
@@ -38,7 +38,8 @@ def pack(quad: dict, grating_s: np.ndarray, lam0: np.ndarray, window: float | No
     inversion's curvature covariance for every pattern of present peaks (bit c = core c present);
     ``sens_table`` (n_g, 2^n_c, 2, n_par, 2) the operator k ↦ ∂k/∂p per pattern; ``par_sd`` (n_par,) the
     parameters' 1σ (scaled); the model error's ``curvature`` (1/m), ``relative``, ``interpolation`` and the base
-    angle's variance ``base_var`` (rad²)."""
+    angle's variance ``base_var`` (rad²), the unmeasured twist rate's 1σ ``twist`` (rad/m) and the interpolation
+    term's difference ``order`` (2 or 4)."""
     n_g, n_c = lam0.shape
     n_p = quad["interval"].size
     n_b = quad["breaks"].size
@@ -46,6 +47,7 @@ def pack(quad: dict, grating_s: np.ndarray, lam0: np.ndarray, window: float | No
     header = np.zeros(_HEADER)
     header[:12] = (n_g, n_c, n_p, n_b, n_par, np.inf if window is None else window, curvature, relative,
                    interpolation, base_var, ck_table.shape[1], quad["h"][0])
+    header[12:14] = (twist, order)
     parts = (header, grating_s, lam0, ck_table, sens_table, par_sd, quad["breaks"], quad["points"],
              quad["interval"], _hermite_weights(quad), quad["first"], quad["half_points"])
     return np.concatenate([np.asarray(a, dtype=np.float64).ravel() for a in parts])
@@ -303,15 +305,16 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     n_f, n_g = k.shape[0], k.shape[1]
     n_c, n_par = lam0.shape[1], par_sd.size
     window, white, relative, interp, base_var = const[5], const[6], const[7], const[8], const[9]
+    twist, order = const[12], int(const[13])
+    n_sh = n_par + (1 if twist != 0.0 else 0)  # the shared columns: the parameters, the twist
     full = (1 << n_c) - 1
-    work = np.empty(_work_size(n_g, breaks.size, n_par))
+    work = np.empty(_work_size(n_g, breaks.size, n_sh))
     v = np.empty((n_g, 2, 2))
-    sp = np.empty((n_g, 2, n_par))
+    sp = np.empty((n_g, 2, n_sh))
     kf = np.empty((n_g, 2))
     sig = np.empty(n_g)
-    prev = np.empty(n_g, np.int64)
-    nxt = np.empty(n_g, np.int64)
-    d2 = np.empty(n_g)
+    idx = np.empty(n_g, np.int64)
+    tab = np.empty((order + 1, 2))
     left_out = 0
     for f in range(n_f):
         n_valid = 0
@@ -321,7 +324,7 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
             n_valid += valid[f, n]
         # the model error: white + relative·|k|, and the interpolation part, added in variance
         if interp != 0.0:
-            _interpolation_frame(kf, valid[f], grating_s, prev, nxt, d2, sig)
+            _interpolation_frame(kf, valid[f], grating_s, order, idx, tab, sig)
         for n in range(n_g):
             wsig = white + relative * np.sqrt(kf[n, 0] ** 2 + kf[n, 1] ** 2)
             isig = interp * sig[n] if interp != 0.0 else 0.0
@@ -342,6 +345,11 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
                 for q in range(n_par):
                     sp[n, i, q] = par_sd[q] * (sens_table[n, code, i, q, 0] * kf[n, 0]
                                                + sens_table[n, code, i, q, 1] * kf[n, 1])
+            if n_sh > n_par:
+                # the unmeasured twist: δk_n = τ s_n J k_n, J k = (−k_y, k_x), per 1σ of τ; it moves the
+                # positions, not the measured curvature (ModelError.twist_sensitivity)
+                sp[n, 0, n_par] = -twist * grating_s[n] * kf[n, 1]
+                sp[n, 1, n_par] = twist * grating_s[n] * kf[n, 0]
             for i in range(2):
                 for j in range(2):
                     acc = v[n, i, j]
@@ -361,59 +369,47 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
 
 
 @njit(cache=True, nogil=True)
-def _interpolation_frame(k, valid, s, prev, nxt, d2, out):  # pragma: no cover (compiled)
-    """:func:`interpolation_kernel` for one frame: k (n, 2), valid (n,) → out (n,); ``prev``, ``nxt``, ``d2``
-    scratch (n,)."""
+def _interpolation_frame(k, valid, s, order, idx, tab, out):  # pragma: no cover (compiled)
+    """:func:`interpolation_kernel` for one frame: k (n, 2), valid (n,) → out (n,); ``idx`` (n,) int64 and
+    ``tab`` (order + 1, 2) scratch."""
     n = valid.shape[0]
-    last = -1
+    fact = 1.0
+    for q in range(2, order + 1):
+        fact *= q
+    m = 0
     for i in range(n):
-        prev[i] = last
-        if valid[i]:
-            last = i
-    last = n
-    for i in range(n - 1, -1, -1):
-        nxt[i] = last
-        if valid[i]:
-            last = i
-    first_v, last_v, count = -1, -1, 0
-    for i in range(n):
-        d2[i] = 0.0
         out[i] = 0.0
-        if not valid[i]:
-            continue
-        count += 1
-        if first_v < 0:
-            first_v = i
-        last_v = i
-        a, b = prev[i], nxt[i]
-        if a >= 0 and b < n:
-            hm, hp = s[i] - s[a], s[b] - s[i]
-            c = 2.0 / (hm + hp)
-            x = c * ((k[b, 0] - k[i, 0]) / hp - (k[i, 0] - k[a, 0]) / hm)
-            y = c * ((k[b, 1] - k[i, 1]) / hp - (k[i, 1] - k[a, 1]) / hm)
-            d2[i] = np.sqrt(x * x + y * y)
-    if count >= 3:  # the end gratings take their neighbour's
-        d2[first_v] = d2[nxt[first_v]]
-        d2[last_v] = d2[prev[last_v]]
-    if count < 2:
+        if valid[i]:
+            idx[m] = i
+            m += 1
+    if m < order + 1:
         return
-    for i in range(n):
-        if not valid[i]:
-            continue
-        hm = s[i] - s[prev[i]] if prev[i] >= 0 else 0.0
-        hp = s[nxt[i]] - s[i] if nxt[i] < n else 0.0
-        out[i] = d2[i] * np.sqrt(0.5 * (hm**6 + hp**6)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
+    for j in range(m):
+        start = min(max(j - order // 2, 0), m - order - 1)
+        for q in range(order + 1):
+            tab[q, 0] = k[idx[start + q], 0]
+            tab[q, 1] = k[idx[start + q], 1]
+        for lev in range(1, order + 1):  # divided differences in place
+            for q in range(order, lev - 1, -1):
+                d = s[idx[start + q]] - s[idx[start + q - lev]]
+                tab[q, 0] = (tab[q, 0] - tab[q - 1, 0]) / d
+                tab[q, 1] = (tab[q, 1] - tab[q - 1, 1]) / d
+        dk = fact * np.sqrt(tab[order, 0] ** 2 + tab[order, 1] ** 2)
+        i = idx[j]
+        hm = s[i] - s[idx[j - 1]] if j > 0 else 0.0
+        hp = s[idx[j + 1]] - s[i] if j < m - 1 else 0.0
+        e = 2 * order + 2
+        out[i] = dk * np.sqrt(0.5 * (hm**e + hp**e)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
 
 
 @njit(cache=True, nogil=True)
-def interpolation_kernel(k, valid, s, out):  # pragma: no cover (compiled)
-    """|k''_n| √(½ Σ H⁶) / (w_n √2) per frame and grating (:meth:`ModelError.interpolation_sigma` without c):
-    k (F, n, 2), valid (F, n), s (n,), out (F, n); k''_n the second divided difference over the valid
-    neighbours, the end gratings taking their neighbour's; 0 at invalid gratings, and k'' = 0 with fewer than 3
-    valid."""
+def interpolation_kernel(k, valid, s, order, out):  # pragma: no cover (compiled)
+    """|k⁽ᵖ⁾_n| √(½ Σ H^(2p+2)) / (w_n √2) per frame and grating (:meth:`ModelError.interpolation_sigma`
+    without c), p = ``order`` (2 or 4): k (F, n, 2), valid (F, n), s (n,), out (F, n); k⁽ᵖ⁾_n is p! times the
+    p-th divided difference over p + 1 consecutive valid gratings centred on n (shifted inwards at the ends, so
+    the end gratings share their neighbours' stencil); 0 at invalid gratings, and with fewer than p + 1 valid."""
     n_f, n = valid.shape
-    prev = np.empty(n, np.int64)
-    nxt = np.empty(n, np.int64)
-    d2 = np.zeros(n)
+    idx = np.empty(n, np.int64)
+    tab = np.empty((order + 1, 2))
     for f in range(n_f):
-        _interpolation_frame(k[f], valid[f], s, prev, nxt, d2, out[f])
+        _interpolation_frame(k[f], valid[f], s, order, idx, tab, out[f])
