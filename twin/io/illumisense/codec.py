@@ -364,6 +364,25 @@ class _Layout:
     extra: int
     single: int  # n_cores for channels_as="single", else 0
 
+    @cached_property
+    def roles(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """What each token must be, for :func:`~twin.io.illumisense.scan.parse_layout` (role, want); None when
+        the layout's checks do not map one role to each token (then only the general path reads it)."""
+        n = self.n
+        role = np.full(n, _scan.ROLE_ANY, np.int8)
+        want = np.zeros(n)
+        role[self.numbers] = _scan.ROLE_NUMBER
+        role[self.ints] = _scan.ROLE_INT
+        if not np.isin(self.fixed, self.ints).all() or np.isin(self.labels, np.r_[self.ints, self.numbers]).any():
+            return None
+        role[self.fixed] = _scan.ROLE_FIXED
+        want[self.fixed] = self.fixed_val
+        role[self.labels] = _scan.ROLE_LABEL
+        want[self.labels] = self.label_hash
+        if self.extra or n < 2 or (role[2:] == _scan.ROLE_ANY).any():  # only the date and time are free text
+            return None
+        return role, want
+
 
 class _Tokens:
     """The tokens of one payload (views into a :func:`scan` result), for the field-by-field walk."""
@@ -611,6 +630,41 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
     if n_rec == 0:
         return errors, groups, gid, gidx
     buf = np.frombuffer(data, np.uint8)
+    layouts = [] if layouts is None else layouts
+    single = n_cores if channels_as == "single" else 0
+
+    def add(rows, grp):
+        gid[rows] = len(groups)
+        gidx[rows] = np.arange(rows.size)
+        groups.append(grp)
+
+    # the common case first: the records of the layout the general path would try first, read in one pass
+    rest = None
+    lay = next((x for x in layouts if not x.extra and x.single == single), None)
+    if lay is not None and lay.roles is not None:
+        ok, V, stamp, dtb = _scan.parse_layout(buf, starts, ends, *lay.roles)
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok:
+            rows = np.flatnonzero(ok) if n_ok < n_rec else np.arange(n_rec)
+            if n_ok < n_rec:
+                V, stamp, dtb = V[ok], stamp[ok], dtb[ok]
+            add(rows, _extract(lay, V, V[:, 2].astype(np.int64), stamp, data, dtb))
+        if n_ok == n_rec:
+            return errors, groups, gid, gidx
+        rest = np.flatnonzero(~ok)
+    _decode_general(data, buf, starts, ends, rest, channels_as, n_cores, max_cells, layouts, errors, add)
+    return errors, groups, gid, gidx
+
+
+def _decode_general(data: bytes, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, subset: np.ndarray | None,
+                    channels_as: ChannelsAs, n_cores: int | None, max_cells: int, layouts: list, errors: list,
+                    add) -> None:
+    """The records ``subset`` (all when None) through the tokenizer: matched against the known layouts, the
+    others walked field by field (which learns their layout). ``errors[i]`` is set for payload i that is not a
+    record; ``add(rows, group)`` takes each decoded group (rows: payload indices)."""
+    if subset is not None:
+        starts, ends = starts[subset], ends[subset]
+    n_rec = starts.size
     counts, kind, value, ts, te, stamp, bad, _ = _scan.scan(buf, starts, ends)
     for j in np.flatnonzero(kind == _scan.SLOW).tolist():
         try:
@@ -622,21 +676,16 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
     for r in np.flatnonzero(stamp == _scan.TIME_SLOW).tolist():
         c0 = counts[r]
         stamp[r] = parse_timestamp(data[ts[c0] : te[c0]], data[ts[c0 + 1] : te[c0 + 1]])
-    layouts = [] if layouts is None else layouts
+    index = (lambda rows: rows) if subset is None else (lambda rows: subset[rows])  # noqa: E731
     ntok = np.diff(counts)
     todo = np.flatnonzero(bad < 0)
     for r in (np.flatnonzero(bad >= 0).tolist() if todo.size < n_rec else ()):
-        errors[r] = FramingError("NUL, CR or LF inside the record", offset=int(bad[r]),
-                                 expected="one line of text", protocol=PROTOCOL)
+        errors[int(index(r))] = FramingError("NUL, CR or LF inside the record", offset=int(bad[r]),
+                                             expected="one line of text", protocol=PROTOCOL)
 
     def dt_bounds(rows):
         c0 = counts[rows]
         return np.stack([ts[c0], te[c0], ts[c0 + 1], te[c0 + 1]], axis=1)
-
-    def add(rows, grp):
-        gid[rows] = len(groups)
-        gidx[rows] = np.arange(rows.size)
-        groups.append(grp)
 
     single = n_cores if channels_as == "single" else 0
     while todo.size:
@@ -660,7 +709,7 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
                 if not ok.any():
                     continue
                 rows, V = rows[ok], V[ok]
-            add(rows, _extract(lay, V, V[:, 2].astype(np.int64), stamp[rows], data, dt_bounds(rows)))
+            add(index(rows), _extract(lay, V, V[:, 2].astype(np.int64), stamp[rows], data, dt_bounds(rows)))
             done[sel[ok]] = True
         rest = todo[~done]
         if not rest.size:
@@ -671,7 +720,7 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
         try:
             lay = _walk(tok, channels_as, n_cores, max_cells)
         except FramingError as exc:
-            errors[r] = exc
+            errors[int(index(r))] = exc
             todo = rest[1:]
             continue
         if not lay.extra and not any(x.n == lay.n and x.key == lay.key and np.array_equal(x.labels, lay.labels)
@@ -680,9 +729,8 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
             del layouts[8:]
         rows = np.array([r])
         seq = np.array([tok.int(2, "sample number")], dtype=np.int64)
-        add(rows, _extract(lay, value[a:b][None], seq, stamp[rows], data, dt_bounds(rows)))
+        add(index(rows), _extract(lay, value[a:b][None], seq, stamp[rows], data, dt_bounds(rows)))
         todo = rest[1:]
-    return errors, groups, gid, gidx
 
 
 def decode_many(
