@@ -593,11 +593,14 @@ class _Group:
                       len(self.sensors) - self.usable_sensors)
 
 
-def _extract(lay: _Layout, V: np.ndarray, seq: np.ndarray, stamps: np.ndarray, data: bytes,
-             dt_bounds: np.ndarray) -> _Group:
-    """Records of layout ``lay`` from their token values V (m, lay.n), as one batch."""
-    lam, pw, st, status4 = _scan.channels(V, lay.wl, lay.pw, lay.status, lay.single or lay.wl.shape[0],
-                                          _MISSING, _CHANNEL_ERROR, _INVALID)
+def _extract(lay: _Layout, V: np.ndarray, stamps: np.ndarray, data: bytes, dt_bounds: np.ndarray,
+             *channels: np.ndarray, seq: np.ndarray | None = None) -> _Group:
+    """Records of layout ``lay`` from their token values V (m, lay.n), as one batch (``channels``: the channel
+    arrays when they are made already; ``seq``: the sample numbers, default token 2)."""
+    lam, pw, st, status4 = channels or _scan.channels(V, lay.wl, lay.pw, lay.status, lay.single or lay.wl.shape[0],
+                                                      _MISSING, _CHANNEL_ERROR, _INVALID)
+    if seq is None:
+        seq = V[:, 2].astype(np.int64)
     sens = tuple((V[:, curv] * ks, V[:, ang] * as_, V[:, xyz] * ps) for curv, ang, xyz, (ks, as_, ps) in lay.sensors)
     eng = V[:, lay.eng] if lay.eng is not None else None
     return _Group(lay, lam, pw, st, status4, np.asarray(seq, np.int64), np.asarray(stamps, np.float64), sens, eng,
@@ -642,13 +645,15 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
     rest = None
     lay = next((x for x in layouts if not x.extra and x.single == single), None)
     if lay is not None and lay.roles is not None:
-        ok, V, stamp, dtb = _scan.parse_layout(buf, starts, ends, *lay.roles)
+        ok, *arrays = _scan.parse_layout(buf, starts, ends, *lay.roles, lay.wl, lay.pw, lay.status,
+                                         lay.single or lay.wl.shape[0], _MISSING, _CHANNEL_ERROR, _INVALID)
         n_ok = int(np.count_nonzero(ok))
         if n_ok:
             rows = np.flatnonzero(ok) if n_ok < n_rec else np.arange(n_rec)
             if n_ok < n_rec:
-                V, stamp, dtb = V[ok], stamp[ok], dtb[ok]
-            add(rows, _extract(lay, V, V[:, 2].astype(np.int64), stamp, data, dtb))
+                arrays = [a[ok] for a in arrays]
+            V, stamp, dtb, *chan = arrays
+            add(rows, _extract(lay, V, stamp, data, dtb, *chan))
         if n_ok == n_rec:
             return errors, groups, gid, gidx
         rest = np.flatnonzero(~ok)
@@ -676,11 +681,11 @@ def _decode_general(data: bytes, buf: np.ndarray, starts: np.ndarray, ends: np.n
     for r in np.flatnonzero(stamp == _scan.TIME_SLOW).tolist():
         c0 = counts[r]
         stamp[r] = parse_timestamp(data[ts[c0] : te[c0]], data[ts[c0 + 1] : te[c0 + 1]])
-    index = (lambda rows: rows) if subset is None else (lambda rows: subset[rows])  # noqa: E731
+    index = np.arange(n_rec) if subset is None else subset  # payload index of each record here
     ntok = np.diff(counts)
     todo = np.flatnonzero(bad < 0)
     for r in (np.flatnonzero(bad >= 0).tolist() if todo.size < n_rec else ()):
-        errors[int(index(r))] = FramingError("NUL, CR or LF inside the record", offset=int(bad[r]),
+        errors[int(index[r])] = FramingError("NUL, CR or LF inside the record", offset=int(bad[r]),
                                              expected="one line of text", protocol=PROTOCOL)
 
     def dt_bounds(rows):
@@ -709,7 +714,7 @@ def _decode_general(data: bytes, buf: np.ndarray, starts: np.ndarray, ends: np.n
                 if not ok.any():
                     continue
                 rows, V = rows[ok], V[ok]
-            add(index(rows), _extract(lay, V, V[:, 2].astype(np.int64), stamp[rows], data, dt_bounds(rows)))
+            add(index[rows], _extract(lay, V, stamp[rows], data, dt_bounds(rows)))
             done[sel[ok]] = True
         rest = todo[~done]
         if not rest.size:
@@ -720,7 +725,7 @@ def _decode_general(data: bytes, buf: np.ndarray, starts: np.ndarray, ends: np.n
         try:
             lay = _walk(tok, channels_as, n_cores, max_cells)
         except FramingError as exc:
-            errors[int(index(r))] = exc
+            errors[int(index[r])] = exc
             todo = rest[1:]
             continue
         if not lay.extra and not any(x.n == lay.n and x.key == lay.key and np.array_equal(x.labels, lay.labels)
@@ -729,7 +734,7 @@ def _decode_general(data: bytes, buf: np.ndarray, starts: np.ndarray, ends: np.n
             del layouts[8:]
         rows = np.array([r])
         seq = np.array([tok.int(2, "sample number")], dtype=np.int64)
-        add(index(rows), _extract(lay, value[a:b][None], seq, stamp[rows], data, dt_bounds(rows)))
+        add(index[rows], _extract(lay, value[a:b][None], stamp[rows], data, dt_bounds(rows), seq=seq))
         todo = rest[1:]
 
 

@@ -333,9 +333,10 @@ def scan(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray):
 
 
 @njit(cache=True)
-def _parse_layout(buf, starts, ends, role, want, pow10):
+def _parse_layout(buf, starts, ends, role, want, pow10, wl, pw, status, n_cores, missing, channel_error, invalid):
     m = starts.size
     n = role.size
+    lam, power, st, status4 = _channel_arrays(m, wl, n_cores)
     ok = np.zeros(m, np.bool_)
     V = np.empty((m, n))
     stamp = np.full(m, np.nan)
@@ -429,12 +430,17 @@ def _parse_layout(buf, starts, ends, role, want, pow10):
             if t == TIME_SLOW:
                 good = False
             stamp[r] = t
+        if good and n_cores:
+            _channel_row(V, r, wl, pw, status, n_cores, missing, channel_error, invalid, lam, power, st, status4)
         ok[r] = good
-    return ok, V, stamp, dtb
+    return ok, V, stamp, dtb, lam, power, st, status4
 
 
-def parse_layout(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, role: np.ndarray, want: np.ndarray):
-    """Payloads ``buf[starts[i]:ends[i]]`` read as records of one known layout, in one compiled pass.
+def parse_layout(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, role: np.ndarray, want: np.ndarray,
+                 wl: np.ndarray, pw: np.ndarray, status: np.ndarray, n_cores: int, missing: int, channel_error: int,
+                 invalid: int):
+    """Payloads ``buf[starts[i]:ends[i]]`` read as records of one known layout, and their channel blocks turned
+    into Frame arrays (:func:`channels`), in one compiled pass.
 
     The stream's common case: the layout is known, so each token's place says what it must be, and the
     payload is read straight into the values without the tokenizer's arrays. A payload is accepted only when
@@ -454,6 +460,8 @@ def parse_layout(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, role: np
         :data:`ROLE_LABEL`.
     want : ndarray of float64, shape (n,)
         The value of a FIXED token, the hash of a LABEL token (others ignored).
+    wl, pw, status, n_cores, missing, channel_error, invalid
+        As for :func:`channels`.
 
     Returns
     -------
@@ -465,48 +473,65 @@ def parse_layout(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, role: np
         UTC epoch seconds of the date and time tokens (NaN when they are not a time).
     dt_bounds : ndarray of int64 (m, 4)
         Start and end in ``buf`` of the date and of the time token.
+    wavelengths, powers, status, status4
+        As :func:`channels` returns them (rows of payloads not read hold garbage).
     """
     return _parse_layout(buf, np.ascontiguousarray(starts, np.int64), np.ascontiguousarray(ends, np.int64),
-                         role, want, _POW10)
+                         role, want, _POW10, wl, pw, status, int(n_cores), np.uint8(missing),
+                         np.uint8(channel_error), np.uint8(invalid))
+
+
+@njit(cache=True)
+def _channel_row(V, r, wl, pw, status, n_cores, missing, channel_error, invalid, lam, power, st, status4):
+    """Row r of the channel arrays from row r of the token values V (one record)."""
+    c, g = wl.shape
+    pad = V.shape[1]
+    gg = c * g // n_cores
+    nan = np.nan
+    for k in range(c):
+        err = np.uint8(0)
+        for q in range(4):
+            v = np.int64(V[r, status[k, q]])
+            status4[r, k, q] = v
+            if v != 0:
+                err = channel_error
+        for j in range(g):
+            if gg == g:  # a channel per core
+                core, row = k, j
+            else:  # one channel holding every core, core-major
+                f = k * g + j
+                core = f // gg
+                row = f - core * gg
+            a = wl[k, j]
+            if a == pad:
+                x, y, s = nan, nan, missing
+            else:
+                x = V[r, a]
+                y = V[r, pw[k, j]]
+                s = np.uint8(0)
+                if x == 0.0:
+                    x, y, s = nan, nan, missing
+                elif not (np.isfinite(x) and x > 0.0):
+                    x, s = nan, invalid
+            lam[r, row, core] = x
+            power[r, row, core] = y
+            st[r, row, core] = s | err
+
+
+@njit(cache=True)
+def _channel_arrays(m, wl, n_cores):
+    c, g = wl.shape
+    gg = c * g // n_cores if n_cores else 0
+    return (np.empty((m, gg, n_cores)), np.empty((m, gg, n_cores)), np.empty((m, gg, n_cores), np.uint8),
+            np.empty((m, c, 4), np.int64))
 
 
 @njit(cache=True)
 def _channels(V, wl, pw, status, n_cores, missing, channel_error, invalid):
     m = V.shape[0]
-    c, g = wl.shape
-    pad = V.shape[1]
-    gg = c * g // n_cores
-    lam = np.empty((m, gg, n_cores))
-    power = np.empty((m, gg, n_cores))
-    st = np.empty((m, gg, n_cores), np.uint8)
-    status4 = np.empty((m, c, 4), np.int64)
-    nan = np.nan
+    lam, power, st, status4 = _channel_arrays(m, wl, n_cores)
     for r in range(m):
-        for k in range(c):
-            err = np.uint8(0)
-            for q in range(4):
-                v = np.int64(V[r, status[k, q]])
-                status4[r, k, q] = v
-                if v != 0:
-                    err = channel_error
-            for j in range(g):
-                f = k * g + j
-                core = f // gg
-                row = f - core * gg
-                a = wl[k, j]
-                if a == pad:
-                    x, y, s = nan, nan, missing
-                else:
-                    x = V[r, a]
-                    y = V[r, pw[k, j]]
-                    s = np.uint8(0)
-                    if x == 0.0:
-                        x, y, s = nan, nan, missing
-                    elif not (np.isfinite(x) and x > 0.0):
-                        x, s = nan, invalid
-                lam[r, row, core] = x
-                power[r, row, core] = y
-                st[r, row, core] = s | err
+        _channel_row(V, r, wl, pw, status, n_cores, missing, channel_error, invalid, lam, power, st, status4)
     return lam, power, st, status4
 
 
