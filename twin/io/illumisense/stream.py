@@ -275,11 +275,12 @@ class StreamDecoder:
         out: list = []
         seqs: list = []
         cons = self.consensus
+        fast = True
         while True:
-            spans = self._frame()
+            spans = self._frame(fast)
             if spans is None:
                 break
-            prefix, end = spans
+            prefix, end, compiled = spans
             n = prefix.size
             lo, hi = int(prefix[0]), int(end[-1])
             chunk = bytes(memoryview(self._buf)[lo:hi])  # one copy (the view is released at once)
@@ -317,6 +318,8 @@ class StreamDecoder:
                 self._fail(p, type(e)(e.what, offset=off, expected=e.expected, protocol=PROTOCOL))
             elif self._pos < hi:
                 break
+            # after a run from the compiled framing decoded whole, that framing would stop where it stopped
+            fast = n_ok < n or not compiled
         if self._pos > 65536 and self._pos * 2 > len(self._buf):
             del self._buf[: self._pos]
             self._base += self._pos
@@ -335,21 +338,23 @@ class StreamDecoder:
         self.sensor_blocks_absent += sum(r.absent_sensors for r in out)
         return out
 
-    def _frame(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """Complete candidate records from the current position: (prefix offsets, payload ends) in the buffer, or
-        None. While hunting, at most one (it is accepted only if it decodes)."""
+    def _frame(self, fast: bool = True) -> tuple[np.ndarray, np.ndarray, bool] | None:
+        """Complete candidate records from the current position: (prefix offsets, payload ends, whether the
+        compiled pass found them) in the buffer, or None. While hunting, at most one (it is accepted only if it
+        decodes). ``fast=False`` skips the compiled pass (the caller knows it would find nothing: it stopped
+        here before and no byte has come since)."""
         buf = self._buf
-        if not self._hunting and len(buf) - self._pos >= 4:
+        if fast and not self._hunting and len(buf) - self._pos >= 4:
             # in sync, the run of well-formed prefixes is found in one compiled pass; a bad prefix after
             # them is left to the loop below on the next call
             view = np.frombuffer(buf, np.uint8)
             prefix, end = _scan.spans(view, self._pos, MIN_PAYLOAD, self.max_payload)
             del view  # a live view would forbid resizing the bytearray
             if prefix.size:
-                return prefix, end
+                return prefix, end, True
         spans = self._frame_slowly()
-        return (np.array([p for p, _ in spans], np.int64), np.array([e for _, e in spans], np.int64)) if spans \
-            else None
+        return (np.array([p for p, _ in spans], np.int64), np.array([e for _, e in spans], np.int64), False) \
+            if spans else None
 
     def _frame_slowly(self) -> list[tuple[int, int]]:
         """:meth:`_frame` byte by byte: hunting, at a bad prefix, or waiting for the rest of a payload."""
