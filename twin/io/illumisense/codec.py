@@ -42,7 +42,11 @@ Encoding (the simulator's choices): date ``YYYY/MM/DD``, time ``HH:MM:SS.ffffff`
 with a CHANNEL_ERROR peak, sensor blocks with curvature 6 decimals (1/cm), angle 5 decimals (rad), shape 5
 decimals (cm), line ending CR LF.
 
-Speed: payloads are tokenized in one compiled pass (:func:`twin.io.illumisense.scan.scan`); records whose
+Speed: once a layout is known (the stream's steady state), its records are read in one compiled pass that
+knows what each field must be and writes the Frame arrays directly
+(:func:`twin.io.illumisense.scan.parse_layout`); it reads only what the general path would read with the same
+values, and leaves every other record (damaged, of another layout, a number off the exact fast path) to it.
+The general path tokenizes payloads in one compiled pass (:func:`twin.io.illumisense.scan.scan`); records whose
 layout matches a known layout (same token count, counts, labels) are checked and extracted as one batch
 (compiled: :func:`~twin.io.illumisense.scan.match_layout`, :func:`~twin.io.illumisense.scan.channels`); only
 the others are walked field by field, which also builds the layout for the next ones. The batch stays a set

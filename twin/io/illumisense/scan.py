@@ -16,6 +16,10 @@ A record is ASCII text: fields separated by TAB. Converting ~300 decimal fields 
 - it reads the date (``YYYY-MM-DD`` or ``YYYY/MM/DD``) and time (``HH:MM:SS`` with or without a fraction)
   fields as UTC epoch seconds (NaN when they are not a time; :data:`TIME_SLOW` when the fraction is too long
   for the fast path).
+
+:func:`parse_layout` is the stream's common case in one pass: records of a layout already known are read
+straight into the token values and the Frame arrays (:func:`channels`), each field checked against what its
+place in the layout requires, without the tokenizer's arrays; what it does not read goes through :func:`scan`.
 """
 
 from __future__ import annotations
