@@ -141,6 +141,46 @@ def test_one_pass_reader_decodes_exactly_what_the_general_path_decodes(general_o
     assert sum(not isinstance(r, FramingError) for r in fast) >= 25
 
 
+def ragged(seq: int) -> bytes:  # G = 2 and 3: the short channel NaN-padded
+    return rec(seq, body=b"1\t2\t0\t0\t0\t0\t1530.5\t1540.25\t-1\t-2\t2\t3\t0\t0\t0\t0\t1531\t1541\t1551\t-1\t-2\t-3\t"
+                         b"3\t2\t0\t0\t0\t1\t1532\t1542\t-1\t-2")
+
+
+LAYOUTS = {  # another layout's record (sample number seq) and how to decode it
+    "no channel": (lambda seq: b"2024/01/31\t13:45:12\t%d\t0\r\n" % seq, {}),
+    "ragged, channel error": (ragged, {}),
+    "engineering values": (lambda seq: rec(seq)[:-2] + b"\t3\t1.5\t-2\t30\r\n", {}),
+    "one channel for all cores": (
+        lambda seq: rec(seq, body=b"1\t6\t0\t0\t0\t0\t1530\t1531\t1532\t1533\t1534\t0\t-1\t-1\t-1\t-1\t-1\t-1")
+        .replace(b"\t3\t1\t6", b"\t1\t1\t6"), {"channels_as": "single", "n_cores": 3}),
+}
+
+
+@pytest.mark.parametrize("name", LAYOUTS)
+def test_one_pass_reader_matches_the_general_path_on_other_layouts(general_only, name):
+    make, kw = LAYOUTS[name]
+    layouts: list = []
+    base = [make(k) for k in range(6)]
+    damaged = [base[1][:-7], base[2].replace(b"\t", b"\t\t", 3), base[3].replace(b"2024", b"2\x0024"), base[4] + b"x",
+               base[5].replace(b"\t-1", b"\t-1e0", 1)]
+    payloads = [*base, *damaged, GOOD]
+    data = b"".join(payloads)
+    ends = np.cumsum([len(p) for p in payloads])
+    starts = ends - [len(p) for p in payloads]
+    codec.decode_many(data, starts[:1], ends[:1], layouts=layouts, **kw)
+    lay = layouts[0]
+    ok, *_ = scan.parse_layout(np.frombuffer(data, np.uint8), starts, ends, *lay.roles, lay.wl, lay.pw, lay.status,
+                               lay.single or lay.wl.shape[0], 1, 4, 8)
+    # the one-pass reader reads the layout's records, not the damaged ones, nor a number off its path (-1e0)
+    assert ok[:6].all() and not ok[6:10].any() and ok[10] == (b"\t-1" not in base[5]) and not ok[11]
+    fast = codec.decode_many(data, starts, ends, layouts=[*layouts], **kw)
+    general_only()
+    slow = codec.decode_many(data, starts, ends, layouts=[*layouts], **kw)
+    for a, b in zip(fast, slow, strict=True):
+        same_result(a, b)
+    assert not any(isinstance(r, FramingError) for r in fast[:6])
+
+
 _ALPHABET = b"0123456789.+-eE\t\x00\r\nx [" + b"nai"
 
 
