@@ -630,38 +630,37 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
     starts = np.asarray(starts, dtype=np.int64)
     ends = np.asarray(ends, dtype=np.int64)
     n_rec = starts.size
+    buf = np.frombuffer(data, np.uint8)
+    layouts = [] if layouts is None else layouts
+    single = n_cores if channels_as == "single" else 0
+    # the common case first: the records of the layout the general path would try first, read in one pass
+    ok = found = None
+    lay = next((x for x in layouts if not x.extra and x.single == single), None)
+    if n_rec and lay is not None and lay.roles is not None:
+        ok, *arrays = _scan.parse_layout(buf, starts, ends, *lay.roles, lay.wl, lay.pw, lay.status,
+                                         lay.single or lay.wl.shape[0], _MISSING, _CHANNEL_ERROR, _INVALID)
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok == n_rec:  # all of them: one group, no other bookkeeping
+            return [None] * n_rec, [_extract(lay, *arrays[:2], data, *arrays[2:])], np.zeros(n_rec, np.int64), \
+                np.arange(n_rec)
+        if n_ok:
+            V, stamp, dtb, *chan = [a[ok] for a in arrays]
+            found = _extract(lay, V, stamp, data, dtb, *chan)
     gid = np.full(n_rec, -1, np.int64)
     gidx = np.full(n_rec, -1, np.int64)
     errors: list = [None] * n_rec
     groups: list[_Group] = []
-    if n_rec == 0:
-        return errors, groups, gid, gidx
-    buf = np.frombuffer(data, np.uint8)
-    layouts = [] if layouts is None else layouts
-    single = n_cores if channels_as == "single" else 0
 
     def add(rows, grp):
         gid[rows] = len(groups)
         gidx[rows] = np.arange(rows.size)
         groups.append(grp)
 
-    # the common case first: the records of the layout the general path would try first, read in one pass
-    rest = None
-    lay = next((x for x in layouts if not x.extra and x.single == single), None)
-    if lay is not None and lay.roles is not None:
-        ok, *arrays = _scan.parse_layout(buf, starts, ends, *lay.roles, lay.wl, lay.pw, lay.status,
-                                         lay.single or lay.wl.shape[0], _MISSING, _CHANNEL_ERROR, _INVALID)
-        n_ok = int(np.count_nonzero(ok))
-        if n_ok:
-            rows = np.flatnonzero(ok) if n_ok < n_rec else np.arange(n_rec)
-            if n_ok < n_rec:
-                arrays = [a[ok] for a in arrays]
-            V, stamp, dtb, *chan = arrays
-            add(rows, _extract(lay, V, stamp, data, dtb, *chan))
-        if n_ok == n_rec:
-            return errors, groups, gid, gidx
-        rest = np.flatnonzero(~ok)
-    _decode_general(data, buf, starts, ends, rest, channels_as, n_cores, max_cells, layouts, errors, add)
+    if found is not None:
+        add(np.flatnonzero(ok), found)
+    if n_rec:
+        _decode_general(data, buf, starts, ends, None if ok is None else np.flatnonzero(~ok), channels_as, n_cores,
+                        max_cells, layouts, errors, add)
     return errors, groups, gid, gidx
 
 
