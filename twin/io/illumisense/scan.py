@@ -380,7 +380,8 @@ def _parse_layout(buf, starts, ends, role, want, pow10, wl, pw, status, n_cores,
                 V[r, j] = 0.0
             else:
                 # the tokenizer's exact fast path and nothing else: [sign] digits [. digits], ≤ 15 digits (written
-                # out as in _scan, not shared: as a called function returning a tuple it made this pass 4× slower)
+                # out as in _scan, not shared: as a called function returning a tuple, inlined or not, numba made
+                # this pass ~4× slower, 2.4 → 9.4 µs a 7 × 18 record)
                 neg = False
                 if i < e:
                     c = buf[i]
