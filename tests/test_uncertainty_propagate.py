@@ -97,3 +97,18 @@ def test_batch_equals_single_frames_and_keeps_the_batch_axes():
     assert out.positions is shape.positions and not out.covariance.flags.writeable
     intact = unc.propagate(rec(w[4]))
     np.testing.assert_allclose(intact.covariance, unc(w[4]).covariance, rtol=1e-13, atol=1e-20)
+
+
+def test_mismatched_wavelengths_and_missing_frames_are_clear_errors():
+    """The compiled pass reads its arrays unchecked, so their shapes are checked before it: wavelengths of
+    another frame count or core count, and a shape reconstructed without its frames, are one-line errors."""
+    rec = Reconstructor(FIBER)
+    unc = Uncertainty(rec)
+    w = batch()[[0, 1]]
+    shape = rec(w)
+    with pytest.raises(ValueError, match="do not match"):
+        unc.propagate(shape, w[:1])
+    with pytest.raises(ValueError, match="do not match"):
+        unc.propagate(shape, w[..., :3])
+    with pytest.raises(ValueError, match="frames=True"):
+        unc.propagate(rec(w, frames=False), w)

@@ -274,10 +274,17 @@ class Uncertainty:
         batch, n_g = k.shape[:-2], k.shape[-2]
         n_p = shape.positions.shape[-2]
         n_f = math.prod(batch)
+        if shape.frames is None:
+            raise ValueError("Uncertainty.propagate needs the material frames: reconstruct with frames=True")
         if wavelengths is None:
             w = self._no_wavelengths
         else:
-            w = _wavelengths(wavelengths).reshape(n_f, n_g, -1)
+            w = _wavelengths(wavelengths)
+            n_c = self._no_wavelengths.shape[-1]
+            if w.size != n_f * n_g * n_c:  # the compiled pass reads (n_f, n_g, n_c) without checking
+                raise ValueError(f"Uncertainty.propagate: wavelengths of shape {w.shape} do not match the shape's "
+                                 f"batch {batch} × ({n_g} gratings, {n_c} cores)")
+            w = w.reshape(n_f, n_g, n_c)
         vf = np.ascontiguousarray(valid.reshape(n_f, n_g))
         args = (np.ascontiguousarray(shape.positions.reshape(n_f, n_p, 3)),
                 np.ascontiguousarray(shape.frames.reshape(n_f, n_p, 3, 3)),
