@@ -210,3 +210,140 @@ def rk4_curve(rates, frenet, h, r0, pos, frames, store_frames):
             if store_frames:
                 for b in range(3):
                     frames[j + 1, a, b] = r[a, b]
+
+
+#: the curves :func:`exp_lanes` chains at once (the SIMD loop's trip count, a constant the compiler sees)
+LANES = 8
+#: the largest |φ|² of a step that :func:`exp_lanes` takes (the Taylor branch of :func:`twin.so3.exp_coefficients`)
+LANES_T2_MAX = 0.04
+_R6, _R12, _R20, _R30, _R42, _R56, _R72, _R90, _R110 = (1.0 / d for d in (6, 12, 20, 30, 42, 56, 72, 90, 110))
+# rows of exp_lanes' work array (each LANES long): R row-major 0–8, p 9–11, rates 12–15, flag 16
+_W_RATES = 12 * LANES
+_W_FLAG = 16 * LANES
+_W_SIZE = 17 * LANES
+
+
+@njit(cache=True, nogil=True)
+def exp_lanes(rt, h, m, which, pos, frames, store_frames, ok):
+    """:func:`exp_curve` (material frame, rates (k_x, k_y), r0 = I) of up to :data:`LANES` curves at once.
+
+    The curves are the lanes of the innermost loop (:func:`_lanes_step`), free of branches and calls, over one
+    work array with constant offsets, so that the compiler runs it on SIMD registers: ``exp_coefficients``'
+    series is inlined (the same expressions), valid for steps with |φ|² < :data:`LANES_T2_MAX`. A lane with a
+    longer step (or a NaN) is flagged ``ok`` False and its outputs are to be redone by :func:`exp_curve`. Where
+    every step is short the results are :func:`exp_curve`'s up to the sign of zeros (the terms of the absent
+    twist rate are left out).
+
+    Parameters
+    ----------
+    rt : (n · m, 2L) rates, row = sample (step-major), columns = k_x of the L ≤ LANES lanes, then their k_y, 1/m.
+    h : step, m.  m : samples per step (2: Magnus-4, 1: HEM).
+    which : (L,) the index of each lane's curve in ``pos`` and ``frames``.
+    pos : (F, n + 1, 3), frames : (F, n + 1, 3, 3) (written only when ``store_frames``): outputs.
+    ok : (L,) bool, out: whether the lane's outputs are final.
+    """
+    n_lanes = which.size
+    n = rt.shape[0] // m
+    c = _SQRT3_12 * h * h
+    hh = 0.5 * h
+    w = np.zeros(_W_SIZE)  # lanes beyond n_lanes chain zero rates, never read
+    for lane in range(LANES):
+        w[lane] = 1.0
+        w[4 * LANES + lane] = 1.0
+        w[8 * LANES + lane] = 1.0
+    for lane in range(n_lanes):
+        f = which[lane]
+        pos[f, 0, :] = 0.0
+        if store_frames:
+            frames[f, 0] = 0.0
+            frames[f, 0, 0, 0] = 1.0
+            frames[f, 0, 1, 1] = 1.0
+            frames[f, 0, 2, 2] = 1.0
+    for j in range(n):
+        ra = rt[j * m]
+        rb = rt[j * m + m - 1]
+        for lane in range(n_lanes):
+            w[_W_RATES + lane] = ra[lane]
+            w[_W_RATES + LANES + lane] = ra[n_lanes + lane]
+            w[_W_RATES + 2 * LANES + lane] = rb[lane]
+            w[_W_RATES + 3 * LANES + lane] = rb[n_lanes + lane]
+        _lanes_step(w, h, hh, c)
+        for lane in range(n_lanes):
+            f = which[lane]
+            pos[f, j + 1, 0] = w[9 * LANES + lane]
+            pos[f, j + 1, 1] = w[10 * LANES + lane]
+            pos[f, j + 1, 2] = w[11 * LANES + lane]
+        if store_frames:
+            for lane in range(n_lanes):
+                f = which[lane]
+                frames[f, j + 1, 0, 0] = w[lane]
+                frames[f, j + 1, 0, 1] = w[LANES + lane]
+                frames[f, j + 1, 0, 2] = w[2 * LANES + lane]
+                frames[f, j + 1, 1, 0] = w[3 * LANES + lane]
+                frames[f, j + 1, 1, 1] = w[4 * LANES + lane]
+                frames[f, j + 1, 1, 2] = w[5 * LANES + lane]
+                frames[f, j + 1, 2, 0] = w[6 * LANES + lane]
+                frames[f, j + 1, 2, 1] = w[7 * LANES + lane]
+                frames[f, j + 1, 2, 2] = w[8 * LANES + lane]
+    for lane in range(n_lanes):
+        ok[lane] = w[_W_FLAG + lane] == 0.0
+
+
+@njit(cache=True, nogil=True)
+def _lanes_step(w, h, hh, c):
+    """One Magnus step of every lane of :func:`exp_lanes`'s work array ``w``, in place."""
+    for lane in range(LANES):
+        # u = (−k_y, k_x, 0) at the step's two samples; e_T = e3
+        a0 = -w[_W_RATES + LANES + lane]
+        a1 = w[_W_RATES + lane]
+        b0 = -w[_W_RATES + 3 * LANES + lane]
+        b1 = w[_W_RATES + 2 * LANES + lane]
+        x0 = hh * (a0 + b0)
+        x1 = hh * (a1 + b1)
+        x2 = c * (a0 * b1 - a1 * b0)
+        d0 = c * (a0 - b0)
+        d1 = c * (a1 - b1)
+        q0 = d1
+        q1 = -d0
+        q2 = h
+        t2 = x0 * x0 + x1 * x1 + x2 * x2
+        w[_W_FLAG + lane] = w[_W_FLAG + lane] if t2 < LANES_T2_MAX else 1.0
+        aa = 1.0 - t2 * _R6 * (1.0 - t2 * _R20 * (1.0 - t2 * _R42 * (1.0 - t2 * _R72)))
+        bb = 0.5 * (1.0 - t2 * _R12 * (1.0 - t2 * _R30 * (1.0 - t2 * _R56 * (1.0 - t2 * _R90))))
+        cc = (1.0 - t2 * _R20 * (1.0 - t2 * _R42 * (1.0 - t2 * _R72 * (1.0 - t2 * _R110)))) * _R6
+        e00 = 1.0 - bb * (x1 * x1 + x2 * x2)
+        e11 = 1.0 - bb * (x0 * x0 + x2 * x2)
+        e22 = 1.0 - bb * (x0 * x0 + x1 * x1)
+        e01 = -aa * x2 + bb * x0 * x1
+        e10 = aa * x2 + bb * x0 * x1
+        e02 = aa * x1 + bb * x0 * x2
+        e20 = -aa * x1 + bb * x0 * x2
+        e12 = -aa * x0 + bb * x1 * x2
+        e21 = aa * x0 + bb * x1 * x2
+        w0 = x1 * q2 - x2 * q1
+        w1 = x2 * q0 - x0 * q2
+        w2 = x0 * q1 - x1 * q0
+        v0 = q0 + bb * w0 + cc * (x1 * w2 - x2 * w1)
+        v1 = q1 + bb * w1 + cc * (x2 * w0 - x0 * w2)
+        v2 = q2 + bb * w2 + cc * (x0 * w1 - x1 * w0)
+        r00 = w[lane]
+        r01 = w[LANES + lane]
+        r02 = w[2 * LANES + lane]
+        r10 = w[3 * LANES + lane]
+        r11 = w[4 * LANES + lane]
+        r12 = w[5 * LANES + lane]
+        r20 = w[6 * LANES + lane]
+        r21 = w[7 * LANES + lane]
+        r22 = w[8 * LANES + lane]
+        w[9 * LANES + lane] += r00 * v0 + r01 * v1 + r02 * v2
+        w[10 * LANES + lane] += r10 * v0 + r11 * v1 + r12 * v2
+        w[11 * LANES + lane] += r20 * v0 + r21 * v1 + r22 * v2
+        w[lane] = r00 * e00 + r01 * e10 + r02 * e20
+        w[LANES + lane] = r00 * e01 + r01 * e11 + r02 * e21
+        w[2 * LANES + lane] = r00 * e02 + r01 * e12 + r02 * e22
+        w[3 * LANES + lane] = r10 * e00 + r11 * e10 + r12 * e20
+        w[4 * LANES + lane] = r10 * e01 + r11 * e11 + r12 * e21
+        w[5 * LANES + lane] = r10 * e02 + r11 * e12 + r12 * e22
+        w[6 * LANES + lane] = r20 * e00 + r21 * e10 + r22 * e20
+        w[7 * LANES + lane] = r20 * e01 + r21 * e11 + r22 * e21
+        w[8 * LANES + lane] = r20 * e02 + r21 * e12 + r22 * e22
