@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from twin._kernels import exp_curve, rk4_curve
+from twin._kernels import LANES, exp_curve, exp_lanes, exp_material, rk4_curve
 
 __all__ = ["integrate", "pack", "reconstruct"]
 
@@ -143,7 +143,7 @@ def _chain(k, valid, basis, rates, r0, h, rk4, pos, frames, store_frames):
     if rk4:
         rk4_curve(rates, False, h, r0, pos, frames, store_frames)
     else:
-        exp_curve(rates, False, h, r0, pos, frames, store_frames)
+        exp_material(rates, h, pos, frames, store_frames)
 
 
 @njit(cache=True, nogil=True)
@@ -215,7 +215,11 @@ def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames):
 @njit(cache=True, nogil=True)
 def _chain_block(kt, basis, rates, which, n, r0, h, m, rk4, pos, frames, store_frames):
     """Rates of ``n`` frames at once, ``rates`` (2n, n_q) = ``kt`` (2n, n_g) @ ``basis`` (n_g, n_q), then the
-    chain of each from ``r0`` into ``pos[which[i]]`` and ``frames[which[i]]``."""
+    chain of each from ``r0`` into ``pos[which[i]]`` and ``frames[which[i]]``: :data:`LANES` frames at a time
+    on SIMD lanes (:func:`_lanes_block`) for the exponential integrators, one by one for RK4 and a lone frame."""
+    if not rk4 and n >= 2:
+        _lanes_block(kt, basis, which, n, r0, h, m, pos, frames, store_frames)
+        return
     if n >= 4:
         np.dot(kt, basis, rates)
     else:  # BLAS would copy the whole operator for a product this small: sum it here, grating by grating
@@ -235,7 +239,38 @@ def _chain_block(kt, basis, rates, which, n, r0, h, m, rk4, pos, frames, store_f
         if rk4:
             rk4_curve(r, False, h, r0, pos[f], frames[f if store_frames else 0], store_frames)
         else:
-            exp_curve(r, False, h, r0, pos[f], frames[f if store_frames else 0], store_frames)
+            exp_material(r, h, pos[f], frames[f if store_frames else 0], store_frames)
+
+
+@njit(cache=True, nogil=True)
+def _lanes_block(kt, basis, which, n, r0, h, m, pos, frames, store_frames):
+    """:func:`_chain_block` for the exponential integrators: the rates in lane order, ``rt`` (n_q, 2n) =
+    ``basis``ᵀ @ the (k_x, k_y) of the frames as columns, group by group of :data:`LANES` frames (k_x of the
+    group, then k_y), chained by :func:`twin._kernels.exp_lanes`; a frame with a step beyond the series' range
+    is chained again by :func:`exp_curve`."""
+    n_g, n_q = basis.shape
+    n_steps = n_q // m
+    ktt = np.empty((n_g, 2 * n))
+    for g0 in range(0, n, LANES):
+        nl = min(LANES, n - g0)
+        for i in range(nl):
+            for g in range(n_g):
+                ktt[g, 2 * g0 + i] = kt[2 * (g0 + i), g]
+                ktt[g, 2 * g0 + nl + i] = kt[2 * (g0 + i) + 1, g]
+    rt = np.dot(basis.T, ktt)
+    ok = np.empty(LANES, np.bool_)
+    for g0 in range(0, n, LANES):
+        nl = min(LANES, n - g0)
+        exp_lanes(rt[:, 2 * g0:2 * (g0 + nl)], h, m, which[g0:g0 + nl], pos, frames, store_frames, ok)
+        for i in range(nl):
+            if not ok[i]:
+                f = which[g0 + i]
+                r = np.empty((2, n_steps, m))
+                for j in range(n_steps):
+                    for k in range(m):
+                        r[0, j, k] = rt[j * m + k, 2 * g0 + i]
+                        r[1, j, k] = rt[j * m + k, 2 * g0 + nl + i]
+                exp_curve(r, False, h, r0, pos[f], frames[f if store_frames else 0], store_frames)
 
 
 @njit(cache=True, nogil=True)
