@@ -10,12 +10,11 @@ through the reconstructor, come out as the general path's. :func:`twin.curve.pie
 
 import numpy as np
 import pytest
+from test_fused import PAPER, compare, lose, wavelengths
 
 from twin import FiberModel, Reconstructor, _recycle, curve, strain
-from twin._kernels import LANES, LANES_T2_MAX, exp_curve, exp_lanes, exp_material
 from twin._fused import BLOCK
-
-from test_fused import PAPER, compare, lose, wavelengths
+from twin._kernels import LANES, LANES_T2_MAX, exp_curve, exp_lanes, exp_material
 
 H = 1e-3
 N_STEPS = 170

@@ -259,10 +259,11 @@ def _chain_block(kt, basis, segment, tq, coef, rates, which, n, r0, h, m, rk4, p
 
 @njit(cache=True, nogil=True)
 def _lanes_block(kt, basis, segment, tq, coef, which, n, r0, h, m, pos, frames, store_frames):
-    """:func:`_chain_block` for the exponential integrators: the rates in lane order, ``rt`` (n_q, 2n) =
-    ``basis``ᵀ @ the (k_x, k_y) of the frames as columns, group by group of :data:`LANES` frames (k_x of the
-    group, then k_y; by the polynomial pieces where there are some), chained by :func:`twin._kernels.exp_lanes`; a frame with a step beyond the series' range
-    is chained again by :func:`exp_curve`."""
+    """:func:`_chain_block` for the exponential integrators: the rates in lane order, ``rt`` (n_q, 2n) = the
+    interpolant (the polynomial pieces where there are some, else ``basis``ᵀ @) of the (k_x, k_y) of the frames
+    as columns, group by group of :data:`LANES` frames (k_x of the group, then k_y), chained by
+    :func:`twin._kernels.exp_lanes`; a frame with a step beyond the series' range is chained again by
+    :func:`exp_curve`."""
     n_g, n_q = basis.shape
     n_steps = n_q // m
     ktt = np.empty((n_g, 2 * n))
