@@ -191,7 +191,7 @@ class TruthError:
         """The figures over every compared frame, or None when none was compared."""
         if not self._parts["mean"]:
             return None
-        e = {k: np.concatenate(v) for k, v in self._parts.items()}
+        e = self.per_frame()
         return TruthErrors(
             frames_compared=int(e["mean"].size),
             register=self.register,
@@ -201,6 +201,10 @@ class TruthError:
             tip_error_mm_mean=_mm(e["tip"].mean()),
             tip_error_mm_max=_mm(e["tip"].max()),
         )
+
+    def per_frame(self) -> dict[str, np.ndarray]:
+        """Each compared frame's figures, m: ``max``, ``mean``, ``rms``, ``tip`` (k,) in the order compared."""
+        return {k: np.concatenate(v) if v else np.zeros(0) for k, v in self._parts.items()}
 
     def status_text(self) -> str | None:
         """The latest frame's error, for a status line (None before the first comparison)."""

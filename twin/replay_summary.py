@@ -18,20 +18,17 @@ from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.io.errors import RecordingDamaged
 from twin.io.replay import ReplaySource
-from twin.live import LiveLoop, LiveSummary
+from twin.live import Counts, LiveLoop, LiveSummary
 from twin.reconstruct import Reconstructor
 from twin.reference_errors import TruthError, TruthErrors, VendorDistance
 
 __all__ = ["ReplaySummary", "TruthErrors", "summarize"]
 
-#: the live loop's counts a replay summary carries as they are (docs/figures.md)
-_COUNTED = ("lost_samples", "sequence_gaps", "sequence_resets", "frames_complete", "frames_partial",
-            "frames_unusable", "frames_missing_peaks", "invalid_nodes", "peaks_outside_window")
-
-
-@dataclass(frozen=True)
-class ReplaySummary:
-    """The summary of one recording (JSON-ready through :meth:`as_dict`; None where unknown, never NaN).
+@dataclass(frozen=True, kw_only=True)
+class ReplaySummary(Counts):
+    """The summary of one recording (JSON-ready through :meth:`as_dict`; None where unknown, never NaN): the
+    live loop's counts over the file (:class:`twin.live.Counts`, which a summary is: ``frames``,
+    ``lost_samples``, ``frames_complete``, … as ``twin live`` counts them, docs/figures.md) and what follows.
 
     Attributes
     ----------
@@ -42,19 +39,12 @@ class ReplaySummary:
     damaged : bool
     damage : tuple of str
         What is damaged, each naming the place.
-    frames : int
-        Frames read and reconstructed (those before the first damage).
     frames_recorded : int
         Frames the file says it holds.
     time_span : float or None
         Last minus first finite timestamp, s.
     rate_hz : float or None
         (frames − 1) / time_span: the recorded sampling rate, Hz.
-    lost_samples, sequence_gaps, sequence_resets : int
-    frames_complete, frames_partial, frames_unusable, frames_missing_peaks, invalid_nodes : int
-        As :class:`twin.live.LiveStatus` counts them.
-    peaks_outside_window : int
-        Peaks outside the reconstructor's physical window (or infinite), treated as missing.
     reconstruct_frames_per_s : float or None
         Reconstruction throughput of this run: frames / wall time spent in the loop's processing (docs/figures.md;
         not a benchmark: ``twin bench``).
@@ -74,19 +64,9 @@ class ReplaySummary:
     damaged: bool
     source_url: str
     fiber: str
-    frames: int
     frames_recorded: int
     time_span: float | None
     rate_hz: float | None
-    lost_samples: int
-    sequence_gaps: int
-    sequence_resets: int
-    frames_complete: int
-    frames_partial: int
-    frames_unusable: int
-    frames_missing_peaks: int
-    invalid_nodes: int
-    peaks_outside_window: int
     reconstruct_frames_per_s: float | None
     skipped_lines: int
     damage: tuple[str, ...] = ()
@@ -196,11 +176,10 @@ def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth:
         damaged=info["damaged"],
         source_url=info["source_url"],
         fiber=fiber.name,
-        frames=n,
         frames_recorded=max(n, info["frames_recorded"]),
         time_span=None if span is None else round(span, 6),
         rate_hz=round((n - 1) / span, 3) if span is not None and span > 0 and n >= 2 else None,
-        **{k: getattr(st, k) for k in _COUNTED},
+        **vars(c.counts()),
         reconstruct_frames_per_s=None if rfs is None else round(rfs, 1),
         skipped_lines=info["skipped_lines"],
         damage=tuple(info["damage"]),
