@@ -31,6 +31,28 @@ def _rate(rates, j, i, frenet):
     return -b, a, g
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _compose(r00, r01, r02, r10, r11, r12, r20, r21, r22, e00, e01, e02, e10, e11, e12, e20, e21, e22):
+    """The entries of R E (row-major) from those of R and E."""
+    return (r00 * e00 + r01 * e10 + r02 * e20, r00 * e01 + r01 * e11 + r02 * e21, r00 * e02 + r01 * e12 + r02 * e22,
+            r10 * e00 + r11 * e10 + r12 * e20, r10 * e01 + r11 * e11 + r12 * e21, r10 * e02 + r11 * e12 + r12 * e22,
+            r20 * e00 + r21 * e10 + r22 * e20, r20 * e01 + r21 * e11 + r22 * e21, r20 * e02 + r21 * e12 + r22 * e22)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _store(frame, r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """``frame`` (3, 3) = the entries given (row-major)."""
+    frame[0, 0] = r00
+    frame[0, 1] = r01
+    frame[0, 2] = r02
+    frame[1, 0] = r10
+    frame[1, 1] = r11
+    frame[1, 2] = r12
+    frame[2, 0] = r20
+    frame[2, 1] = r21
+    frame[2, 2] = r22
+
+
 @njit(cache=True, nogil=True)
 def exp_chain(rates, frenet, h, r0, pos, frames):
     """Chain exponential steps: Magnus-4 with 2 samples per step (Gauss points), the exponential Euler (HEM) with 1.
@@ -104,15 +126,8 @@ def exp_curve(rates, frenet, h, r0, pos, frames, store_frames):
         px += r00 * v0 + r01 * v1 + r02 * v2
         py += r10 * v0 + r11 * v1 + r12 * v2
         pz += r20 * v0 + r21 * v1 + r22 * v2
-        n00 = r00 * e00 + r01 * e10 + r02 * e20
-        n01 = r00 * e01 + r01 * e11 + r02 * e21
-        n02 = r00 * e02 + r01 * e12 + r02 * e22
-        n10 = r10 * e00 + r11 * e10 + r12 * e20
-        n11 = r10 * e01 + r11 * e11 + r12 * e21
-        n12 = r10 * e02 + r11 * e12 + r12 * e22
-        n20 = r20 * e00 + r21 * e10 + r22 * e20
-        n21 = r20 * e01 + r21 * e11 + r22 * e21
-        n22 = r20 * e02 + r21 * e12 + r22 * e22
+        n00, n01, n02, n10, n11, n12, n20, n21, n22 = _compose(r00, r01, r02, r10, r11, r12, r20, r21, r22,
+                                                               e00, e01, e02, e10, e11, e12, e20, e21, e22)
         r00, r01, r02 = n00, n01, n02
         r10, r11, r12 = n10, n11, n12
         r20, r21, r22 = n20, n21, n22
@@ -120,15 +135,7 @@ def exp_curve(rates, frenet, h, r0, pos, frames, store_frames):
         pos[j + 1, 1] = py
         pos[j + 1, 2] = pz
         if store_frames:
-            frames[j + 1, 0, 0] = r00
-            frames[j + 1, 0, 1] = r01
-            frames[j + 1, 0, 2] = r02
-            frames[j + 1, 1, 0] = r10
-            frames[j + 1, 1, 1] = r11
-            frames[j + 1, 1, 2] = r12
-            frames[j + 1, 2, 0] = r20
-            frames[j + 1, 2, 1] = r21
-            frames[j + 1, 2, 2] = r22
+            _store(frames[j + 1], r00, r01, r02, r10, r11, r12, r20, r21, r22)
 
 
 @njit(cache=True, nogil=True)
@@ -271,22 +278,19 @@ def _increments(w, h):
         w[_W_V + 2 * LANES + i] = q2 + bb * w2 + cc * (x0 * w1 - x1 * w0)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _increment(w, i):
+    """E (row-major) and v of column ``i`` of the work chunk ``w`` (:func:`_increments`' output)."""
+    return (w[_W_E + i], w[_W_E + LANES + i], w[_W_E + 2 * LANES + i], w[_W_E + 3 * LANES + i],
+            w[_W_E + 4 * LANES + i], w[_W_E + 5 * LANES + i], w[_W_E + 6 * LANES + i], w[_W_E + 7 * LANES + i],
+            w[_W_E + 8 * LANES + i], w[_W_V + i], w[_W_V + LANES + i], w[_W_V + 2 * LANES + i])
+
+
 @njit(cache=True, nogil=True, fastmath={"contract"})
 def _lanes_update(w):
     """R⁺ = R E, p⁺ = p + R v for the LANES lanes of :func:`exp_lanes`' work array ``w``, in place."""
     for i in range(LANES):
-        e00 = w[_W_E + i]
-        e01 = w[_W_E + LANES + i]
-        e02 = w[_W_E + 2 * LANES + i]
-        e10 = w[_W_E + 3 * LANES + i]
-        e11 = w[_W_E + 4 * LANES + i]
-        e12 = w[_W_E + 5 * LANES + i]
-        e20 = w[_W_E + 6 * LANES + i]
-        e21 = w[_W_E + 7 * LANES + i]
-        e22 = w[_W_E + 8 * LANES + i]
-        v0 = w[_W_V + i]
-        v1 = w[_W_V + LANES + i]
-        v2 = w[_W_V + 2 * LANES + i]
+        e00, e01, e02, e10, e11, e12, e20, e21, e22, v0, v1, v2 = _increment(w, i)
         for r in range(3):
             r0 = w[_W_R + 3 * r * LANES + i]
             r1 = w[_W_R + (3 * r + 1) * LANES + i]
@@ -387,12 +391,8 @@ def exp_material(rates, h, pos, frames, store_frames):
         exp_curve(rates, False, h, np.eye(3), pos, frames, store_frames)
         return
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
-    px = 0.0
-    py = 0.0
-    pz = 0.0
-    pos[0, 0] = 0.0
-    pos[0, 1] = 0.0
-    pos[0, 2] = 0.0
+    px, py, pz = 0.0, 0.0, 0.0
+    pos[0] = 0.0
     if store_frames:
         frames[0] = 0.0
         frames[0, 0, 0] = 1.0
@@ -400,42 +400,15 @@ def exp_material(rates, h, pos, frames, store_frames):
         frames[0, 2, 2] = 1.0
     for j in range(n):
         wb = w[(j // LANES) * _W_STEP:]
-        i = j % LANES
-        e00 = wb[_W_E + i]
-        e01 = wb[_W_E + LANES + i]
-        e02 = wb[_W_E + 2 * LANES + i]
-        e10 = wb[_W_E + 3 * LANES + i]
-        e11 = wb[_W_E + 4 * LANES + i]
-        e12 = wb[_W_E + 5 * LANES + i]
-        e20 = wb[_W_E + 6 * LANES + i]
-        e21 = wb[_W_E + 7 * LANES + i]
-        e22 = wb[_W_E + 8 * LANES + i]
-        v0 = wb[_W_V + i]
-        v1 = wb[_W_V + LANES + i]
-        v2 = wb[_W_V + 2 * LANES + i]
+        e00, e01, e02, e10, e11, e12, e20, e21, e22, v0, v1, v2 = _increment(wb, j % LANES)
         px += r00 * v0 + r01 * v1 + r02 * v2
         py += r10 * v0 + r11 * v1 + r12 * v2
         pz += r20 * v0 + r21 * v1 + r22 * v2
-        n00 = r00 * e00 + r01 * e10 + r02 * e20
-        n01 = r00 * e01 + r01 * e11 + r02 * e21
-        n02 = r00 * e02 + r01 * e12 + r02 * e22
-        n10 = r10 * e00 + r11 * e10 + r12 * e20
-        n11 = r10 * e01 + r11 * e11 + r12 * e21
-        n12 = r10 * e02 + r11 * e12 + r12 * e22
-        n20 = r20 * e00 + r21 * e10 + r22 * e20
-        n21 = r20 * e01 + r21 * e11 + r22 * e21
-        n22 = r20 * e02 + r21 * e12 + r22 * e22
+        n00, n01, n02, n10, n11, n12, n20, n21, n22 = _compose(r00, r01, r02, r10, r11, r12, r20, r21, r22,
+                                                               e00, e01, e02, e10, e11, e12, e20, e21, e22)
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = n00, n01, n02, n10, n11, n12, n20, n21, n22
         pos[j + 1, 0] = px
         pos[j + 1, 1] = py
         pos[j + 1, 2] = pz
         if store_frames:
-            frames[j + 1, 0, 0] = r00
-            frames[j + 1, 0, 1] = r01
-            frames[j + 1, 0, 2] = r02
-            frames[j + 1, 1, 0] = r10
-            frames[j + 1, 1, 1] = r11
-            frames[j + 1, 1, 2] = r12
-            frames[j + 1, 2, 0] = r20
-            frames[j + 1, 2, 1] = r21
-            frames[j + 1, 2, 2] = r22
+            _store(frames[j + 1], r00, r01, r02, r10, r11, r12, r20, r21, r22)
