@@ -22,8 +22,17 @@ __all__ = ["KEEP", "MIN_BYTES", "Recycler"]
 MIN_BYTES = 1 << 22
 #: buffers a :class:`Recycler` holds at most
 KEEP = 4
-# the references a buffer nobody else holds has when counted: the pool's list and getrefcount's argument
-_ALONE = 2
+
+
+def _alone() -> int:
+    """What ``sys.getrefcount(bufs[i])`` says of an array that only the list ``bufs`` holds (2 on CPython 3.11:
+    the list and the argument), measured the same way, so that an interpreter that counts otherwise does not
+    make a buffer in use look free."""
+    bufs = [np.empty(1)]
+    return sys.getrefcount(bufs[0])
+
+
+_ALONE = _alone()
 
 
 class Recycler:
