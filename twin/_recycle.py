@@ -1,7 +1,7 @@
 """Large output arrays on recycled memory: a buffer is handed out again once no array refers to it any more.
 
 A fresh array of hundreds of MB (the positions and frames of a batch of 10⁴ frames) costs the kernel's zeroing of
-every page on first touch — measured here as more than the reconstruction's arithmetic. A caller that
+every page on first touch — about a tenth of a batch's reconstruction time here. A caller that
 reconstructs batch after batch and lets each result go (an offline pass over a recording, the bench) gets the
 memory of an earlier result back instead. Reuse is safe by construction: a buffer is reused only when CPython's
 reference count says that the pool alone holds it (every numpy view refers to its base buffer), and the choice is
