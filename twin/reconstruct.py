@@ -87,7 +87,9 @@ class Reconstructor:
     The common case — the material method without twist, a linear interpolant (spline, linear, knn), any
     integrator, either inversion — runs as one compiled call per batch (:mod:`twin._fused`, docs/math.md §3.8);
     the attribute ``fused`` tells whether this reconstructor does. The paper's Frenet pipeline, PCHIP and the
-    twist of a spun fibre take the general path of numpy steps.
+    twist of a spun fibre take the general path of numpy steps. A large batch's positions and frames (≥ 4 MiB)
+    may reuse the memory of an earlier result that nothing refers to any more (:mod:`twin._recycle`); results
+    alive at the same time never share memory.
 
     Examples
     --------
