@@ -103,8 +103,10 @@ def bent(fiber, n_frames, big, seed=0):
 def test_long_steps_mixed_with_short_ones_in_one_block_take_the_exact_chain(integrator):
     fused, general = Reconstructor(PAPER, integrator=integrator), Reconstructor(PAPER, fused=False,
                                                                                 integrator=integrator)
-    big = [1, 6, 7, 20]  # in the first lane group, twice in the second, in the third
-    w = bent(PAPER, 2 * LANES + 5, big)
+    # in the first lane group, twice in the second, and in the last, which is small enough to be chained
+    # frame by frame (the two passes' own fallback)
+    big = [1, LANES - 2, LANES - 1, 2 * LANES + 1]
+    w = bent(PAPER, 2 * LANES + 3, big)
     a = fused(w)
     compare(a, general(w))
     # the steep frames really were beyond the series: the frames turn by > 0.2 rad in one step

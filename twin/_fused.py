@@ -227,9 +227,10 @@ def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames):
 
 @njit(cache=True, nogil=True)
 def _chain_block(kt, basis, segment, tq, coef, rates, which, n, r0, h, m, rk4, pos, frames, store_frames):
-    """Rates of ``n`` frames at once, ``rates`` (2n, n_q) = ``kt`` (2n, n_g) @ ``basis`` (n_g, n_q), then the
-    chain of each from ``r0`` into ``pos[which[i]]`` and ``frames[which[i]]``: :data:`LANES` frames at a time
-    on SIMD lanes (:func:`_lanes_block`) for the exponential integrators, one by one for RK4 and a lone frame."""
+    """Rates of ``n`` frames at once, ``rates`` (2n, n_q) = ``kt`` (2n, n_g) @ ``basis`` (n_g, n_q) (a lone
+    frame's by the polynomial pieces where there are some), then the chain of each from ``r0`` into
+    ``pos[which[i]]`` and ``frames[which[i]]``: :data:`LANES` frames at a time on SIMD lanes
+    (:func:`_lanes_block`) for the exponential integrators, one by one for RK4 and a lone frame."""
     if not rk4 and n >= 2:
         _lanes_block(kt, basis, segment, tq, coef, which, n, r0, h, m, pos, frames, store_frames)
         return
@@ -262,8 +263,8 @@ def _lanes_block(kt, basis, segment, tq, coef, which, n, r0, h, m, pos, frames, 
     """:func:`_chain_block` for the exponential integrators: the rates in lane order, ``rt`` (n_q, 2n) = the
     interpolant (the polynomial pieces where there are some, else ``basis``ᵀ @) of the (k_x, k_y) of the frames
     as columns, group by group of :data:`LANES` frames (k_x of the group, then k_y), chained by
-    :func:`twin._kernels.exp_lanes`; a frame with a step beyond the series' range is chained again by
-    :func:`exp_curve`."""
+    :func:`twin._kernels.exp_lanes` (a frame with a step beyond the series' range again by :func:`exp_curve`),
+    a group of half the lanes or fewer by :func:`exp_material` frame by frame."""
     n_g, n_q = basis.shape
     n_steps = n_q // m
     ktt = np.empty((n_g, 2 * n))
@@ -278,19 +279,27 @@ def _lanes_block(kt, basis, segment, tq, coef, which, n, r0, h, m, pos, frames, 
         _piecewise_rates(ktt, segment, tq, coef, rt)
     else:
         rt = np.dot(basis.T, ktt)
-    ok = np.empty(LANES, np.bool_)
+    ok = np.zeros(LANES, np.bool_)
+    r = np.empty((2, n_steps, m))
     for g0 in range(0, n, LANES):
         nl = min(LANES, n - g0)
-        exp_lanes(rt[:, 2 * g0:2 * (g0 + nl)], h, m, which[g0:g0 + nl], pos, frames, store_frames, ok)
+        # a group costs the same however few of its lanes are used: up to half of them, one frame at a time
+        lanes = nl > LANES // 2
+        if lanes:
+            exp_lanes(rt[:, 2 * g0:2 * (g0 + nl)], h, m, which[g0:g0 + nl], pos, frames, store_frames, ok)
         for i in range(nl):
-            if not ok[i]:
-                f = which[g0 + i]
-                r = np.empty((2, n_steps, m))
-                for j in range(n_steps):
-                    for k in range(m):
-                        r[0, j, k] = rt[j * m + k, 2 * g0 + i]
-                        r[1, j, k] = rt[j * m + k, 2 * g0 + nl + i]
-                exp_curve(r, False, h, r0, pos[f], frames[f if store_frames else 0], store_frames)
+            if lanes and ok[i]:
+                continue
+            f = which[g0 + i]
+            for j in range(n_steps):
+                for k in range(m):
+                    r[0, j, k] = rt[j * m + k, 2 * g0 + i]
+                    r[1, j, k] = rt[j * m + k, 2 * g0 + nl + i]
+            fr = frames[f if store_frames else 0]
+            if lanes:  # a step beyond the series' range: the exact coefficients
+                exp_curve(r, False, h, r0, pos[f], fr, store_frames)
+            else:
+                exp_material(r, h, pos[f], fr, store_frames)
 
 
 @njit(cache=True, nogil=True)
