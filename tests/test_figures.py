@@ -23,8 +23,9 @@ from twin.io.record import Recorder, open_recording
 from twin.io.rosbag import McapRecorder
 from twin.io.source import open_source
 from twin.live import Counts, LiveLoop
-from twin.reference_errors import TruthError, VendorDistance
+from twin.reference_errors import TruthError, TubeFigures, VendorDistance
 from twin.synthetic import multicore_fiber
+from twin.uncertainty import Uncertainty, inside, truth_in_base
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg"}
@@ -76,6 +77,11 @@ def test_live_over_a_recording_and_replay_report_the_same_figures(recording, suf
     vendor = ("vendor_frames_compared", "vendor_distance_max_mm", "vendor_distance_mean_mm")
     assert {k: a[k] for k in vendor} == {k: b[k] for k in vendor}
     assert 0.05 < a["vendor_distance_max_mm"] < 0.5 and a["vendor_frames_compared"] >= 20
+    # the confidence tube on the same frames, the same on both paths (docs/figures.md)
+    tube = ("tube_frames", "mean_sigma_mm", "tube_truth_frames", "coverage_95")
+    assert {k: a[k] for k in tube} == {k: b[k] for k in tube}
+    assert 25 <= a["tube_frames"] <= 32 and a["tube_truth_frames"] == a["tube_frames"]
+    assert a["mean_sigma_mm"] > 0 and 0.0 <= a["coverage_95"] <= 1.0
     # the text says what its frames/s measure (docs/figures.md)
     text = subprocess.run([*TWIN, "replay", str(recording.with_suffix(suffix))], capture_output=True, text=True,
                           env=ENV, timeout=300)
@@ -146,3 +152,30 @@ def test_twin_live_reports_the_error_against_the_truth():
     text = subprocess.run([*TWIN, "live", "synthetic://?pace=max&frames=100&rate=5", "--quiet"],
                           capture_output=True, text=True, env=ENV, timeout=300)
     assert "vs truth (100 frames, kabsch)" in text.stdout  # 5 Hz: each frame in its own 0.1 s slot
+
+
+def test_the_tube_figures_are_what_their_definitions_say(recording):
+    """mean_sigma_mm and coverage_95 recomputed from the recording itself: the first complete frame of each 0.1 s
+    slot, propagated by Uncertainty, σ averaged over the points with s > 0, the truth placed by its own base pose
+    (no registration) and counted inside the 95 % tube point by point; batching does not change them."""
+    got = []
+    for max_batch in (1, 300):
+        sink = TubeFigures(Uncertainty(Reconstructor(FIBER)))
+        LiveLoop(open_source(f"replay://{recording}?speed=max"), Reconstructor(FIBER), [sink],
+                 max_batch=max_batch).run(handle_signals=False)
+        got.append(sink.as_dict())
+    assert got[0] == got[1]
+    with open_recording(recording) as r:
+        frames = r.frames()
+    rec = Reconstructor(FIBER)
+    shapes = rec(frames.wavelengths)
+    slots = np.floor(frames.timestamp * 10.0)
+    ok = np.flatnonzero(shapes.all_valid)
+    first = ok[np.concatenate([[True], slots[ok][1:] != slots[ok][:-1]])]
+    out = Uncertainty(rec).propagate(shapes[first], frames.wavelengths[first])
+    distal = out.s > 0
+    t = frames.truth
+    truth = truth_in_base(t.s, t.positions[first], t.frames[first, 0], t.positions[first, 0], out.s)
+    assert got[0]["tube_frames"] == first.size
+    assert got[0]["mean_sigma_mm"] == pytest.approx(out.sigma[:, distal].mean() * 1e3, abs=1e-4)
+    assert got[0]["coverage_95"] == pytest.approx(inside(out, truth)[:, distal].mean(), abs=1e-4)

@@ -6,7 +6,8 @@ speed, and a summary.
 sinks of :mod:`twin.reference_errors`, so ``twin replay F`` and ``twin live replay://F`` count the same frames the
 same way and report the same figures (docs/figures.md): frames, time span, lost samples and resets, complete /
 partial / unusable frames, frames with missing peaks, peaks outside their window, invalid nodes, the damage of a
-damaged file, the shape error against the recorded truth and the distance to the interrogator's own shape.
+damaged file, the shape error against the recorded truth, the distance to the interrogator's own shape and, when
+asked (``tube``), the confidence tube's mean 1σ and its coverage of the truth.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from twin.io.errors import RecordingDamaged
 from twin.io.replay import ReplaySource
 from twin.live import Counts, LiveLoop, LiveSummary
 from twin.reconstruct import Reconstructor
-from twin.reference_errors import TruthError, TruthErrors, VendorDistance
+from twin.reference_errors import TruthError, TruthErrors, TubeFigures, VendorDistance, tube_figures
 
 __all__ = ["ReplaySummary", "TruthErrors", "summarize"]
 
@@ -55,6 +56,9 @@ class ReplaySummary(Counts):
         When the recording carries the interrogator's own shape (sensor 0): ``vendor_frames_compared``,
         ``vendor_distance_max_mm``, ``vendor_distance_mean_mm`` (:class:`twin.reference_errors.VendorDistance`);
         empty otherwise.
+    tube : dict
+        When asked: ``tube_frames``, ``mean_sigma_mm`` and, with a truth, ``tube_truth_frames``, ``coverage_95``
+        (:class:`twin.reference_errors.TubeFigures`); empty otherwise.
     notes : tuple of str
     """
 
@@ -72,12 +76,14 @@ class ReplaySummary(Counts):
     damage: tuple[str, ...] = ()
     truth: TruthErrors | None = None
     vendor: dict = field(default_factory=dict)
+    tube: dict = field(default_factory=dict)
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def as_dict(self) -> dict:
         out = asdict(self)
         out["damage"], out["notes"] = list(self.damage), list(self.notes)
         out.update(out.pop("vendor"))
+        out.update(out.pop("tube"))
         if self.truth is None:
             del out["truth"]
         return out
@@ -86,7 +92,7 @@ class ReplaySummary(Counts):
 def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration: Calibration | None = None,
               method: str = "material", register: str = "kabsch", compare_rate: float | None = 10.0,
               channels_as: str = "cores", n_cores: int | None = None, batch: int = 512,
-              salvage: bool = False, handle_signals: bool = False) -> ReplaySummary:
+              salvage: bool = False, handle_signals: bool = False, tube: bool = False) -> ReplaySummary:
     """Reconstruct a recording through the live loop and summarise it.
 
     Parameters
@@ -108,6 +114,9 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
         A damaged recording is summarised from its readable frames instead of raising.
     handle_signals : bool
         Ctrl-C ends the run with the summary of what was read (the command's choice).
+    tube : bool
+        Also the confidence tube's figures on the compared frames (:class:`twin.reference_errors.TubeFigures`,
+        the twin's default model error; a propagation per compared frame), for the methods it covers.
 
     Raises
     ------
@@ -137,7 +146,11 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
         raise
     rec = Reconstructor(fiber, calibration, method=method)
     truth, vendor = TruthError(register, per_second=compare_rate), VendorDistance(per_second=compare_rate)
-    loop = LiveLoop(source, rec, [truth, vendor], max_batch=batch, realtime=False, quiet=True)
+    sinks: list = [truth, vendor]
+    tubes = tube_figures(rec, per_second=compare_rate) if tube else None
+    if tubes is not None:
+        sinks.append(tubes)
+    loop = LiveLoop(source, rec, sinks, max_batch=batch, realtime=False, quiet=True)
     run = loop.run(handle_signals=handle_signals)
     info = source.info
     if not salvage:  # damage found while reading (a chunk failing its checksum, an unreadable chunk)
@@ -145,11 +158,13 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
             raise RecordingDamaged(info["damage_line"])
         if run.reason == "source failed":
             raise RecordingDamaged(str(run.status.source.get("last_error", "unreadable")))
-    return _summary(path, info, fiber, run, truth, vendor, notes)
+    if tube and tubes is None:
+        notes.append(f"no confidence tube for the {method} method (the material method's only)")
+    return _summary(path, info, fiber, run, truth, vendor, notes, tubes)
 
 
 def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth: TruthError,
-             vendor: VendorDistance, notes: list[str]) -> ReplaySummary:
+             vendor: VendorDistance, notes: list[str], tubes: TubeFigures | None) -> ReplaySummary:
     st, c = run.status, run.counters
     if truth.note is not None:
         notes.append(truth.note)
@@ -185,5 +200,6 @@ def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth:
         damage=tuple(info["damage"]),
         truth=result,
         vendor=vendor.as_dict(),
+        tube={} if tubes is None else tubes.as_dict(),
         notes=tuple(notes),
     )
