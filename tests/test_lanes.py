@@ -175,6 +175,21 @@ def test_recycled_outputs_are_never_shared_by_live_results():
     assert len({s.frames.__array_interface__["data"][0] for s in kept}) == len(kept)
 
 
+def test_the_recycler_holds_at_most_max_held_bytes(monkeypatch):
+    cap = 3 * _recycle.MIN_BYTES
+    monkeypatch.setattr(_recycle, "MAX_HELD_BYTES", cap)
+    pool = _recycle.Recycler()
+    n = _recycle.MIN_BYTES // 8 + 1  # just over the threshold: one buffer is a little over MIN_BYTES
+    for _ in range(10):
+        pool.empty((n,))  # let go at once: free for the next call
+        assert sum(b.nbytes for b in pool._buffers) <= cap
+    kept = [pool.empty((n,)) for _ in range(4)]  # all in use: none beyond the cap is held
+    assert sum(b.nbytes for b in pool._buffers) <= cap
+    assert len({a.__array_interface__["data"][0] for a in kept}) == 4
+    big = pool.empty((cap // 8 + 1,))  # larger than the cap by itself: handed out, never held
+    assert all(b.nbytes <= cap for b in pool._buffers) and big.nbytes > cap
+
+
 def test_a_view_of_a_result_keeps_its_memory_from_being_reused():
     rec = Reconstructor(PAPER)
     n = _recycle.MIN_BYTES // (8 * 3 * rec.s.size) + 1

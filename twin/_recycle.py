@@ -5,7 +5,8 @@ every page on first touch — about a tenth of a batch's reconstruction time her
 reconstructs batch after batch and lets each result go (an offline pass over a recording, the bench) gets the
 memory of an earlier result back instead. Reuse is safe by construction: a buffer is reused only when CPython's
 reference count says that the pool alone holds it (every numpy view refers to its base buffer), and the choice is
-made under a lock, so two threads never get one buffer. At most :data:`KEEP` buffers are held; small arrays are
+made under a lock, so two threads never get one buffer. At most :data:`KEEP` buffers and :data:`MAX_HELD_BYTES` are held
+(per reconstructor: the memory goes with it); small arrays are
 left to ``np.empty`` (malloc reuses their memory anyway).
 """
 
@@ -16,12 +17,14 @@ import threading
 
 import numpy as np
 
-__all__ = ["KEEP", "MIN_BYTES", "Recycler"]
+__all__ = ["KEEP", "MAX_HELD_BYTES", "MIN_BYTES", "Recycler"]
 
 #: arrays below this size come from ``np.empty`` (malloc keeps and reuses such blocks itself)
 MIN_BYTES = 1 << 22
 #: buffers a :class:`Recycler` holds at most
 KEEP = 4
+#: bytes a :class:`Recycler` holds at most, in use or not: memory let go beyond this goes back to the system
+MAX_HELD_BYTES = 1 << 30
 
 
 def _alone() -> int:
@@ -55,9 +58,17 @@ class Recycler:
                 if bufs[i].size >= n:
                     return bufs[i][:n].reshape(shape)  # the view refers to the buffer from here on: not alone
             out = np.empty(n)
-            if len(bufs) >= KEEP:
-                if not free:  # every held buffer in use: the new one is not kept
-                    return out.reshape(shape)
-                del bufs[min(free, key=lambda i: bufs[i].size)]  # make room: the smallest unused one goes
-            bufs.append(out)
+            # make room, smallest unused first: at most KEEP buffers and MAX_HELD_BYTES (a large batch's memory
+            # is not kept for the life of the process once the pool is full of it)
+            free.sort(key=lambda i: bufs[i].size)
+            drop: list[int] = []
+            held = sum(b.nbytes for b in bufs)
+            while free and (len(bufs) - len(drop) >= KEEP or held + out.nbytes > MAX_HELD_BYTES):
+                i = free.pop(0)
+                drop.append(i)
+                held -= bufs[i].nbytes
+            for i in sorted(drop, reverse=True):
+                del bufs[i]
+            if len(bufs) < KEEP and held + out.nbytes <= MAX_HELD_BYTES:
+                bufs.append(out)
             return out.reshape(shape)
