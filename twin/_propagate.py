@@ -315,6 +315,12 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     sig = np.empty(n_g)
     idx = np.empty(n_g, np.int64)
     tab = np.empty((order + 1, 2))
+    # the complete frames of the intact pattern's call go side by side, LANES at a time (_lanes_block)
+    offs = _block_offsets(n_g, breaks.size, n_sh, pos.shape[1])
+    wk = np.zeros(offs[-1] if which.size == 0 else 0)
+    o_v, o_sp = offs[0], offs[1]
+    fidx = np.empty(LANES, np.int64)
+    n_l = 0
     left_out = 0
     for f in range(n_f):
         n_valid = 0
@@ -362,9 +368,27 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
         if which.size == 0 and n_valid < n_g:
             left_out += 1
             continue
+        if which.size == 0:
+            for n in range(n_g):
+                wk[o_v + (n * 3) * LANES + n_l] = v[n, 0, 0]
+                wk[o_v + (n * 3 + 1) * LANES + n_l] = v[n, 0, 1]
+                wk[o_v + (n * 3 + 2) * LANES + n_l] = v[n, 1, 1]
+                for i in range(2):
+                    for q in range(n_sh):
+                        wk[o_sp + ((n * 2 + i) * n_sh + q) * LANES + n_l] = sp[n, i, q]
+            fidx[n_l] = f
+            n_l += 1
+            if n_l == LANES:
+                _lanes_block(wk, offs, pos, frames, fidx, n_l, n_g, n_sh, base_var, const[11], bases[0], breaks,
+                             points, interval, hw, first, half_points, cov_out)
+                n_l = 0
+            continue
         row = bases[0] if which.size == 0 else bases[which[f]]
         _frame(pos[f], frames[f], v, sp, valid[f], base_var, const[11], row, breaks, points, interval, hw, first,
                half_points, work, cov_out[f])
+    if n_l:
+        _lanes_block(wk, offs, pos, frames, fidx, n_l, n_g, n_sh, base_var, const[11], bases[0], breaks, points,
+                     interval, hw, first, half_points, cov_out)
     return left_out
 
 
@@ -413,3 +437,199 @@ def interpolation_kernel(k, valid, s, order, out):  # pragma: no cover (compiled
     tab = np.empty((order + 1, 2))
     for f in range(n_f):
         _interpolation_frame(k[f], valid[f], s, order, idx, tab, out[f])
+
+
+#: the complete frames :func:`propagate` carries side by side (the innermost loops' constant trip count)
+LANES = 8
+
+
+@njit(cache=True, nogil=True)
+def _block_offsets(n_g, n_b, n_sh, n_p):  # pragma: no cover (compiled)
+    """Offsets of the rows of :func:`_lanes_block`'s work array (each row LANES long) and its size: per lane
+    the per-grating covariance (n_g, 3: v00, v01, v11) and shared columns (n_g, 2, n_sh), the integrand at
+    the rule's points (3 n_int + 3, 12), one grating's X_n (n_b + 1, 12), Y (n_b + 1, 36), Z (n_b + 1, 6 n_sh),
+    X_n V_n (n_b + 1, 12), p and t (n_b + 1, 6), A Y and A' Y (n_b + 1, 36), C and C' (n_b + 1, 18), the
+    pieces' coefficients (n_b − 1, 4, 9), the positions (n_p, 3) and one point's covariance (9)."""
+    n_int, nk = n_b - 1, n_b + 1
+    sizes = (3 * n_g, 2 * n_sh * n_g, 12 * (3 * n_int + 3), 12 * nk, 36 * nk, 6 * n_sh * nk, 12 * nk, 6 * nk,
+             36 * nk, 18 * nk, 36 * n_int, 3 * n_p, 9)
+    offs = np.empty(len(sizes) + 1, np.int64)
+    o = 0
+    for i in range(len(sizes)):
+        offs[i] = o
+        o += sizes[i] * LANES
+    offs[len(sizes)] = o
+    return offs
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST)
+def _lanes_block(wk, offs, pos, fr, fidx, n_l, n_g, n_sh, base_var, h0, wrow, breaks, points, interval, hw,
+                 first, half_points, out):  # pragma: no cover (compiled)
+    """:func:`_frame` for up to LANES complete frames at once (all gratings valid, the intact pattern's weights
+    ``wrow``): the frames ``fidx[:n_l]`` of ``pos``, ``fr`` and ``out``, their per-grating covariance and
+    shared columns already in ``wk`` (rows of :func:`_block_offsets`). The frame is the innermost loop, over
+    one flat work array, so that the compiler runs the arithmetic in SIMD registers (as
+    :func:`twin._kernels.exp_lanes`); the arithmetic of each lane is :func:`_frame`'s. Lanes beyond ``n_l``
+    compute on stale (finite) data and are never written out."""
+    L = LANES
+    n_b = breaks.size
+    n_int, nk = n_b - 1, n_b + 1
+    n_p = pos.shape[1]
+    o_v, o_sp, o_g, o_x, o_y, o_z = offs[0], offs[1], offs[2], offs[3], offs[4], offs[5]
+    o_xv, o_pt, o_m, o_cb, o_pc, o_pos, o_val = offs[6], offs[7], offs[8], offs[9], offs[10], offs[11], offs[12]
+    wb = wrow[:3 * n_g * n_int].reshape((3, n_g, n_int))
+    wh = wrow[3 * n_g * n_int:].reshape((3, n_g))
+    # gather: the positions of every point, the integrand (R E, (R E) × p) at the rule's points, t at the
+    # breakpoints (the padding point repeats the middle point, as _frame)
+    for l in range(n_l):
+        f = fidx[l]
+        for j in range(n_p):
+            for r in range(3):
+                wk[o_pos + (j * 3 + r) * L + l] = pos[f, j, r]
+        for pt in range(3 * n_int + 3):
+            i = points[pt // 3, pt % 3] if pt < 3 * n_int else half_points[pt - 3 * n_int]
+            p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
+            for c in range(2):
+                if c == 0:
+                    a0, a1, a2 = fr[f, i, 0, 1], fr[f, i, 1, 1], fr[f, i, 2, 1]
+                else:
+                    a0, a1, a2 = -fr[f, i, 0, 0], -fr[f, i, 1, 0], -fr[f, i, 2, 0]
+                g = o_g + pt * 12 * L + l
+                wk[g + c * L] = a0
+                wk[g + (2 + c) * L] = a1
+                wk[g + (4 + c) * L] = a2
+                wk[g + (6 + c) * L] = a1 * p2 - a2 * p1
+                wk[g + (8 + c) * L] = a2 * p0 - a0 * p2
+                wk[g + (10 + c) * L] = a0 * p1 - a1 * p0
+        for i in range(nk):
+            idx = breaks[i] if i < n_b else half_points[2]
+            for r in range(3):
+                wk[o_pt + (i * 6 + r) * L + l] = pos[f, idx, r]
+                wk[o_pt + (i * 6 + 3 + r) * L + l] = fr[f, idx, r, 2]
+    for a in range(o_y, o_z + 6 * n_sh * nk * L):
+        wk[a] = 0.0
+    for n in range(n_g):
+        # X_n at the breakpoints (running sum over the pieces) and at the first piece's middle point
+        for rc in range(12):
+            for l in range(L):
+                wk[o_x + rc * L + l] = 0.0
+        for j in range(n_int):
+            w0, w1, w2 = wb[0, n, j], wb[1, n, j], wb[2, n, j]
+            for rc in range(12):
+                dst = o_x + ((j + 1) * 12 + rc) * L
+                src = o_x + (j * 12 + rc) * L
+                ga = o_g + ((3 * j) * 12 + rc) * L
+                for l in range(L):
+                    inc = w0 * wk[ga + l] + w1 * wk[ga + 12 * L + l] + w2 * wk[ga + 24 * L + l]
+                    wk[dst + l] = wk[src + l] + inc if j > 0 else inc
+        w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
+        for rc in range(12):
+            dst = o_x + (n_b * 12 + rc) * L
+            ga = o_g + ((3 * n_int) * 12 + rc) * L
+            for l in range(L):
+                wk[dst + l] = w0 * wk[ga + l] + w1 * wk[ga + 12 * L + l] + w2 * wk[ga + 24 * L + l]
+        # Y += X_n V_n X_nᵀ (upper triangle), Z += X_n S_n σ_p
+        ov = o_v + n * 3 * L
+        for i in range(nk):
+            xi = o_x + i * 12 * L
+            vi = o_xv + i * 12 * L
+            for r in range(6):
+                for l in range(L):
+                    a0, a1 = wk[xi + 2 * r * L + l], wk[xi + (2 * r + 1) * L + l]
+                    v00, v01, v11 = wk[ov + l], wk[ov + L + l], wk[ov + 2 * L + l]
+                    wk[vi + r * L + l] = a0 * v00 + a1 * v01
+                    wk[vi + (6 + r) * L + l] = a0 * v01 + a1 * v11
+            yi = o_y + i * 36 * L
+            for r in range(6):
+                for c in range(r, 6):
+                    for l in range(L):
+                        wk[yi + (r * 6 + c) * L + l] += (wk[vi + r * L + l] * wk[xi + 2 * c * L + l]
+                                                        + wk[vi + (6 + r) * L + l] * wk[xi + (2 * c + 1) * L + l])
+            zi = o_z + i * 6 * n_sh * L
+            for q in range(n_sh):
+                s = o_sp + (n * 2 * n_sh + q) * L
+                for r in range(6):
+                    for l in range(L):
+                        wk[zi + (r * n_sh + q) * L + l] += (wk[xi + 2 * r * L + l] * wk[s + l]
+                                                           + wk[xi + (2 * r + 1) * L + l] * wk[s + n_sh * L + l])
+    for i in range(nk):
+        yi = o_y + i * 36 * L
+        zi = o_z + i * 6 * n_sh * L
+        for r in range(6):
+            for c in range(r, 6):
+                for q in range(n_sh):
+                    for l in range(L):
+                        wk[yi + (r * 6 + c) * L + l] += (wk[zi + (r * n_sh + q) * L + l]
+                                                        * wk[zi + (c * n_sh + q) * L + l])
+                if c > r:
+                    for l in range(L):
+                        wk[yi + (c * 6 + r) * L + l] = wk[yi + (r * 6 + c) * L + l]
+        # A = (−[p]×, −I), A' = (−[t]×, 0): A Y, A' Y; then C = (A Y) Aᵀ, C' = (A' Y) Aᵀ + (A Y) A'ᵀ
+        pi = o_pt + i * 6 * L
+        mi = o_m + i * 36 * L
+        for e in range(6):
+            for l in range(L):
+                p0, p1, p2 = wk[pi + l], wk[pi + L + l], wk[pi + 2 * L + l]
+                t0, t1, t2 = wk[pi + 3 * L + l], wk[pi + 4 * L + l], wk[pi + 5 * L + l]
+                u0, u1, u2 = wk[yi + e * L + l], wk[yi + (6 + e) * L + l], wk[yi + (12 + e) * L + l]
+                wk[mi + e * L + l] = p2 * u1 - p1 * u2 - wk[yi + (18 + e) * L + l]
+                wk[mi + (6 + e) * L + l] = p0 * u2 - p2 * u0 - wk[yi + (24 + e) * L + l]
+                wk[mi + (12 + e) * L + l] = p1 * u0 - p0 * u1 - wk[yi + (30 + e) * L + l]
+                wk[mi + (18 + e) * L + l] = t2 * u1 - t1 * u2
+                wk[mi + (24 + e) * L + l] = t0 * u2 - t2 * u0
+                wk[mi + (30 + e) * L + l] = t1 * u0 - t0 * u1
+        ci = o_cb + i * 18 * L
+        for r in range(3):
+            for l in range(L):
+                p0, p1, p2 = wk[pi + l], wk[pi + L + l], wk[pi + 2 * L + l]
+                t0, t1, t2 = wk[pi + 3 * L + l], wk[pi + 4 * L + l], wk[pi + 5 * L + l]
+                ma = mi + r * 6 * L + l
+                md = mi + (18 + r * 6) * L + l
+                a0, a1, a2 = wk[ma], wk[ma + L], wk[ma + 2 * L]
+                d0, d1, d2 = wk[md], wk[md + L], wk[md + 2 * L]
+                wk[ci + (r * 3) * L + l] = p2 * a1 - p1 * a2 - wk[ma + 3 * L]
+                wk[ci + (r * 3 + 1) * L + l] = p0 * a2 - p2 * a0 - wk[ma + 4 * L]
+                wk[ci + (r * 3 + 2) * L + l] = p1 * a0 - p0 * a1 - wk[ma + 5 * L]
+                wk[ci + (9 + r * 3) * L + l] = p2 * d1 - p1 * d2 - wk[md + 3 * L] + t2 * a1 - t1 * a2
+                wk[ci + (9 + r * 3 + 1) * L + l] = p0 * d2 - p2 * d0 - wk[md + 4 * L] + t0 * a2 - t2 * a0
+                wk[ci + (9 + r * 3 + 2) * L + l] = p1 * d0 - p0 * d1 - wk[md + 5 * L] + t1 * a0 - t0 * a1
+    # the pieces' coefficients (as _frame): on the first piece t⁴ (a + b t + c t²), then C and h C' at the ends
+    for rc in range(9):
+        c1 = o_cb + (1 * 18 + rc) * L
+        cm = o_cb + (n_b * 18 + rc) * L
+        for e in range(3):
+            f0, f1, f2 = first[e, 0], first[e, 1] * h0, first[e, 2]
+            dst = o_pc + (e * 9 + rc) * L
+            for l in range(L):
+                wk[dst + l] = f0 * wk[c1 + l] + f1 * wk[c1 + 9 * L + l] + f2 * wk[cm + l]
+        for l in range(L):
+            wk[o_pc + (27 + rc) * L + l] = 0.0
+        for q in range(1, n_int):
+            for e in range(4):
+                src = o_cb + ((q + e // 2) * 18 + (e % 2) * 9 + rc) * L
+                dst = o_pc + ((q * 4 + e) * 9 + rc) * L
+                for l in range(L):
+                    wk[dst + l] = wk[src + l]
+    # every point from its piece's coefficients, plus the base angle exactly; then out to the frames
+    for j in range(n_p):
+        q = interval[j]
+        w0, w1, w2, w3 = hw[j, 0], hw[j, 1], hw[j, 2], hw[j, 3]
+        pj = o_pos + j * 3 * L
+        pq = o_pc + q * 36 * L
+        for r in range(3):
+            for c in range(r, 3):
+                rc = r * 3 + c
+                for l in range(L):
+                    q0, q1, q2 = wk[pj + l], wk[pj + L + l], wk[pj + 2 * L + l]
+                    pp = q0 * q0 + q1 * q1 + q2 * q2
+                    val = (w0 * wk[pq + rc * L + l] + w1 * wk[pq + (9 + rc) * L + l] + w2 * wk[pq + (18 + rc) * L + l]
+                           + w3 * wk[pq + (27 + rc) * L + l])
+                    val += base_var * ((pp if r == c else 0.0) - wk[pj + r * L + l] * wk[pj + c * L + l])
+                    wk[o_val + rc * L + l] = val
+        for l in range(n_l):
+            f = fidx[l]
+            for r in range(3):
+                for c in range(r, 3):
+                    val = wk[o_val + (r * 3 + c) * L + l]
+                    out[f, j, r, c] = val
+                    out[f, j, c, r] = val
