@@ -316,9 +316,18 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     idx = np.empty(n_g, np.int64)
     tab = np.empty((order + 1, 2))
     # the complete frames of the intact pattern's call go side by side, LANES at a time (_lanes_block)
-    offs = _block_offsets(n_g, breaks.size, n_sh, pos.shape[1])
-    wk = np.zeros(offs[-1] if which.size == 0 else 0)
-    o_v, o_sp = offs[0], offs[1]
+    nb_ = breaks.size if which.size == 0 else 1
+    arrs = _block_arrays(n_g, nb_, n_sh)
+    vrep, sprep = arrs[0], arrs[1]
+    wbrep = np.empty((3, n_g, (nb_ - 1) * LANES))
+    wh = bases[0][3 * n_g * (nb_ - 1):].reshape((3, n_g)) if which.size == 0 else bases[0][:0].reshape((3, 0))
+    if which.size == 0:
+        wb = bases[0][:3 * n_g * (nb_ - 1)].reshape((3, n_g, nb_ - 1))
+        for e in range(3):
+            for n in range(n_g):
+                for j in range(nb_ - 1):
+                    for ll in range(LANES):
+                        wbrep[e, n, j * LANES + ll] = wb[e, n, j]
     fidx = np.empty(LANES, np.int64)
     n_l = 0
     left_out = 0
@@ -370,25 +379,25 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
             continue
         if which.size == 0:
             for n in range(n_g):
-                wk[o_v + (n * 3) * LANES + n_l] = v[n, 0, 0]
-                wk[o_v + (n * 3 + 1) * LANES + n_l] = v[n, 0, 1]
-                wk[o_v + (n * 3 + 2) * LANES + n_l] = v[n, 1, 1]
+                vrep[n, 0, n_l] = v[n, 0, 0]
+                vrep[n, 1, n_l] = v[n, 0, 1]
+                vrep[n, 2, n_l] = v[n, 1, 1]
                 for i in range(2):
                     for q in range(n_sh):
-                        wk[o_sp + ((n * 2 + i) * n_sh + q) * LANES + n_l] = sp[n, i, q]
+                        sprep[n, i, q, n_l] = sp[n, i, q]
             fidx[n_l] = f
             n_l += 1
             if n_l == LANES:
-                _lanes_block(wk, offs, pos, frames, fidx, n_l, n_g, n_sh, base_var, const[11], bases[0], breaks,
-                             points, interval, hw, first, half_points, cov_out)
+                _lanes_block(arrs, pos, frames, fidx, n_l, base_var, const[11], wbrep, wh, breaks, points,
+                             interval, hw, first, half_points, cov_out)
                 n_l = 0
             continue
         row = bases[0] if which.size == 0 else bases[which[f]]
         _frame(pos[f], frames[f], v, sp, valid[f], base_var, const[11], row, breaks, points, interval, hw, first,
                half_points, work, cov_out[f])
     if n_l:
-        _lanes_block(wk, offs, pos, frames, fidx, n_l, n_g, n_sh, base_var, const[11], bases[0], breaks, points,
-                     interval, hw, first, half_points, cov_out)
+        _lanes_block(arrs, pos, frames, fidx, n_l, base_var, const[11], wbrep, wh, breaks, points, interval, hw,
+                     first, half_points, cov_out)
     return left_out
 
 
@@ -439,197 +448,201 @@ def interpolation_kernel(k, valid, s, order, out):  # pragma: no cover (compiled
         _interpolation_frame(k[f], valid[f], s, order, idx, tab, out[f])
 
 
-#: the complete frames :func:`propagate` carries side by side (the innermost loops' constant trip count)
+
+#: the complete frames :func:`propagate` carries side by side
 LANES = 8
 
 
 @njit(cache=True, nogil=True)
-def _block_offsets(n_g, n_b, n_sh, n_p):  # pragma: no cover (compiled)
-    """Offsets of the rows of :func:`_lanes_block`'s work array (each row LANES long) and its size: per lane
-    the per-grating covariance (n_g, 3: v00, v01, v11) and shared columns (n_g, 2, n_sh), the integrand at
-    the rule's points (3 n_int + 3, 12), one grating's X_n (n_b + 1, 12), Y (n_b + 1, 36), Z (n_b + 1, 6 n_sh),
-    X_n V_n (n_b + 1, 12), p and t (n_b + 1, 6), A Y and A' Y (n_b + 1, 36), C and C' (n_b + 1, 18), the
-    pieces' coefficients (n_b − 1, 4, 9), the positions (n_p, 3) and one point's covariance (9)."""
-    n_int, nk = n_b - 1, n_b + 1
-    sizes = (3 * n_g, 2 * n_sh * n_g, 12 * (3 * n_int + 3), 12 * nk, 36 * nk, 6 * n_sh * nk, 12 * nk, 6 * nk,
-             36 * nk, 18 * nk, 36 * n_int, 3 * n_p, 9)
-    offs = np.empty(len(sizes) + 1, np.int64)
-    o = 0
-    for i in range(len(sizes)):
-        offs[i] = o
-        o += sizes[i] * LANES
-    offs[len(sizes)] = o
-    return offs
+def _block_arrays(n_g, n_b, n_sh):  # pragma: no cover (compiled)
+    """The scratch arrays of :func:`_lanes_block`, along K = (n_b + 1) · LANES (breakpoint-major, frame-minor):
+    per-grating covariance (n_g, 3, K: v00, v01, v11) and shared columns (n_g, 2, n_sh, K), whose first LANES
+    entries :func:`propagate` fills; the integrand (3, 12, (n_b − 1) · LANES) and (3, 12, LANES); X_n (12, K);
+    Y (6, 6, K); Z (6, n_sh, K); X_n V_n (2, 6, K); p, t (2, 3, K); A Y, A' Y (2, 3, 6, K); C, C' (2, 3, 3, K);
+    one point's work (48 · LANES: its piece's coefficients 36, its position 3, its covariance 9)."""
+    L = LANES
+    kb = (n_b + 1) * L
+    return (np.zeros((n_g, 3, kb)), np.zeros((n_g, 2, n_sh, kb)), np.zeros((3, 12, (n_b - 1) * L)),
+            np.zeros((3, 12, L)), np.zeros((12, kb)), np.zeros((6, 6, kb)), np.zeros((6, n_sh, kb)),
+            np.zeros((2, 6, kb)), np.zeros((2, 3, kb)), np.zeros((2, 3, 6, kb)), np.zeros((2, 3, 3, kb)),
+            np.zeros(48 * L))
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
-def _lanes_block(wk, offs, pos, fr, fidx, n_l, n_g, n_sh, base_var, h0, wrow, breaks, points, interval, hw,
-                 first, half_points, out):  # pragma: no cover (compiled)
-    """:func:`_frame` for up to LANES complete frames at once (all gratings valid, the intact pattern's weights
-    ``wrow``): the frames ``fidx[:n_l]`` of ``pos``, ``fr`` and ``out``, their per-grating covariance and
-    shared columns already in ``wk`` (rows of :func:`_block_offsets`). The frame is the innermost loop, over
-    one flat work array, so that the compiler runs the arithmetic in SIMD registers (as
-    :func:`twin._kernels.exp_lanes`); the arithmetic of each lane is :func:`_frame`'s. Lanes beyond ``n_l``
-    compute on stale (finite) data and are never written out."""
+def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, points, interval, hw, first,
+                 half_points, out):  # pragma: no cover (compiled)
+    """:func:`_frame` for up to LANES complete frames at once (every grating valid, the intact pattern): the
+    frames ``fidx[:n_l]`` of ``pos``, ``fr`` and ``out``, their per-grating covariance and shared columns in
+    the first LANES entries of ``arrs``' first two (:func:`_block_arrays`). Every array runs along K =
+    breakpoints × frames, so that the loops are long and element-wise (the compiler runs them in vector
+    registers); ``wbrep`` (3, n_g, (n_b − 1) · LANES) the pattern's piece weights repeated per frame, ``wh``
+    (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s. Lanes beyond
+    ``n_l`` compute on stale (finite) data and are never written out."""
+    vrep, sprep, g, gh, xn, y, z, xv, pt, m, cb, fw = arrs
     L = LANES
+    n_g, n_sh = vrep.shape[0], sprep.shape[2]
     n_b = breaks.size
-    n_int, nk = n_b - 1, n_b + 1
+    n_int = n_b - 1
+    kb = (n_b + 1) * L
     n_p = pos.shape[1]
-    o_v, o_sp, o_g, o_x, o_y, o_z = offs[0], offs[1], offs[2], offs[3], offs[4], offs[5]
-    o_xv, o_pt, o_m, o_cb, o_pc, o_pos, o_val = offs[6], offs[7], offs[8], offs[9], offs[10], offs[11], offs[12]
-    wb = wrow[:3 * n_g * n_int].reshape((3, n_g, n_int))
-    wh = wrow[3 * n_g * n_int:].reshape((3, n_g))
-    # gather: the positions of every point, the integrand (R E, (R E) × p) at the rule's points, t at the
-    # breakpoints (the padding point repeats the middle point, as _frame)
-    for l in range(n_l):
-        f = fidx[l]
-        for j in range(n_p):
-            for r in range(3):
-                wk[o_pos + (j * 3 + r) * L + l] = pos[f, j, r]
-        for pt in range(3 * n_int + 3):
-            i = points[pt // 3, pt % 3] if pt < 3 * n_int else half_points[pt - 3 * n_int]
+    # the per-frame constants repeated along the breakpoints (a dependence at distance LANES: vectorised)
+    for n in range(n_g):
+        for a in range(3):
+            row = vrep[n, a]
+            for i in range(L, kb):
+                row[i] = row[i - L]
+        for a in range(2):
+            for q in range(n_sh):
+                row = sprep[n, a, q]
+                for i in range(L, kb):
+                    row[i] = row[i - L]
+    # gather: the integrand (R E, (R E) × p) at the rule's points, p and t at the breakpoints
+    for ll in range(n_l):
+        f = fidx[ll]
+        for pi in range(3 * n_int + 3):
+            if pi < 3 * n_int:
+                j, e = pi // 3, pi % 3
+                i = points[j, e]
+                dst = g[e]
+                col = j * L + ll
+            else:
+                e = pi - 3 * n_int
+                i = half_points[e]
+                dst = gh[e]
+                col = ll
             p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
             for c in range(2):
                 if c == 0:
                     a0, a1, a2 = fr[f, i, 0, 1], fr[f, i, 1, 1], fr[f, i, 2, 1]
                 else:
                     a0, a1, a2 = -fr[f, i, 0, 0], -fr[f, i, 1, 0], -fr[f, i, 2, 0]
-                g = o_g + pt * 12 * L + l
-                wk[g + c * L] = a0
-                wk[g + (2 + c) * L] = a1
-                wk[g + (4 + c) * L] = a2
-                wk[g + (6 + c) * L] = a1 * p2 - a2 * p1
-                wk[g + (8 + c) * L] = a2 * p0 - a0 * p2
-                wk[g + (10 + c) * L] = a0 * p1 - a1 * p0
-        for i in range(nk):
+                dst[c, col] = a0
+                dst[2 + c, col] = a1
+                dst[4 + c, col] = a2
+                dst[6 + c, col] = a1 * p2 - a2 * p1
+                dst[8 + c, col] = a2 * p0 - a0 * p2
+                dst[10 + c, col] = a0 * p1 - a1 * p0
+        for i in range(n_b + 1):
             idx = breaks[i] if i < n_b else half_points[2]
             for r in range(3):
-                wk[o_pt + (i * 6 + r) * L + l] = pos[f, idx, r]
-                wk[o_pt + (i * 6 + 3 + r) * L + l] = fr[f, idx, r, 2]
-    for a in range(o_y, o_z + 6 * n_sh * nk * L):
-        wk[a] = 0.0
+                pt[0, r, i * L + ll] = pos[f, idx, r]
+                pt[1, r, i * L + ll] = fr[f, idx, r, 2]
+    y[:] = 0.0
+    z[:] = 0.0
     for n in range(n_g):
-        # X_n at the breakpoints (running sum over the pieces) and at the first piece's middle point
+        # X_n: each piece's increment, the running sum over the pieces, the first piece's middle point
         for rc in range(12):
-            for l in range(L):
-                wk[o_x + rc * L + l] = 0.0
-        for j in range(n_int):
-            w0, w1, w2 = wb[0, n, j], wb[1, n, j], wb[2, n, j]
-            for rc in range(12):
-                dst = o_x + ((j + 1) * 12 + rc) * L
-                src = o_x + (j * 12 + rc) * L
-                ga = o_g + ((3 * j) * 12 + rc) * L
-                for l in range(L):
-                    inc = w0 * wk[ga + l] + w1 * wk[ga + 12 * L + l] + w2 * wk[ga + 24 * L + l]
-                    wk[dst + l] = wk[src + l] + inc if j > 0 else inc
-        w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
-        for rc in range(12):
-            dst = o_x + (n_b * 12 + rc) * L
-            ga = o_g + ((3 * n_int) * 12 + rc) * L
-            for l in range(L):
-                wk[dst + l] = w0 * wk[ga + l] + w1 * wk[ga + 12 * L + l] + w2 * wk[ga + 24 * L + l]
-        # Y += X_n V_n X_nᵀ (upper triangle), Z += X_n S_n σ_p
-        ov = o_v + n * 3 * L
-        for i in range(nk):
-            xi = o_x + i * 12 * L
-            vi = o_xv + i * 12 * L
-            for r in range(6):
-                for l in range(L):
-                    a0, a1 = wk[xi + 2 * r * L + l], wk[xi + (2 * r + 1) * L + l]
-                    v00, v01, v11 = wk[ov + l], wk[ov + L + l], wk[ov + 2 * L + l]
-                    wk[vi + r * L + l] = a0 * v00 + a1 * v01
-                    wk[vi + (6 + r) * L + l] = a0 * v01 + a1 * v11
-            yi = o_y + i * 36 * L
-            for r in range(6):
-                for c in range(r, 6):
-                    for l in range(L):
-                        wk[yi + (r * 6 + c) * L + l] += (wk[vi + r * L + l] * wk[xi + 2 * c * L + l]
-                                                        + wk[vi + (6 + r) * L + l] * wk[xi + (2 * c + 1) * L + l])
-            zi = o_z + i * 6 * n_sh * L
-            for q in range(n_sh):
-                s = o_sp + (n * 2 * n_sh + q) * L
-                for r in range(6):
-                    for l in range(L):
-                        wk[zi + (r * n_sh + q) * L + l] += (wk[xi + 2 * r * L + l] * wk[s + l]
-                                                           + wk[xi + (2 * r + 1) * L + l] * wk[s + n_sh * L + l])
-    for i in range(nk):
-        yi = o_y + i * 36 * L
-        zi = o_z + i * 6 * n_sh * L
+            xr = xn[rc]
+            g0, g1, g2 = g[0, rc], g[1, rc], g[2, rc]
+            b0, b1, b2 = wbrep[0, n], wbrep[1, n], wbrep[2, n]
+            for i in range(L):
+                xr[i] = 0.0
+            for i in range(n_int * L):
+                xr[L + i] = b0[i] * g0[i] + b1[i] * g1[i] + b2[i] * g2[i]
+            for i in range(2 * L, n_b * L):
+                xr[i] += xr[i - L]
+            w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
+            for i in range(L):
+                xr[n_b * L + i] = w0 * gh[0, rc, i] + w1 * gh[1, rc, i] + w2 * gh[2, rc, i]
+        v00, v01, v11 = vrep[n, 0], vrep[n, 1], vrep[n, 2]
+        for r in range(6):
+            for i in range(kb):
+                a0, a1 = xn[2 * r, i], xn[2 * r + 1, i]
+                xv[0, r, i] = a0 * v00[i] + a1 * v01[i]
+                xv[1, r, i] = a0 * v01[i] + a1 * v11[i]
         for r in range(6):
             for c in range(r, 6):
-                for q in range(n_sh):
-                    for l in range(L):
-                        wk[yi + (r * 6 + c) * L + l] += (wk[zi + (r * n_sh + q) * L + l]
-                                                        * wk[zi + (c * n_sh + q) * L + l])
-                if c > r:
-                    for l in range(L):
-                        wk[yi + (c * 6 + r) * L + l] = wk[yi + (r * 6 + c) * L + l]
-        # A = (−[p]×, −I), A' = (−[t]×, 0): A Y, A' Y; then C = (A Y) Aᵀ, C' = (A' Y) Aᵀ + (A Y) A'ᵀ
-        pi = o_pt + i * 6 * L
-        mi = o_m + i * 36 * L
-        for e in range(6):
-            for l in range(L):
-                p0, p1, p2 = wk[pi + l], wk[pi + L + l], wk[pi + 2 * L + l]
-                t0, t1, t2 = wk[pi + 3 * L + l], wk[pi + 4 * L + l], wk[pi + 5 * L + l]
-                u0, u1, u2 = wk[yi + e * L + l], wk[yi + (6 + e) * L + l], wk[yi + (12 + e) * L + l]
-                wk[mi + e * L + l] = p2 * u1 - p1 * u2 - wk[yi + (18 + e) * L + l]
-                wk[mi + (6 + e) * L + l] = p0 * u2 - p2 * u0 - wk[yi + (24 + e) * L + l]
-                wk[mi + (12 + e) * L + l] = p1 * u0 - p0 * u1 - wk[yi + (30 + e) * L + l]
-                wk[mi + (18 + e) * L + l] = t2 * u1 - t1 * u2
-                wk[mi + (24 + e) * L + l] = t0 * u2 - t2 * u0
-                wk[mi + (30 + e) * L + l] = t1 * u0 - t0 * u1
-        ci = o_cb + i * 18 * L
-        for r in range(3):
-            for l in range(L):
-                p0, p1, p2 = wk[pi + l], wk[pi + L + l], wk[pi + 2 * L + l]
-                t0, t1, t2 = wk[pi + 3 * L + l], wk[pi + 4 * L + l], wk[pi + 5 * L + l]
-                ma = mi + r * 6 * L + l
-                md = mi + (18 + r * 6) * L + l
-                a0, a1, a2 = wk[ma], wk[ma + L], wk[ma + 2 * L]
-                d0, d1, d2 = wk[md], wk[md + L], wk[md + 2 * L]
-                wk[ci + (r * 3) * L + l] = p2 * a1 - p1 * a2 - wk[ma + 3 * L]
-                wk[ci + (r * 3 + 1) * L + l] = p0 * a2 - p2 * a0 - wk[ma + 4 * L]
-                wk[ci + (r * 3 + 2) * L + l] = p1 * a0 - p0 * a1 - wk[ma + 5 * L]
-                wk[ci + (9 + r * 3) * L + l] = p2 * d1 - p1 * d2 - wk[md + 3 * L] + t2 * a1 - t1 * a2
-                wk[ci + (9 + r * 3 + 1) * L + l] = p0 * d2 - p2 * d0 - wk[md + 4 * L] + t0 * a2 - t2 * a0
-                wk[ci + (9 + r * 3 + 2) * L + l] = p1 * d0 - p0 * d1 - wk[md + 5 * L] + t1 * a0 - t0 * a1
-    # the pieces' coefficients (as _frame): on the first piece t⁴ (a + b t + c t²), then C and h C' at the ends
-    for rc in range(9):
-        c1 = o_cb + (1 * 18 + rc) * L
-        cm = o_cb + (n_b * 18 + rc) * L
-        for e in range(3):
-            f0, f1, f2 = first[e, 0], first[e, 1] * h0, first[e, 2]
-            dst = o_pc + (e * 9 + rc) * L
-            for l in range(L):
-                wk[dst + l] = f0 * wk[c1 + l] + f1 * wk[c1 + 9 * L + l] + f2 * wk[cm + l]
-        for l in range(L):
-            wk[o_pc + (27 + rc) * L + l] = 0.0
-        for q in range(1, n_int):
-            for e in range(4):
-                src = o_cb + ((q + e // 2) * 18 + (e % 2) * 9 + rc) * L
-                dst = o_pc + ((q * 4 + e) * 9 + rc) * L
-                for l in range(L):
-                    wk[dst + l] = wk[src + l]
-    # every point from its piece's coefficients, plus the base angle exactly; then out to the frames
+                for i in range(kb):
+                    y[r, c, i] += xv[0, r, i] * xn[2 * c, i] + xv[1, r, i] * xn[2 * c + 1, i]
+        for q in range(n_sh):
+            s0, s1 = sprep[n, 0, q], sprep[n, 1, q]
+            for r in range(6):
+                for i in range(kb):
+                    z[r, q, i] += xn[2 * r, i] * s0[i] + xn[2 * r + 1, i] * s1[i]
+    for r in range(6):
+        for c in range(r, 6):
+            for q in range(n_sh):
+                for i in range(kb):
+                    y[r, c, i] += z[r, q, i] * z[c, q, i]
+            if c > r:
+                for i in range(kb):
+                    y[c, r, i] = y[r, c, i]
+    # A = (−[p]×, −I), A' = (−[t]×, 0): m0 = A Y, m1 = A' Y; C = (A Y) Aᵀ, C' = (A' Y) Aᵀ + (A Y) A'ᵀ
+    p0, p1, p2 = pt[0, 0], pt[0, 1], pt[0, 2]
+    t0, t1, t2 = pt[1, 0], pt[1, 1], pt[1, 2]
+    for e in range(6):
+        for i in range(kb):
+            u0, u1, u2 = y[0, e, i], y[1, e, i], y[2, e, i]
+            m[0, 0, e, i] = p2[i] * u1 - p1[i] * u2 - y[3, e, i]
+            m[0, 1, e, i] = p0[i] * u2 - p2[i] * u0 - y[4, e, i]
+            m[0, 2, e, i] = p1[i] * u0 - p0[i] * u1 - y[5, e, i]
+            m[1, 0, e, i] = t2[i] * u1 - t1[i] * u2
+            m[1, 1, e, i] = t0[i] * u2 - t2[i] * u0
+            m[1, 2, e, i] = t1[i] * u0 - t0[i] * u1
+    for r in range(3):
+        for i in range(kb):
+            a0, a1, a2 = m[0, r, 0, i], m[0, r, 1, i], m[0, r, 2, i]
+            d0, d1, d2 = m[1, r, 0, i], m[1, r, 1, i], m[1, r, 2, i]
+            cb[0, r, 0, i] = p2[i] * a1 - p1[i] * a2 - m[0, r, 3, i]
+            cb[0, r, 1, i] = p0[i] * a2 - p2[i] * a0 - m[0, r, 4, i]
+            cb[0, r, 2, i] = p1[i] * a0 - p0[i] * a1 - m[0, r, 5, i]
+            cb[1, r, 0, i] = p2[i] * d1 - p1[i] * d2 - m[1, r, 3, i] + t2[i] * a1 - t1[i] * a2
+            cb[1, r, 1, i] = p0[i] * d2 - p2[i] * d0 - m[1, r, 4, i] + t0[i] * a2 - t2[i] * a0
+            cb[1, r, 2, i] = p1[i] * d0 - p0[i] * d1 - m[1, r, 5, i] + t1[i] * a0 - t0[i] * a1
+    # every point from its piece's coefficients (as _frame), plus the base angle exactly; ``fw`` holds the
+    # piece's coefficients (rows e·9 + r·3 + c), the point's position (36–38) and covariance (39–47) at constant
+    # offsets, so that the loop over the frames is vectorised as in twin._kernels.exp_lanes
+    cur = -1
     for j in range(n_p):
         q = interval[j]
-        w0, w1, w2, w3 = hw[j, 0], hw[j, 1], hw[j, 2], hw[j, 3]
-        pj = o_pos + j * 3 * L
-        pq = o_pc + q * 36 * L
-        for r in range(3):
-            for c in range(r, 3):
-                rc = r * 3 + c
-                for l in range(L):
-                    q0, q1, q2 = wk[pj + l], wk[pj + L + l], wk[pj + 2 * L + l]
-                    pp = q0 * q0 + q1 * q1 + q2 * q2
-                    val = (w0 * wk[pq + rc * L + l] + w1 * wk[pq + (9 + rc) * L + l] + w2 * wk[pq + (18 + rc) * L + l]
-                           + w3 * wk[pq + (27 + rc) * L + l])
-                    val += base_var * ((pp if r == c else 0.0) - wk[pj + r * L + l] * wk[pj + c * L + l])
-                    wk[o_val + rc * L + l] = val
-        for l in range(n_l):
-            f = fidx[l]
+        if q != cur:
+            cur = q
+            for r in range(3):
+                for c in range(3):
+                    rc = r * 3 + c
+                    if q == 0:
+                        for e in range(3):
+                            f0, f1, f2 = first[e, 0], first[e, 1], first[e, 2]
+                            for ll in range(L):
+                                fw[(e * 9 + rc) * L + ll] = (f0 * cb[0, r, c, L + ll] + f1 * (h0 * cb[1, r, c, L + ll])
+                                                             + f2 * cb[0, r, c, n_b * L + ll])
+                        for ll in range(L):
+                            fw[(27 + rc) * L + ll] = 0.0
+                    else:
+                        for ll in range(L):
+                            fw[rc * L + ll] = cb[0, r, c, q * L + ll]
+                            fw[(9 + rc) * L + ll] = cb[1, r, c, q * L + ll]
+                            fw[(18 + rc) * L + ll] = cb[0, r, c, (q + 1) * L + ll]
+                            fw[(27 + rc) * L + ll] = cb[1, r, c, (q + 1) * L + ll]
+        for ll in range(n_l):
+            f = fidx[ll]
+            fw[36 * L + ll] = pos[f, j, 0]
+            fw[37 * L + ll] = pos[f, j, 1]
+            fw[38 * L + ll] = pos[f, j, 2]
+        _fill_point(fw, hw[j, 0], hw[j, 1], hw[j, 2], hw[j, 3], base_var)
+        for ll in range(n_l):
+            f = fidx[ll]
             for r in range(3):
                 for c in range(r, 3):
-                    val = wk[o_val + (r * 3 + c) * L + l]
+                    val = fw[(39 + r * 3 + c) * L + ll]
                     out[f, j, r, c] = val
                     out[f, j, c, r] = val
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST)
+def _fill_point(fw, w0, w1, w2, w3, base_var):  # pragma: no cover (compiled)
+    """One point's covariance for the LANES frames of ``fw`` (:func:`_lanes_block`): the Hermite (or first
+    piece's) weights on the piece's coefficients, plus σ_b² (|p|² I − p pᵀ). Branch-free, constant offsets."""
+    L = LANES
+    for ll in range(L):
+        q0, q1, q2 = fw[36 * L + ll], fw[37 * L + ll], fw[38 * L + ll]
+        pp = q0 * q0 + q1 * q1 + q2 * q2
+        for r in range(3):
+            for c in range(3):
+                rc = r * 3 + c
+                val = (w0 * fw[rc * L + ll] + w1 * fw[(9 + rc) * L + ll] + w2 * fw[(18 + rc) * L + ll]
+                       + w3 * fw[(27 + rc) * L + ll])
+                pr = fw[(36 + r) * L + ll]
+                pc = fw[(36 + c) * L + ll]
+                diag = pp if r == c else 0.0
+                fw[(39 + rc) * L + ll] = val + base_var * (diag - pr * pc)
