@@ -315,13 +315,16 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     sig = np.empty(n_g)
     idx = np.empty(n_g, np.int64)
     tab = np.empty((order + 1, 2))
-    # the complete frames of the intact pattern's call go side by side, LANES at a time (_lanes_block)
-    nb_ = breaks.size if which.size == 0 else 1
+    # the complete frames of the intact pattern's call go side by side, LANES at a time (_lanes_block); the
+    # last fewer than LANES, and every frame of a call with fewer, one at a time (a block's scratch and its
+    # empty lanes would cost a single frame more than its own arithmetic)
+    lanes = which.size == 0 and n_f >= LANES
+    nb_ = breaks.size if lanes else 1
     arrs = _block_arrays(n_g, nb_, n_sh)
     vrep, sprep = arrs[0], arrs[1]
     wbrep = np.empty((3, n_g, (nb_ - 1) * LANES))
-    wh = bases[0][3 * n_g * (nb_ - 1):].reshape((3, n_g)) if which.size == 0 else bases[0][:0].reshape((3, 0))
-    if which.size == 0:
+    wh = bases[0][3 * n_g * (nb_ - 1):].reshape((3, n_g)) if lanes else bases[0][:0].reshape((3, 0))
+    if lanes:
         wb = bases[0][:3 * n_g * (nb_ - 1)].reshape((3, n_g, nb_ - 1))
         for e in range(3):
             for n in range(n_g):
@@ -377,7 +380,7 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
         if which.size == 0 and n_valid < n_g:
             left_out += 1
             continue
-        if which.size == 0:
+        if lanes:
             for n in range(n_g):
                 vrep[n, 0, n_l] = v[n, 0, 0]
                 vrep[n, 1, n_l] = v[n, 0, 1]
@@ -395,9 +398,17 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
         row = bases[0] if which.size == 0 else bases[which[f]]
         _frame(pos[f], frames[f], v, sp, valid[f], base_var, const[11], row, breaks, points, interval, hw, first,
                half_points, work, cov_out[f])
-    if n_l:
-        _lanes_block(arrs, pos, frames, fidx, n_l, base_var, const[11], wbrep, wh, breaks, points, interval, hw,
-                     first, half_points, cov_out)
+    for ll in range(n_l):  # the last fewer than LANES: their v and S from the lanes
+        f = fidx[ll]
+        for n in range(n_g):
+            v[n, 0, 0] = vrep[n, 0, ll]
+            v[n, 0, 1] = v[n, 1, 0] = vrep[n, 1, ll]
+            v[n, 1, 1] = vrep[n, 2, ll]
+            for i in range(2):
+                for q in range(n_sh):
+                    sp[n, i, q] = sprep[n, i, q, ll]
+        _frame(pos[f], frames[f], v, sp, valid[f], base_var, const[11], bases[0], breaks, points, interval, hw,
+               first, half_points, work, cov_out[f])
     return left_out
 
 
@@ -462,10 +473,10 @@ def _block_arrays(n_g, n_b, n_sh):  # pragma: no cover (compiled)
     one point's work (48 · LANES: its piece's coefficients 36, its position 3, its covariance 9)."""
     L = LANES
     kb = (n_b + 1) * L
-    return (np.zeros((n_g, 3, kb)), np.zeros((n_g, 2, n_sh, kb)), np.zeros((3, 12, (n_b - 1) * L)),
-            np.zeros((3, 12, L)), np.zeros((12, kb)), np.zeros((6, 6, kb)), np.zeros((6, n_sh, kb)),
-            np.zeros((2, 6, kb)), np.zeros((2, 3, kb)), np.zeros((2, 3, 6, kb)), np.zeros((2, 3, 3, kb)),
-            np.zeros(48 * L))
+    return (np.empty((n_g, 3, kb)), np.empty((n_g, 2, n_sh, kb)), np.empty((3, 12, (n_b - 1) * L)),
+            np.empty((3, 12, L)), np.empty((12, kb)), np.empty((6, 6, kb)), np.empty((6, n_sh, kb)),
+            np.empty((2, 6, kb)), np.empty((2, 3, kb)), np.empty((2, 3, 6, kb)), np.empty((2, 3, 3, kb)),
+            np.empty(48 * L))
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
@@ -477,7 +488,7 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, poin
     breakpoints × frames, so that the loops are long and element-wise (the compiler runs them in vector
     registers); ``wbrep`` (3, n_g, (n_b − 1) · LANES) the pattern's piece weights repeated per frame, ``wh``
     (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s. Lanes beyond
-    ``n_l`` compute on stale (finite) data and are never written out."""
+    ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never written out."""
     vrep, sprep, g, gh, xn, y, z, xv, pt, m, cb, fw = arrs
     L = LANES
     n_g, n_sh = vrep.shape[0], sprep.shape[2]
