@@ -721,3 +721,16 @@ def test_the_loops_compiled_books_equal_the_definitions_over_a_damaged_stream(ra
     got = {k: getattr(loop.c, k) for k in want}
     assert got == want and flags == want_flags
     assert loop.c.reconstruct_errors == (len(parts) if raises else 0)  # each batch counted once
+
+
+def test_the_rate_meters_compiled_timestamp_check_equals_numpys():
+    """RateMeter.add judges a batch's timestamps usable (all finite, none going back) in one compiled pass."""
+    from twin.io.rate import _finite_and_ordered
+
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        ts = np.cumsum(rng.choice([0.0, 1e-3, 1e-3, -1e-3], rng.integers(1, 6)))
+        if rng.random() < 0.3:
+            ts[rng.integers(ts.size)] = rng.choice([np.nan, np.inf, -np.inf])
+        want = bool(np.isfinite(ts).all()) and bool((ts[1:] >= ts[:-1]).all())
+        assert _finite_and_ordered(ts) == want

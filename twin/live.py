@@ -454,11 +454,13 @@ class LiveLoop:
             When no frame has matched the fibre model yet and this batch does not either: a configuration
             error (wrong ``--fiber``), not a transient.
         """
-        if len(frames.batch_shape) != 1:
+        w = frames.wavelengths
+        shape = w.shape  # (n, n_gratings, n_cores): read once, not through the Frame's properties
+        if len(shape) != 3:
             raise ValueError(f"LiveLoop.process: expected a 1-D batch Frame, got batch shape {frames.batch_shape}")
-        n = len(frames)
-        if frames.wavelengths.shape[1:] != self._shape:
-            self._reject(n, frames.wavelengths.shape[1:])
+        n = shape[0]
+        if shape[1:] != self._shape:
+            self._reject(n, shape[1:])
             return self._empty, None, np.zeros(0, np.uint8)
         if n == 0:
             return frames, None, np.zeros(0, np.uint8)
@@ -466,7 +468,7 @@ class LiveLoop:
         self._matched_any = True
         c = self.c
         rec = self.rec
-        e, outside = rec.strain(frames.wavelengths)  # once: the window check and the reconstruction
+        e, outside = rec.strain(w)  # once: the window check and the reconstruction
         try:
             shapes = rec.from_strain(e)
             valid = shapes.valid
