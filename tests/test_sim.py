@@ -2,6 +2,7 @@
 
 import re
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -152,6 +153,44 @@ def test_compiled_frame_path_equals_the_numpy_path():
         np.testing.assert_array_equal(st, st0)
         np.testing.assert_allclose(w, w0, rtol=0, atol=1e-12)
     assert np.abs(w - fast._path(fast.data, 1e-4, 5.0, 0.6, 0.0)[0]).max() > 1e-3  # the roll changes the peaks
+
+
+def test_connect_shape_sleeps_at_rest_and_reads_as_the_awake_rod():
+    """A settled rod held by connect constraints is put to sleep (models.fixtures.sleep_at_rest) and then reads as
+    the same rod kept awake does 3 s later: curvature at the gratings within 1e-4 1/m (of ≈ 40), centreline within
+    0.1 µm, ideal wavelengths within 1e-5 nm."""
+    from models.fixtures import wake
+
+    asleep = SimInterrogator(StaticShape("mixed", "connect", timestep=1e-3), optics=OpticsConfig.ideal(), rate=10.0)
+    awake = SimInterrogator(StaticShape("mixed", "connect", timestep=1e-3), optics=OpticsConfig.ideal(), rate=10.0)
+    wake(awake.model)
+    for _ in range(31):
+        a, b = asleep.read(), awake.read()
+    assert a.timestamp == b.timestamp == pytest.approx(3.0)
+    assert (asleep.data.tree_asleep >= 0).all() and (awake.data.tree_asleep < 0).all()
+    np.testing.assert_allclose(a.truth.curvature, b.truth.curvature, rtol=0, atol=1e-4)
+    np.testing.assert_allclose(a.truth.positions, b.truth.positions, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(a.wavelengths, b.wavelengths, rtol=0, atol=1e-5)
+    # a rod on contacts creeps on after settling: it stays awake
+    tube = StaticShape("arc", "tube", settle_time=10.0)
+    model, data = tube.build()
+    tube.prepare(model, data)
+    assert not model.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+
+
+def test_calibration_pose_wakes_the_sleeping_rod():
+    """sim://calibration sleeps in each settled pose; set_pose wakes it, so the bend is reached (16 1/m)."""
+    from sim_interrogator.setups import CalibrationPoses
+
+    sim = SimInterrogator(CalibrationPoses(), optics=OpticsConfig.ideal(), rate=10.0)
+    sim.read(), sim.read()
+    assert (sim.data.tree_asleep >= 0).all()
+    np.testing.assert_allclose(sim.read().truth.curvature, 0.0, atol=1e-3)
+    sim.set_pose("bend")
+    k = np.hypot(*sim.read().truth.curvature.T)
+    np.testing.assert_allclose(k, 16.0, rtol=2e-3)
+    sim.read(), sim.read()
+    assert (sim.data.tree_asleep >= 0).all()
 
 
 def test_sim_url():
