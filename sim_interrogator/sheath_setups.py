@@ -480,7 +480,7 @@ class SheathSetup(Setup):
                       dampratio="1")
         ET.SubElement(scene.actuators, "position", name="hub_rotate", joint="hub_roll", kp=f"{self.kp_roll:g}",
                       dampratio="1")
-        rod = scene.add_rod(spec, Pose(), parent="hub")
+        rod = scene.add_rod(spec, Pose(), parent="hub", parent_world=hub_pose, roll_joint="hub_roll")
         lo, hi = self.hub_range
         s_range = (max(0.0, lo - 5e-3), min(geo.length, hi + spec.length + 5e-3))
         self.rails = add_rails(
