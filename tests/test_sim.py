@@ -262,12 +262,25 @@ def test_static_shapes_full_set_in_tubes():
 
 def test_twin_live_of_the_simulator_collects_mujocos_warnings_and_leaves_no_log(tmp_path):
     """Issue 23 A10: `twin live sim://…` printed MuJoCo's raw "Inertia matrix is too close to singular … Check
-    model." and left MUJOCO_LOG.TXT in the current folder. The sheath scene's start-up gives such warnings every
-    time: they must be counted and explained in the summary instead."""
+    model." and left MUJOCO_LOG.TXT in the current folder; such warnings must be counted and explained in the
+    summary instead. The sheath scenes gave them at every start-up while the rod was pinned to the moving hub; hung
+    from it by equalities (docs/simulation.md §4) they give none, so the pinned variant checks the counting, and
+    `twin live` is checked for silence and no log file."""
     import json
     import os
     import subprocess
     import sys
+
+    from sim_interrogator.sheath_setups import SheathCycle
+
+    class PinnedToHub(SheathCycle):
+        pin_to_hub = True
+
+    sim = SimInterrogator(PinnedToHub(segments=60), optics=OpticsConfig.ideal(), rate=100.0, truth=False)
+    for _ in range(5):
+        sim.read()
+    stats = sim.stats()
+    assert stats["warnings"] >= 1 and "expected at the flex rod's start-up" in stats["warnings_note"], stats
 
     argv = [sys.executable, "-m", "twin.cli", "live", "sim://sheath-cycle?segments=60", "--frames", "5", "--quiet"]
     env = {**os.environ, "MPLBACKEND": "Agg"}
@@ -277,7 +290,4 @@ def test_twin_live_of_the_simulator_collects_mujocos_warnings_and_leaves_no_log(
         assert run.returncode == 0, run.stderr
         assert "WARNING" not in run.stdout + run.stderr and "Check model" not in run.stdout + run.stderr
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists() and os.listdir(tmp_path) == []
-    assert re.search(r"source warnings: [1-9]\d* \(MuJoCo solver warnings, expected at the flex rod's start-up, "
-                     r"results unaffected \(docs/simulation.md §1\); the first: ", runs[0].stdout), runs[0].stdout
-    source = json.loads(runs[1].stdout)["source"]
-    assert source["warnings"] >= 1 and "expected at the flex rod's start-up" in source["warnings_note"]
+    assert json.loads(runs[1].stdout)["source"]["warnings"] == 0
