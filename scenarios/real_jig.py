@@ -18,7 +18,10 @@ real session would). ``ratio`` is twin / real; the twin reproduces the table whe
 error-model ``nuisance`` fit, with each of its jig terms dropped in turn) by the one score
 (:mod:`twin.calibration.jig.score`): on both real tables leave one rotation out, and on the twin over the sessions,
 three ways — held-out rotations (leave one out), a second session of the same sensor in the same jig (one global
-roll fitted) and the truth (exact bends of the true sensor, no jig at all: the calibration's own error).
+roll fitted) and the truth (exact bends of the true sensor, no jig at all: the calibration's own error). Poses
+zeroed in the jig (the real tables, held-out rotations, the second session) are scored with the jig's zero added
+to the curvature and without (docs/jig.md, "The jig's zero"); the truth session, zeroed straight, without. The
+three figures of the twin beside the real table (and ``--budget``) are the jig's raw statistics: without it.
 """
 
 from __future__ import annotations
@@ -72,7 +75,8 @@ EFFECTS: dict[str, dict] = {
 
 
 def real_statistics(poses_path: str | Path, fiber: FiberModel, gratings) -> dict:
-    """The three figures (and the per-level arrays) of a real jig table."""
+    """The three figures (and the per-level arrays) of a real jig table: its raw statistics, k̂ as the change from
+    each rotation's reference (no jig zero added), as the twin's :func:`loro` computes them."""
     poses = read_poses(poses_path, fiber=fiber)
     return leave_one_rotation_out(fiber, poses, gratings=gratings, min_curvature=MIN_CURVATURE).to_dict()
 
@@ -113,23 +117,29 @@ def _score(st, key: str) -> dict:
 
 
 def model_scores(poses_path: str | Path, fiber_path: str | Path, gratings, variants=VARIANTS) -> list[dict]:
-    """Leave-one-rotation-out score of each calibration variant on a real table."""
+    """Leave-one-rotation-out score of each calibration variant on a real table, with the jig's zero added to the
+    held-out rotation's curvature (keys ``loro_*``) and without (``loro_raw_*``)."""
     fiber = FiberModel.load(fiber_path)
     poses = read_poses(poses_path, fiber=fiber)
     rows = []
     for name, model, terms in variants:
         extra = {} if terms is None else {"terms": terms}
-        st = leave_one_rotation_out(fiber, poses, model=model, gratings=list(gratings),
-                                    min_curvature=MIN_CURVATURE, **extra)
-        rows.append({"variant": name, **_score(st, "loro")})
+        row = {"variant": name}
+        for jig_zero, key in ((True, "loro"), (False, "loro_raw")):
+            st = leave_one_rotation_out(fiber, poses, model=model, gratings=list(gratings),
+                                        min_curvature=MIN_CURVATURE, jig_zero=jig_zero, **extra)
+            row.update(_score(st, key))
+        rows.append(row)
     return rows
 
 
 def model_study(params: JigParams, fiber: FiberModel, seeds: int, variants=VARIANTS) -> dict:
     """The calibration variants on ``seeds`` simulated sessions: per session (seed s) a second session of the same
     sensor (``session_seed`` 1000 + s) and a truth session (2000 + s: no jig effects and no noise, bends of
-    0.5–2 1/m every 30°). Returns per variant the medians over the sessions and, against the first variant (the
-    linear baseline), the fraction of sessions where it is better.
+    0.5–2 1/m every 30°). Held-out rotations and the second session are scored with the jig's zero added (keys
+    ``loro_*``, ``second_*``: they are zeroed in the jig) and without (``loro_raw_*``, ``second_raw_*``); the truth
+    session, whose references are straight, without. Returns per variant the medians over the sessions and,
+    against the first variant (the linear baseline), the fraction of sessions where it is better.
     """
     off = {k: v for effect in EFFECTS.values() for k, v in effect.items()}
     per: dict[str, list[dict]] = {name: [] for name, _, _ in variants}
@@ -143,11 +153,17 @@ def model_study(params: JigParams, fiber: FiberModel, seeds: int, variants=VARIA
         g = truth["gratings_in_groove"]
         for name, model, terms in variants:
             extra = {} if terms is None else {"terms": terms}
-            st = leave_one_rotation_out(fiber, first, model=model, gratings=g, min_curvature=MIN_CURVATURE, **extra)
             cal = fit(fiber, first, model=model, gratings=g, **extra).calibration
-            per[name].append({**_score(st, "loro"),
-                              **_score(validate(cal, second, fiber=fiber, fit_roll=True), "second"),
-                              **_score(validate(cal, exact, fiber=fiber, fit_roll=True), "truth")})
+            run = {}
+            for jig_zero, tag in ((True, ""), (False, "_raw")):
+                st = leave_one_rotation_out(fiber, first, model=model, gratings=g, min_curvature=MIN_CURVATURE,
+                                            jig_zero=jig_zero, **extra)
+                run.update(_score(st, f"loro{tag}"))
+                run.update(_score(validate(cal, second, fiber=fiber, fit_roll=True, jig_zero=jig_zero),
+                                  f"second{tag}"))
+            # the truth session's references are straight (no jig): its curvature is k̂ itself
+            run.update(_score(validate(cal, exact, fiber=fiber, fit_roll=True, jig_zero=False), "truth"))
+            per[name].append(run)
     base = per[variants[0][0]]
     out = {}
     for name, runs in per.items():
@@ -235,22 +251,26 @@ def _print_models(models: dict, out) -> None:
     print("\nScore (docs/jig.md): median per-level RMS |Δκ| (1/m) / median |mean Δdir| (deg), all levels "
           "(direction κ ≥ 0.8 1/m); clinical: |Δκ| at 0.25–1.25 1/m; 95 % coverage of the stated intervals", file=out)
     for table, rows in models["real"].items():
-        print(f"\nReal table {table}, leave one rotation out:", file=out)
-        print(f"{'':28s}{'|Δκ|':>8s}{'|Δdir|':>8s}{'clinical':>10s}{'cover':>8s}", file=out)
+        print(f"\nReal table {table}, leave one rotation out, with the jig's zero | without:", file=out)
+        print(f"{'':28s}" + f"{'|Δκ|':>8s}{'|Δdir|':>8s}{'clinical':>10s}{'cover':>8s}" * 2, file=out)
         for r in rows:
-            print(f"{r['variant']:28s}{_f(r['loro_all_kappa_1_per_m'], '8.4f')}"
-                  f"{_f(r['loro_all_direction_deg'], '7.2f')}°"
-                  f"{_f(r['loro_clinical_kappa_1_per_m'], '10.4f')}"
-                  f"{_f(None if r['loro_coverage_95'] is None else 100 * r['loro_coverage_95'], '7.1f')}"
-                  f"{'' if r['loro_coverage_95'] is None else '%'}", file=out)
+            line = ""
+            for key in ("loro", "loro_raw"):
+                cover = r[f"{key}_coverage_95"]
+                line += (f"{_f(r[f'{key}_all_kappa_1_per_m'], '8.4f')}{_f(r[f'{key}_all_direction_deg'], '7.2f')}°"
+                         f"{_f(r[f'{key}_clinical_kappa_1_per_m'], '10.4f')}"
+                         f"{'—' if cover is None else f'{100 * cover:.1f}%':>8s}")
+            print(f"{r['variant']:28s}{line}", file=out)
     tw = models["twin"]
     print(f"\nTwin of needle_3CH_4AA_v2, median of {tw['seeds']} sessions (in brackets: fraction of sessions better "
           "than linear):", file=out)
-    print(f"{'':28s}{'held-out rotations':>26s}{'second session':>26s}{'truth (exact bends)':>26s}"
-          f"{'coverage':>18s}", file=out)
+    keys = ("loro", "second", "loro_raw", "second_raw", "truth")
+    heads = ("held-out rotations", "second session", "held-out, no jig zero", "second, no jig zero",
+             "truth (exact bends)")
+    print(f"{'':28s}" + "".join(f"{h:>26s}" for h in heads) + f"{'coverage':>18s}", file=out)
     for name, v in tw["variants"].items():
         cells = []
-        for key in ("loro", "second", "truth"):
+        for key in keys:
             m, w = v["median"], v["better_than_linear"]
             k, d = f"{key}_all_kappa_1_per_m", f"{key}_all_direction_deg"
             cells.append(f"{m[k]:7.4f} ({w[k]:.0%}) {m[d]:5.2f}° ({w[d]:.0%})")

@@ -149,6 +149,79 @@ def test_nuisance_calibration_saves_its_error_model(tmp_path):
     assert np.array(prov["jig_positions_cov_m2"]).shape == (4, 6, 6)
 
 
+# ------------------------------------------------------------------------------------------------ the jig's zero
+
+
+def jig_bent_references(along: float, across: float) -> np.ndarray:
+    """Each rotation's reference pose bent by the same curvature in the jig's frame (a flat groove that is not
+    flat): in the sensor's frame it turns with the rotation, along (cos, sin)(α − ψ_o) and across it."""
+    return (along + 1j * across) * np.exp(1j * (ROLL - ORIENTATIONS))
+
+
+def test_jig_zero_is_the_flat_grooves_curvature_and_makes_a_new_session_exact():
+    """Every session's flat groove bends the sensor by 0.14 1/m along the grooves' bend and 0.10 across. The nuisance
+    fit carries it as its jig zero (to 1e-4 1/m: the second order of strain against a bent reference); a new session
+    zeroed in the same jig, its curvature with the zero added, is exact to 1e-4 1/m and 1e-4 rad, with the
+    calibration's roll or one fitted; without the zero it reads the change from the bent reference, 0.14 1/m short
+    along the bend (|κ − 0.14 − 0.10i| − κ at each level)."""
+    true = as_built()
+    z = jig_bent_references(0.14, 0.10)
+    refs = np.stack([z.real, z.imag], axis=-1)
+    result = fit(NEEDLE, session(true, references=refs), model="nuisance")
+    prov = result.calibration.provenance
+    np.testing.assert_allclose(prov["jig_zero_1_per_m"], np.tile([0.14, 0.10], (4, 1)), atol=1e-4)
+    np.testing.assert_allclose(prov["jig_rotation_zeros_1_per_m"], np.tile([0.14, 0.10], (4, 4, 1)), atol=1e-4)
+    new = session(true, references=refs, trials=1, seed=5)
+    for fit_roll in (False, True):
+        check = validate(result.calibration, new, fit_roll=fit_roll, jig_zero=True)
+        assert check.roll == pytest.approx(ROLL, abs=1e-4)
+        np.testing.assert_allclose(check.jig_zero, np.tile([0.14, 0.10], (4, 1)), atol=1e-4)
+        assert np.nanmax(np.abs(check.magnitude_error)) < 1e-4
+        assert np.nanmax(np.abs(check.direction_error)) < 1e-4
+    raw = validate(result.calibration, new)
+    assert raw.jig_zero is None
+    kappa = np.abs(raw.curvature)[:, None]
+    np.testing.assert_allclose(raw.magnitude_error, np.abs(kappa - 0.14 - 0.10j) - kappa + 0 * raw.magnitude_error,
+                               atol=1e-4)
+
+
+def test_jig_zero_is_one_rule_for_every_model():
+    """The zero of each rotation is read through the calibration itself (the mean over its bent poses of label − k̂,
+    along and across the bend) and the jig zero is their median, for every model. An exact sensor with straight
+    references: every model's zero is 0 (1e-9). With bent ones, the plain linear map, which takes the references as
+    the zero, has absorbed part of the bend into its gain and reads a smaller zero than the nuisance model."""
+    true = as_built()
+    for model in ("linear", "physical", "matrix", "nuisance"):
+        prov = fit(NEEDLE, session(true), model=model).calibration.provenance
+        assert np.abs(prov["jig_zero_1_per_m"]).max() < 1e-9
+    z = jig_bent_references(0.14, 0.0)
+    bent = session(true, references=np.stack([z.real, z.imag], axis=-1))
+    linear = np.array(fit(NEEDLE, bent, model="linear").calibration.provenance["jig_zero_1_per_m"])
+    nuisance = np.array(fit(NEEDLE, bent, model="nuisance").calibration.provenance["jig_zero_1_per_m"])
+    assert np.all(np.abs(linear[:, 0]) < 0.1) and np.all(np.abs(nuisance[:, 0] - 0.14) < 1e-4)
+
+
+def test_a_disturbed_reference_is_reported():
+    """Three trials per groove with 1 pm noise and a common shift per bent pose (the session's 2 K); one reference
+    trial's peak 100 pm off: its rotation and grating stand out of the table's trial scatter (> 10 times; the common
+    shift, no bend, is not counted) and the fit says so; nothing else does."""
+    true = as_built()
+    poses = session(true, trials=3)
+    rng = np.random.default_rng(11)
+    w = poses.wavelengths + 1e-3 * rng.standard_normal(poses.wavelengths.shape)
+    clean = JigPoses(poses.orientation, poses.curvature, w)
+    ratio = clean.reference_scatter()
+    assert ratio.shape == (4, 4) and np.nanmax(ratio) < 10
+    assert not any("reference trials" in x for x in fit(NEEDLE, clean, model="nuisance").warnings)
+    row = np.flatnonzero(clean.is_reference & np.isclose(clean.orientation, ORIENTATIONS[2]))[1]
+    w[row, 1, 2] += 0.1
+    disturbed = JigPoses(poses.orientation, poses.curvature, w)
+    ratio = disturbed.reference_scatter()
+    assert ratio[2, 1] > 10 and np.sum(ratio > 10) == 1
+    warnings = fit(NEEDLE, disturbed, model="nuisance").warnings
+    assert any(x.startswith("orientation 180°: the reference trials disagree at grating 1 ") for x in warnings)
+
+
 # ------------------------------------------------------------------------------------------------ score, coverage
 
 

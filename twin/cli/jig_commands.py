@@ -50,6 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "residual and the median curvature and direction errors (docs/jig.md)")
         parser.add_argument("--fit-roll", action="store_true",
                             help="fit the jig roll to these poses instead of using the calibration's (remounted)")
+        parser.add_argument("--no-jig-zero", action="store_true",
+                            help="score the curvature change from each rotation's reference as it is, without "
+                            "adding the jig's zero (the flat groove's own curvature) the calibration carries "
+                            "(docs/jig.md, \"The jig's zero\")")
         parser.add_argument("--max-error", type=float, metavar="1/m",
                             help="exit with status 1 if a curvature error (κ ≥ --min-curvature) exceeds this")
         parser.add_argument("--max-direction-error-deg", type=float, metavar="DEG",
@@ -124,6 +128,12 @@ def _score_line(name: str, v) -> str:
     return f"{name:>9s}  " + "; ".join(parts) + tail
 
 
+def _zero_text(zero) -> str:
+    if zero is None:
+        return "no jig zero added"
+    return "jig zero added (along/across, 1/m): " + ", ".join(f"{a:+.3f}/{b:+.3f}" for a, b in zero)
+
+
 def _deg_list(values) -> str:
     return ", ".join(f"{np.rad2deg(v):.4g}°" for v in values)
 
@@ -143,7 +153,7 @@ def _calibrate(args: argparse.Namespace) -> int:
                      trust_references=args.trust_references)
     used = poses if args.orientations is None else poses.select(
         jig.match_orientations(poses, _angles(args.orientations, "--orientations")))
-    check = jig.validate(result.calibration, used, fiber=fiber, min_curvature=args.min_curvature)
+    check = jig.validate(result.calibration, used, fiber=fiber, min_curvature=args.min_curvature, jig_zero=True)
     result.calibration.save(args.out)
     if args.json:
         print(jsonout.dumps({"poses": args.poses, "fiber": args.fiber, "out": args.out, "fit": result.to_dict(),
@@ -188,6 +198,13 @@ def _calibrate(args: argparse.Namespace) -> int:
               f"{', '.join(f'{x:.3f}' for x in np.abs(nz.gain))}; reference pose (jig frame, along/across the bend, "
               f"mean over rotations) {', '.join(f'{a:+.3f}/{b:+.3f}' for a, b in nz.reference.mean(axis=0))} 1/m",
               file=out)
+    prov = result.calibration.provenance
+    print("\nJig zero (the flat groove's curvature in the jig's frame, along/across the bend, 1/m; median over the "
+          "rotations; added to curvatures zeroed in this jig): "
+          + ", ".join(f"grating {int(n)} {a:+.3f}/{b:+.3f}" for n, (a, b) in
+                      zip(result.gratings, prov["jig_zero_1_per_m"], strict=True)), file=out)
+    for o, row in zip(result.orientations, prov["jig_rotation_zeros_1_per_m"], strict=True):
+        print(f"  {np.rad2deg(o):6.4g}°: " + ", ".join(f"{a:+.3f}/{b:+.3f}" for a, b in row), file=out)
     summ = check.summary()
     print(f"\nIn-sample (the fit's own poses), κ ≥ {args.min_curvature:g} 1/m: max |Δκ| = "
           f"{_fmt(summ['max_abs_magnitude_error_1_per_m'], '.4f')} 1/m, max |Δdir| = "
@@ -222,11 +239,11 @@ def _validate(args: argparse.Namespace) -> int:
         for model in _models(args.model):
             result, check = jig.cross_validate(fiber, poses, holdout, model=model, gratings=gratings,
                                                trust_references=args.trust_references,
-                                               min_curvature=args.min_curvature)
+                                               min_curvature=args.min_curvature, jig_zero=not args.no_jig_zero)
             if args.fit_roll:
                 test = poses.select(jig.match_orientations(poses, holdout))
                 check = jig.validate(result.calibration, test, fiber=fiber, fit_roll=True,
-                                     min_curvature=args.min_curvature)
+                                     min_curvature=args.min_curvature, jig_zero=not args.no_jig_zero)
             results.append({"model": model, "fit": result, "validation": check})
     else:
         if not args.calibration:
@@ -234,7 +251,7 @@ def _validate(args: argparse.Namespace) -> int:
                              "--holdout-orientations to cross-validate")
         cal = Calibration.load(args.calibration)
         check = jig.validate(cal, poses, fiber=fiber, gratings=gratings, fit_roll=args.fit_roll,
-                             min_curvature=args.min_curvature)
+                             min_curvature=args.min_curvature, jig_zero=not args.no_jig_zero)
         results.append({"model": cal.provenance.get("jig_model", "calibration"), "fit": None, "validation": check})
 
     tolerances = args.max_error is not None or args.max_direction_error_deg is not None
@@ -264,7 +281,7 @@ def _validate(args: argparse.Namespace) -> int:
             head = (f"{args.calibration} ({r['model']}) on {args.poses}: orientations "
                     f"{_deg_list(np.unique(v.orientation))} ({v.curvature.size} bent poses)")
         roll = f"roll {np.rad2deg(v.roll):.3f}°" + (" (fitted to these poses)" if v.roll_fitted else "")
-        print(f"{head}; {roll}", file=out)
+        print(f"{head}; {roll}; {_zero_text(v.jig_zero)}", file=out)
         print(f"{'grating':>7s}{'s (mm)':>8s}{'κ (1/m)':>9s}{'n':>4s}{'Δκ mean':>10s}{'|Δκ| max':>10s}"
               f"{'Δdir mean':>11s}{'|Δdir| max':>12s}", file=out)
         for row in v.table():
@@ -300,7 +317,8 @@ def _leave_one_rotation_out(args: argparse.Namespace, fiber: FiberModel | None, 
                          "--calibration or --holdout-orientations")
     stats = {m: jig.leave_one_rotation_out(fiber, poses, model=m, gratings=gratings,
                                            trust_references=args.trust_references,
-                                           min_curvature=args.min_curvature) for m in _models(args.model)}
+                                           min_curvature=args.min_curvature, jig_zero=not args.no_jig_zero)
+             for m in _models(args.model)}
     if args.json:
         print(jsonout.dumps({"poses": args.poses, "results": {m: st.to_dict() for m, st in stats.items()}}, indent=2))
         return 0
@@ -314,8 +332,9 @@ def _leave_one_rotation_out(args: argparse.Namespace, fiber: FiberModel | None, 
             print(f"{np.rad2deg(psi):8.1f}°{np.nanmedian(st.kappa_rms[o]):24.4f}{d:19.2f}°")
         print(f"{'all':>9s}{st.kappa_error:24.4f}{np.rad2deg(st.direction_error):19.2f}°   "
               f"(direction: κ ≥ {st.min_curvature:g} 1/m)\n")
+    added = "with" if not args.no_jig_zero else "without"
     print("Score, leave one rotation out (median over rotation × grating × level of the per-level RMS |Δκ|, and of "
-          "|mean Δdir|; docs/jig.md):")
+          f"|mean Δdir|; {added} the jig's zero; docs/jig.md):")
     for model, st in stats.items():
         print(_score_line(model, st))
     return 0

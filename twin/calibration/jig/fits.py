@@ -14,7 +14,12 @@ from twin.calibration import Calibration
 from twin.calibration.jig.nuisance import DEFAULT_TERMS, NuisanceFit, fit_nuisance
 from twin.calibration.jig.poses import MODELS, JigPoses, _rot, _wrap, jig_curvature, match_orientations
 from twin.fiber import FiberModel
-from twin.strain import design_matrix
+from twin.strain import CurvatureSolver, design_matrix
+
+#: A reference whose trials scatter this many times more than the table's grooves usually do is reported
+#: (:meth:`~twin.calibration.jig.poses.JigPoses.reference_scatter`): on the two AMIRo tables every reference is
+#: within 3 times, and needle_3CH_3AA's 270° reference, whose CH2 AA2 peak is disturbed, 14 times.
+DISTURBED_REFERENCE = 10.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -479,6 +484,11 @@ def fit(
             "the fitted core layout is the mirror image of the nominal one: is the sense of orientation_rad "
             "reversed? ψ counts counter-clockwise about +d3 (the tangent from base to tip), like the core angles"
         )
+    scatter = poses.reference_scatter()[:, fit_g]  # (O, G)
+    for o, i in zip(*np.nonzero(scatter > DISTURBED_REFERENCE), strict=True):
+        warnings.append(f"orientation {np.rad2deg(poses.orientations[o]):.4g}°: the reference trials disagree at "
+                        f"grating {int(fit_g[i])} {scatter[o, i]:.0f} times more than a groove's trials usually do "
+                        "(common shift removed); a disturbed peak? That rotation's zero is uncertain")
     dev = np.abs(_wrap(angles - fiber.core_angles))[:, fiber.bending_cores]
     if np.any(dev > np.deg2rad(15)):
         i, c = np.unravel_index(int(np.argmax(dev)), dev.shape)
@@ -526,6 +536,10 @@ def fit(
         provenance["jig_matrix_std_1_per_m"] = matrix_std.tolist()
     if nuisance is not None:
         provenance.update(_error_model(fiber, nuisance, alpha))
+    zeros = rotation_zeros(design[fit_g], alpha, e_all[bent][:, fit_g], poses.orientation[bent],
+                           poses.curvature[bent], poses.orientation_index[bent], n_groups)
+    provenance["jig_zero_1_per_m"] = np.nanmedian(zeros, axis=0).tolist()
+    provenance["jig_rotation_zeros_1_per_m"] = zeros.tolist()
     calibration = Calibration(lambda0=lam0, design=design, provenance=provenance)
     calibration.check(fiber)
     return JigFit(
@@ -551,6 +565,45 @@ def fit(
         warnings=tuple(warnings),
         nuisance=nuisance,
     )
+
+
+def rotation_zeros(design: np.ndarray, roll: float, e: np.ndarray, orientation: np.ndarray, curvature: np.ndarray,
+                   group: np.ndarray, n_groups: int) -> np.ndarray:
+    """Each rotation's zero: the curvature of its reference pose in the jig's frame, seen through a calibration.
+
+    A row's strain is taken against its rotation's reference, so the calibration reads the curvature *change*
+    from that reference, k̂ = k − k_ref. Per rotation and grating the zero is the mean over the bent poses of
+    k − k̂ (k: the jig's label), expressed along the rotation's bend direction and across it (90° counter-clockwise)
+    — the same rule for every model (docs/jig.md, "The jig's zero").
+
+    Parameters
+    ----------
+    design : ndarray, shape (G, C, 3)
+        The calibration's design at the gratings of ``e``.
+    roll : float
+        α, rad.
+    e : ndarray, shape (P, G, C)
+        Strain of the bent poses against their rotation's reference (NaN: missing peak).
+    orientation, curvature : ndarray, shape (P,)
+        ψ (rad) and κ (1/m) of each bent pose.
+    group : ndarray of int, shape (P,)
+        Rotation of each pose, 0 … n_groups − 1.
+
+    Returns
+    -------
+    ndarray, shape (n_groups, G, 2)
+        (along, across), 1/m; NaN for a rotation without a solvable pose.
+    """
+    k_hat = CurvatureSolver(design).solve(e).curvature  # (P, G, 2), fibre frame
+    # in the frame of each pose's bend direction: label k = κ e^{i(α − ψ)}, so divide by e^{i(α − ψ)}
+    turn = np.exp(-1j * (roll - orientation))[:, None]
+    rel = np.abs(curvature)[:, None] - (k_hat[..., 0] + 1j * k_hat[..., 1]) * turn  # (P, G), along + i across
+    ok = np.isfinite(rel)
+    onehot = np.eye(n_groups)[group]  # (P, O)
+    n = np.einsum("po,pg->og", onehot, ok.astype(float))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.einsum("po,pg->og", onehot, np.where(ok, rel, 0.0)) / n
+    return np.stack([mean.real, mean.imag], axis=-1)
 
 
 def _error_model(fiber: FiberModel, nz: NuisanceFit, alpha: float) -> dict:

@@ -29,8 +29,9 @@ on the groove means with weight (Σ_pose/T + Σ_seat)⁻¹ (T: the groove's tria
 gratings), and re-estimates the covariances from the residuals each time, until z settles.
 
 The fitted error model predicts how far a new pose's curvature is from the jig's label (the 95 % intervals of
-:func:`twin.calibration.jig.validate`): the jig's mean reference curvature along the bend as a bias; Σ_pose + Σ_seat
-through the calibration's map; the scatter of the rotations' zeros along and across the bend; κ² times the
+:func:`twin.calibration.jig.validate`): the jig's zero (the flat groove's curvature, docs/jig.md) as a bias unless
+it is added to the curvature; Σ_pose + Σ_seat through the calibration's map; the scatter of the rotations' zeros
+along and across the bend, and the jig zero's own error; κ² times the
 seatings' roll and gain variances (shared, and per grating); and the parameters' own covariance. The variances at
 the rotation level rest on 1–3 degrees of freedom and are pooled with the error budget as a prior.
 """

@@ -215,6 +215,36 @@ class JigPoses:
         np.add.at(sums, self._index[ref], np.where(np.isfinite(w), w, 0.0))
         return sums / self._ref_counts
 
+    def reference_scatter(self) -> np.ndarray:
+        """How far the trials of each orientation's reference disagree, against the table's usual trial scatter.
+
+        Per orientation and grating: the scatter over the reference rows of the wavelengths less their mean over
+        the cores (a common shift, temperature or axial strain, is no bend and does not move the zero), root-sum-
+        square over the cores, divided by the median of the same over every groove (reference or bent) of every
+        orientation with two or more trials. A reference whose trials disagree ten times more than the grooves'
+        usually do has a disturbed peak (docs/jig.md, "The jig's zero"); its zero is uncertain.
+
+        Returns
+        -------
+        ndarray, shape (n_orientations, n_gratings)
+            NaN where an orientation has a single reference row or the table has no groove with two trials.
+        """
+        _, groove = np.unique(np.stack([self._index, self.curvature]), axis=1, return_inverse=True)
+        groove = np.ravel(groove)
+        onehot = np.eye(int(groove.max()) + 1)[groove]  # (P, S)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            lam = self.wavelengths - np.mean(self.wavelengths, axis=2, keepdims=True)  # NaN: a lost peak
+            ok = np.all(np.isfinite(lam), axis=2)  # (P, G): rows with every peak of the grating
+            lam = np.where(ok[..., None], lam, 0.0)
+            n = np.einsum("ps,pg->sg", onehot, ok.astype(float))
+            mean = np.einsum("ps,pgc->sgc", onehot, lam) / n[..., None]
+            dev2 = np.where(ok, np.sum((lam - mean[groove]) ** 2, axis=2), 0.0)
+            sd = np.where(n >= 2, np.sqrt(np.einsum("ps,pg->sg", onehot, dev2) / (n - 1)), np.nan)
+            usual = np.nanmedian(sd, axis=0) if np.isfinite(sd).any() else np.full(sd.shape[1], np.nan)
+            ref_groove = np.zeros(self._orientations.size, dtype=np.int64)
+            ref_groove[self._index[self.is_reference]] = groove[self.is_reference]
+            return sd[ref_groove] / usual
+
     def strain(self) -> tuple[np.ndarray, np.ndarray | None]:
         """Optical strain relative to the reference of each row's own orientation.
 

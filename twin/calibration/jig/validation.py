@@ -47,8 +47,12 @@ class JigValidation:
         Stated 1σ of |k̂| about its expected value, 1/m, from the calibration's error model (``nuisance``
         calibrations; None otherwise).
     magnitude_bias : ndarray, shape (G,), or None
-        Expected |k̂| − κ in this jig, 1/m: minus the jig's reference bias along the bend (the flat groove holds
-        the sensor slightly bent). The 95 % interval of κ is |k̂| − bias ± 1.96σ.
+        Expected |k̂| − κ in this jig, 1/m: 0 when the jig's zero was added, else minus the jig's zero along the
+        bend (the flat groove holds the sensor slightly bent). The 95 % interval of κ is |k̂| − bias ± 1.96σ.
+    jig_zero : ndarray, shape (G, 2), or None
+        The jig's zero (along, across the bend, 1/m) added to every k̂ (docs/jig.md, "The jig's zero"): the
+        poses are zeroed against this jig's flat groove, whose curvature the calibration carries; None when not
+        added (``jig_zero=False``, or a calibration without one). ``measured`` includes it.
     """
 
     gratings: np.ndarray
@@ -64,6 +68,7 @@ class JigValidation:
     source: str = ""
     magnitude_sigma: np.ndarray | None = None
     magnitude_bias: np.ndarray | None = None
+    jig_zero: np.ndarray | None = None
 
     @property
     def levels(self) -> np.ndarray:
@@ -138,6 +143,7 @@ class JigValidation:
             "source": self.source,
             "roll_rad": self.roll,
             "roll_fitted": self.roll_fitted,
+            "jig_zero_1_per_m": None if self.jig_zero is None else self.jig_zero.tolist(),
             "orientations_rad": np.unique(self.orientation).tolist(),
             "gratings": self.gratings.tolist(),
             "n_poses": int(self.curvature.size),
@@ -162,6 +168,7 @@ def validate(
     roll: float | None = None,
     fit_roll: bool = False,
     min_curvature: float = 0.8,
+    jig_zero: bool = False,
 ) -> JigValidation:
     """Compare a calibration's curvature with the jig's on ``poses``.
 
@@ -181,6 +188,12 @@ def validate(
         Fit α to these poses instead (a single rotation: use it when the sensor was remounted in the jig).
     min_curvature : float
         The summary covers |κ| ≥ this, 1/m.
+    jig_zero : bool
+        Add the jig's zero the calibration carries (``provenance['jig_zero_1_per_m']``) to every k̂, turned into
+        the sensor's frame by the pose's rotation: the poses' strain is taken against this jig's flat groove, which
+        holds the sensor slightly bent, and k̂ + zero is the absolute curvature the label states (docs/jig.md,
+        "The jig's zero"). False (default): k̂ is the change from each rotation's reference, as if that reference
+        were straight. Only for poses zeroed in the jig the calibration was made in.
     """
     prov = calibration.provenance
     if calibration.design is not None:
@@ -204,8 +217,12 @@ def validate(
     e, _ = poses.strain()
     k_hat = CurvatureSolver(design[g]).solve(e[bent][:, g]).curvature  # (P, G, 2)
     j = jig_curvature(poses.orientation[bent], poses.curvature[bent])  # jig frame
-    if fit_roll:
-        z = (k_hat[..., 0] + 1j * k_hat[..., 1]) * np.conj(j[:, None, 0] + 1j * j[:, None, 1])
+    kappa = np.abs(poses.curvature[bent])
+    zero = _jig_zero(prov, g) if jig_zero else None
+    zc = np.zeros(g.size, complex) if zero is None else zero[:, 0] + 1j * zero[:, 1]  # along + i across
+    if fit_roll:  # the roll that best maps k̂ + zero onto the labels: k̂ ≈ (κ − zero) e^{i(α − ψ)}
+        jc = (j[:, 0] + 1j * j[:, 1])[:, None] * (1.0 - zc[None, :] / kappa[:, None])
+        z = (k_hat[..., 0] + 1j * k_hat[..., 1]) * np.conj(jc)
         alpha = float(np.angle(np.nansum(z)))
     elif roll is not None:
         alpha = float(roll)
@@ -214,12 +231,19 @@ def validate(
     else:
         raise ValueError("this calibration records no jig roll; pass the roll (rad) or fit it (--fit-roll)")
     k = j @ _rot(alpha).T
-    kappa = np.abs(poses.curvature[bent])
+    sigma = _magnitude_sigma(prov, design, g, k_hat, k) if "jig_error_strain_cov" in prov else None
+    if zero is not None:  # the zero turns with the sensor: along and across the pose's bend direction
+        bend = (k[:, 0] + 1j * k[:, 1]) / kappa
+        shift = zc[None, :] * bend[:, None]
+        k_hat = k_hat + np.stack([shift.real, shift.imag], axis=-1)
     mag = np.hypot(k_hat[..., 0], k_hat[..., 1]) - kappa[:, None]
     z = (k_hat[..., 0] + 1j * k_hat[..., 1]) * np.conj(k[:, None, 0] + 1j * k[:, None, 1])
     direction = np.angle(z)
     direction = np.where(np.isnan(mag), np.nan, direction)
-    sigma, bias = _magnitude_sigma(prov, design, g, k_hat, k) if "jig_error_strain_cov" in prov else (None, None)
+    bias = None
+    if sigma is not None:  # the interval's centre: what is left of the jig's zero along the bend
+        carried = _jig_zero(prov, g)
+        bias = np.zeros(g.size) if zero is not None or carried is None else -carried[:, 0]
     s = prov.get("jig_grating_s_m")
     if fiber is not None:
         grating_s = fiber.grating_s[g]
@@ -239,41 +263,59 @@ def validate(
         source=poses.source,
         magnitude_sigma=sigma,
         magnitude_bias=bias,
+        jig_zero=zero,
     )
 
 
+def _jig_zero(prov: dict, g: np.ndarray) -> np.ndarray | None:
+    """The calibration's jig zero at gratings ``g`` (G, 2: along, across), 1/m; 0 at gratings it did not fit (their
+    nominal design knows no jig), None when it carries none. Older ``nuisance`` calibrations carry only their
+    fitted mean reference curvature, ``jig_reference_bias_1_per_m``, which is the same quantity."""
+    key = "jig_zero_1_per_m" if "jig_zero_1_per_m" in prov else "jig_reference_bias_1_per_m"
+    if key not in prov:
+        return None
+    fitted = [int(n) for n in prov.get("jig_gratings", [])]
+    zero = np.asarray(prov[key], dtype=np.float64)
+    out = np.zeros((g.size, 2))
+    for i, n in enumerate(g):  # a few gratings
+        if int(n) in fitted:
+            out[i] = zero[fitted.index(int(n))]
+    return np.where(np.isfinite(out), out, 0.0)
+
+
 def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.ndarray, k: np.ndarray):
-    """1σ of |k̂| (P, G) and its expected bias |k̂| − κ (G,) in this jig from a calibration's error model
-    (``jig_*`` provenance of a ``nuisance`` fit), 1/m.
+    """1σ of |k̂| (P, G) about the jig's label from a calibration's error model (``jig_*`` provenance of a
+    ``nuisance`` fit), 1/m.
 
     The curvature error covariance of a pose at grating n, in the fibre frame, is
 
-        C = M Σ_e Mᵀ + σ_along² u uᵀ + σ_across² w wᵀ + κ² (σ_roll² w wᵀ + σ_gain² u uᵀ)
+        C = M Σ_e Mᵀ + (1 + π/2n_o)(σ_along² u uᵀ + σ_across² w wᵀ) + κ² (σ_roll² w wᵀ + σ_gain² u uᵀ)
             + κ² (1 + 1/n) (σ_roll,n² w wᵀ + σ_gain,n² u uᵀ) + M (I ⊗ k̂ᵀ) Σ_p (I ⊗ k̂) Mᵀ,
 
     with M the calibration's strain → curvature map (rows 1–2 of the design's pseudo-inverse), Σ_e the per-pose
     strain error covariance (pose + groove seating), u the jig's bend direction and w ⟂ u, σ_along, σ_across the
-    scatter of the rotations' reference curvature, σ_roll and σ_gain that of the seatings' roll and gain shared
-    by the gratings, σ_roll,n and σ_gain,n what each grating adds — twice: the pose's own seating, and the map,
-    which took it from the n fitted rotations on the pose's axis (1 when none is) — and Σ_p the covariance of the
-    design's bend columns (the parameters). The stated σ is that of the radial
-    component, ûᵀ C û with û = k̂/|k̂|; the bias is minus the jig's mean reference curvature along the bend.
-    Gratings the error model does not cover get NaN.
+    scatter of the rotations' reference curvature (a new rotation's zero about the jig's zero, the median of the
+    n_o fitted rotations', whose own variance is ≈ π/2n_o times theirs), σ_roll and σ_gain that of the seatings'
+    roll and gain shared by the gratings, σ_roll,n and σ_gain,n what each grating adds — twice: the pose's own
+    seating, and the map, which took it from the n fitted rotations on the pose's axis (1 when none is) — and Σ_p
+    the covariance of the design's bend columns (the parameters). The stated σ is that of the radial
+    component, ûᵀ C û with û = k̂/|k̂|. Gratings the error model does not cover get NaN.
     """
     fit_g = list(prov.get("jig_gratings", []))
     strain_cov = np.asarray(prov["jig_error_strain_cov"], dtype=np.float64)
     pos_cov = np.asarray(prov["jig_positions_cov_m2"], dtype=np.float64)
     s_roll, s_gain = float(prov["jig_reseat_roll_std_rad"]), float(prov["jig_reseat_gain_std"])
-    ref_bias = np.asarray(prov["jig_reference_bias_1_per_m"], dtype=np.float64)
     ref_std = np.asarray(prov["jig_reference_std_1_per_m"], dtype=np.float64)
     l_roll, l_gain = float(prov["jig_local_roll_std_rad"]), float(prov["jig_local_gain_std"])
     fitted = np.asarray(prov["jig_orientations_rad"], dtype=np.float64)
+    # a new rotation's zero scatters about the jig's zero, itself the median of the fitted rotations' zeros, whose
+    # variance is ≈ π/2 × that of their mean (the asymptotic value; larger than the exact one for n ≤ 4)
+    zero_err = 1.0 + np.pi / (2.0 * fitted.size)
     psi = float(prov["jig_roll_rad"]) - np.arctan2(k[:, 1], k[:, 0])  # each pose's rotation, from its label
     n_axis = np.maximum(np.sum(np.abs(np.sin(psi[:, None] - fitted[None, :])) < np.sin(np.deg2rad(10.0)), axis=1),
                         1)
     n_c = design.shape[1]
     out = np.full(k_hat.shape[:2], np.nan)
-    bias = np.full(k_hat.shape[1], np.nan)
     kappa = np.hypot(k[:, 0], k[:, 1])
     u = k / np.maximum(kappa, 1e-300)[:, None]
     w = np.stack([-u[:, 1], u[:, 0]], axis=-1)
@@ -285,18 +327,18 @@ def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.nd
         if int(n) not in fit_g:
             continue
         f = fit_g.index(int(n))
-        bias[i] = -ref_bias[f, 0]
         ref_part = (ref_std[f, 0] ** 2 * np.einsum("pa,pb->pab", u, u)
                     + ref_std[f, 1] ** 2 * np.einsum("pa,pb->pab", w, w))
         m = np.linalg.pinv(design[n])[1:]  # (2, C)
         kh = k_hat[:, i]
         lift = np.einsum("ce,pk->pcek", np.eye(n_c), kh).reshape(-1, n_c, 2 * n_c)  # (I ⊗ k̂ᵀ)
         ml = np.einsum("ac,pcx->pax", m, lift)
-        cov = m @ strain_cov[f] @ m.T + ref_part + jig_part + np.einsum("pax,xy,pby->pab", ml, pos_cov[f], ml)
+        pose_cov = m @ strain_cov[f] @ m.T + np.einsum("pax,xy,pby->pab", ml, pos_cov[f], ml)
         r = np.hypot(kh[:, 0], kh[:, 1])
         uh = kh / np.where(r > 0, r, np.nan)[:, None]
+        cov = pose_cov + zero_err * ref_part + jig_part
         out[:, i] = np.sqrt(np.einsum("pa,pab,pb->p", uh, cov, uh))
-    return out, bias
+    return out
 
 
 def cross_validate(
@@ -308,6 +350,7 @@ def cross_validate(
     gratings=None,
     trust_references: bool = False,
     min_curvature: float = 0.8,
+    jig_zero: bool = False,
 ) -> tuple[JigFit, JigValidation]:
     """Fit on the orientations not in ``holdout`` and validate on those in it — how to judge a calibration.
 
@@ -316,12 +359,15 @@ def cross_validate(
     holdout : sequence of float
         Orientations to validate on, rad (matched within 1e-3 rad); the rest are fitted.
     model, gratings, trust_references : see :func:`fit`.
+    jig_zero : bool
+        See :func:`validate`.
     """
     test = match_orientations(poses, holdout)
     if test.all():
         raise ValueError(f"{poses.source}: every orientation is held out; leave at least two to fit on")
     result = fit(fiber, poses.select(~test), model=model, gratings=gratings, trust_references=trust_references)
-    check = validate(result.calibration, poses.select(test), fiber=fiber, min_curvature=min_curvature)
+    check = validate(result.calibration, poses.select(test), fiber=fiber, min_curvature=min_curvature,
+                     jig_zero=jig_zero)
     return result, check
 
 
@@ -358,6 +404,8 @@ class LoroStatistics:
         an error model: ``nuisance``; None otherwise).
     n_coverage : int
         How many were judged.
+    jig_zero : bool
+        Whether the jig's zero was added to the held-out curvatures (:func:`validate`).
     """
 
     gratings: np.ndarray
@@ -370,6 +418,7 @@ class LoroStatistics:
     model: str = "physical"
     coverage_95: float | None = None
     n_coverage: int = 0
+    jig_zero: bool = False
 
     @property
     def kappa_error(self) -> float:
@@ -398,6 +447,7 @@ class LoroStatistics:
             "levels_1_per_m": self.levels.tolist(),
             "min_curvature_1_per_m": self.min_curvature,
             "model": self.model,
+            "jig_zero": self.jig_zero,
             "score": self.score(CLINICAL).to_dict(),
             "score_all_levels": self.score(ALL_LEVELS).to_dict(),
             "coverage_95": self.coverage_95,
@@ -421,6 +471,7 @@ def leave_one_rotation_out(
     trust_references: bool = False,
     min_curvature: float = 0.8,
     terms=None,
+    jig_zero: bool = False,
 ) -> LoroStatistics:
     """Fit on all orientations but one, validate on that one, for each orientation in turn (and once on all).
 
@@ -429,6 +480,9 @@ def leave_one_rotation_out(
     fiber, poses, model, gratings, trust_references, terms : see :func:`fit`.
     min_curvature : float
         Direction errors are summarised over levels ≥ this, 1/m.
+    jig_zero : bool
+        Add the jig's zero the calibration fitted on the other rotations to the held-out one's curvature
+        (:func:`validate`).
     """
     extra = {} if terms is None else {"terms": terms}
     orientations = np.unique(poses.orientation)
@@ -443,7 +497,7 @@ def leave_one_rotation_out(
         result = fit(fiber, poses.select(~match_orientations(poses, [psi])), model=model, gratings=g,
                      trust_references=trust_references, **extra)
         checks.append(validate(result.calibration, poses.select(match_orientations(poses, [psi])), fiber=fiber,
-                               min_curvature=min_curvature))
+                               min_curvature=min_curvature, jig_zero=jig_zero))
     _, _, kappa_rms, direction = cells(np.concatenate([c.orientation for c in checks]),
                                        np.concatenate([c.curvature for c in checks]),
                                        np.concatenate([c.magnitude_error for c in checks]),
@@ -463,4 +517,5 @@ def leave_one_rotation_out(
         model=model,
         coverage_95=cover,
         n_coverage=n_cover,
+        jig_zero=bool(jig_zero),
     )
