@@ -1,6 +1,5 @@
 """The synthetic interrogator: optics effects, the SimInterrogator, sim:// URLs and the static-shapes regression."""
 
-
 import mujoco
 import numpy as np
 import pytest
