@@ -118,3 +118,58 @@ def positions_at(s_grid, positions, s, out):
         a = (sq - s_grid[i]) / (s_grid[i + 1] - s_grid[i])
         for k in range(3):
             out[q, k] = positions[i, k] + a * (positions[i + 1, k] - positions[i, k])
+
+
+@njit(cache=True, nogil=True)
+def bound_frames_and_darboux(x, plastic, qpos, twist_edges, twist_qadr, theta, site_row, inv_lbar, frames, darboux):
+    """:func:`frames_and_darboux` straight from views of ``mjData`` (:class:`models.rod_state.RodView`).
+
+    ``qpos`` is all of ``mjData.qpos``: the twist angles are gathered into ``theta`` (n_edges,) at ``twist_edges``
+    from ``twist_qadr`` (the clamped edge's entry stays 0); ``site_row`` is the base site's ``site_xmat`` row (9,),
+    whose x axis is its entries 0, 3, 6 (zeros: no site). Returns False, computing nothing, while ``plastic`` is
+    still zero (before the first step: the caller rebuilds the frames as MuJoCo restarts them).
+    """
+    if plastic[3] == 0.0 and plastic[4] == 0.0 and plastic[5] == 0.0:
+        return False
+    for k in range(twist_edges.size):
+        theta[twist_edges[k]] = qpos[twist_qadr[k]]
+    frames_and_darboux(x, plastic, theta, site_row[::3], inv_lbar, frames, darboux)
+    return True
+
+
+@njit(cache=True, nogil=True)
+def truth_samples(x, frames, darboux, lerp_index, lerp_weight, frame_edge, frame_h, basis_t, positions, frames_out,
+                  curvature, twist):
+    """What :meth:`models.rod_state.RodState.to_truth` computes, in one pass, at sample points fixed for a rod
+    (:class:`models.rod_state.RodTruth` places them once).
+
+    Centreline ``positions`` (m, 3): x[i0] + a (x[i1] − x[i0]) with (i0, i1) = ``lerp_index`` (m, 2), a =
+    ``lerp_weight`` (m,) (:func:`positions_at`'s arithmetic); material frames ``frames_out`` (m, 3, 3): edge
+    ``frame_edge`` (m,)'s frame turned by exp(h · Darboux) with h = ``frame_h`` (m,) (:func:`frames_at`'s);
+    (k_x, k_y) = (κ2, −κ1) into ``curvature`` (n_g, 2) and τ into ``twist`` (n_g,) through ``basis_t``
+    (n_interior, n_g), the interpolation matrix to the gratings transposed.
+    """
+    for q in range(lerp_weight.size):
+        i0, i1, a = lerp_index[q, 0], lerp_index[q, 1], lerp_weight[q]
+        for k in range(3):
+            positions[q, k] = x[i0, k] + a * (x[i1, k] - x[i0, k])
+    for q in range(frame_h.size):
+        e, h = frame_edge[q], frame_h[q]
+        e00, e01, e02, e10, e11, e12, e20, e21, e22 = exp_entries(h * darboux[e, 0], h * darboux[e, 1],
+                                                                  h * darboux[e, 2])
+        for r in range(3):
+            f0, f1, f2 = frames[e, r, 0], frames[e, r, 1], frames[e, r, 2]
+            frames_out[q, r, 0] = f0 * e00 + f1 * e10 + f2 * e20
+            frames_out[q, r, 1] = f0 * e01 + f1 * e11 + f2 * e21
+            frames_out[q, r, 2] = f0 * e02 + f1 * e12 + f2 * e22
+    # basis_t is (n_interior, n_g): the gratings' sums advance side by side, each in vertex order
+    n_v, n_g = basis_t.shape
+    curvature[:] = 0.0
+    twist[:] = 0.0
+    for v in range(n_v):
+        d0, d1, d2 = darboux[v, 0], darboux[v, 1], darboux[v, 2]
+        for g in range(n_g):
+            b = basis_t[v, g]
+            curvature[g, 0] += b * d1
+            curvature[g, 1] -= b * d0
+            twist[g] += b * d2

@@ -42,9 +42,10 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from models import _rod_kernels
+from twin._numba_entry import compiled_entry
 from twin.frames import Truth
 
-__all__ = ["RodReader", "RodState", "read_rod", "so3_exp", "so3_log"]
+__all__ = ["RodReader", "RodState", "RodTruth", "RodView", "read_rod", "so3_exp", "so3_log"]
 
 
 def _log_from_parts(w: np.ndarray, trace: np.ndarray) -> np.ndarray:
@@ -354,8 +355,8 @@ class RodReader:
     def kernel_inputs(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What :func:`models._rod_kernels.frames_and_darboux` reads from ``data``: vertex positions (n_vertices, 3)
         (a view of ``data``), MuJoCo's reference frames (6 n_edges,), twist angles (n_edges,) (a buffer the reader
-        reuses) and the base site's x axis (3,). For callers that fuse the rod read into a compiled call of their
-        own (:mod:`sim_interrogator.frame_path`)."""
+        reuses) and the base site's x axis (3,); before the first step, the frames as MuJoCo restarts them. (Callers
+        at the sensor rate read through a :class:`RodView` instead.)"""
         x = data.flexvert_xpos[self._va : self._va + self._nv]
         p = data.plastic[self._pa : self._pa + 6 * self._ne]
         if not (p[3] or p[4] or p[5]):
@@ -399,6 +400,116 @@ class RodReader:
         )
 
     __call__ = read
+
+    def bind(self, data: mujoco.MjData) -> RodView:
+        """This reader bound to ``data``, for reading the rod at the sensor rate (:class:`RodView`)."""
+        return RodView(self, data)
+
+
+class RodView:
+    """A :class:`RodReader` bound to one ``mjData``: the views of its arrays taken once, frame and Darboux
+    buffers, and one compiled call that fills them (:meth:`compute`).
+
+    Taking ``data.flexvert_xpos``, ``plastic``, ``qpos`` and ``site_xmat`` anew, slicing them and gathering the
+    twist angles cost a few microseconds a frame in Python; MuJoCo keeps an ``mjData``'s arrays where they are
+    for its lifetime, so views taken once stay valid.
+
+    Attributes
+    ----------
+    reader : RodReader
+    data : mujoco.MjData
+    frames : ndarray, shape (n_edges, 3, 3)
+        Material frames of the last :meth:`compute` (a buffer: overwritten by the next).
+    darboux : ndarray, shape (n_vertices − 2, 3)
+        Darboux vectors (κ1, κ2, τ) of the last :meth:`compute`, 1/m and rad/m (a buffer).
+    """
+
+    def __init__(self, reader: RodReader, data: mujoco.MjData) -> None:
+        r = reader
+        self.reader, self.data = reader, data
+        self.positions = data.flexvert_xpos[r._va : r._va + r._nv]  # a view: the vertices now, m
+        self.plastic = data.plastic[r._pa : r._pa + 6 * r._ne]
+        self.qpos = data.qpos
+        self.site_row = data.site_xmat[r._site] if r._site >= 0 else np.zeros(9)
+        self.theta = np.zeros(r._ne)  # the clamped edge's entry stays 0
+        self.frames = np.empty((r._ne, 3, 3))
+        self.darboux = np.empty((r._ne - 1, 3))
+        # past numba's dispatcher (twin/_numba_entry.py): these arguments keep their types
+        self._kernel = compiled_entry(_rod_kernels.bound_frames_and_darboux, *self.kernel_arguments())
+
+    def kernel_arguments(self) -> tuple:
+        """The arguments of :func:`models._rod_kernels.bound_frames_and_darboux`, for callers that fuse the rod
+        read into a compiled call of their own (:mod:`sim_interrogator.frame_path`)."""
+        r = self.reader
+        return (self.positions, self.plastic, self.qpos, r._tw_edges, r._tw_qadr, self.theta, self.site_row,
+                r._inv_lbar, self.frames, self.darboux)
+
+    def compute(self) -> None:
+        """Fill :attr:`frames` and :attr:`darboux` from the bound ``mjData`` now (after ``mj_step``)."""
+        if not self._kernel(*self.kernel_arguments()):
+            self.restart()
+
+    def restart(self) -> None:
+        """Fill the buffers while ``mjData.plastic`` is still zero (before the first step: frames as MuJoCo
+        restarts them, :meth:`RodReader.compute`)."""
+        self.reader.compute(self.data, self.frames, self.darboux)
+
+    def state(self) -> RodState:
+        """The :class:`RodState` of the last :meth:`compute` (copies: the view's buffers are reused)."""
+        r = self.reader
+        x, frames, darboux = self.positions.copy(), self.frames.copy(), self.darboux.copy()
+        _readonly(x, frames, darboux)
+        return RodState(float(self.data.time), r.s, x, r.edge_s, frames, darboux, r.sensed_length, r._interp)
+
+
+class RodTruth:
+    """The :class:`twin.frames.Truth` of a bound rod, as :meth:`RodState.to_truth` (default samples, cubic) makes
+    it, in one compiled call (:func:`models._rod_kernels.truth_samples`) from the view's last :meth:`RodView.
+    compute`; equal to it within rounding (tests/test_sim.py).
+
+    Parameters
+    ----------
+    view : RodView
+    grating_s : array_like, shape (n_gratings,)
+        Arc length of the gratings, m (the truth's curvature and twist are there).
+    """
+
+    def __init__(self, view: RodView, grating_s) -> None:
+        r = view.reader
+        self.view = view
+        self.grating_s = np.array(grating_s, dtype=np.float64)
+        if self.grating_s.ndim != 1:
+            raise ValueError(f"RodTruth: grating_s must have shape (n_gratings,), got {self.grating_s.shape}")
+        self.s = s = r._interp.truth_s(r.s, r.sensed_length)
+        self._basis_t = np.ascontiguousarray(r.interpolation_matrix(self.grating_s).T)
+        self._m, self._n_g = s.size, self.grating_s.size
+        # where each sample falls, fixed for the rod: the searches of positions_at and frames_at done once
+        grid, n = r.s, r.s.size
+        i = np.clip(np.searchsorted(grid, s, side="right") - 1, 0, n - 2)
+        a = (s - grid[i]) / (grid[i + 1] - grid[i])
+        self._lerp_index = np.stack([i, i + 1], axis=1).astype(np.int64)
+        self._lerp_index[s <= grid[0]] = 0  # held at the ends: x[0] and x[-1] exactly, as positions_at
+        self._lerp_index[s >= grid[-1]] = n - 1
+        self._lerp_weight = np.where((s <= grid[0]) | (s >= grid[-1]), 0.0, a)
+        es = r.edge_s
+        sq = np.clip(s, es[0], es[-1])
+        self._frame_edge = np.clip(np.searchsorted(es, sq, side="right") - 1, 0, es.size - 2).astype(np.int64)
+        self._frame_h = sq - es[self._frame_edge]
+        self._kernel = compiled_entry(  # past numba's dispatcher (twin/_numba_entry.py): the types of every call
+            _rod_kernels.truth_samples, view.positions, view.frames, view.darboux, self._lerp_index,
+            self._lerp_weight, self._frame_edge, self._frame_h, self._basis_t, np.empty((self._m, 3)),
+            np.empty((self._m, 3, 3)), np.empty((self._n_g, 2)), np.empty(self._n_g))
+
+    def __call__(self, temperature: np.ndarray, fixture: np.ndarray | None = None) -> Truth:
+        """The truth now, with ``temperature`` (n_gratings,) K (copied) and ``fixture`` passed through."""
+        v = self.view
+        positions = np.empty((self._m, 3))
+        frames = np.empty((self._m, 3, 3))
+        curvature = np.empty((self._n_g, 2))
+        twist = np.empty(self._n_g)
+        self._kernel(v.positions, v.frames, v.darboux, self._lerp_index, self._lerp_weight, self._frame_edge,
+                     self._frame_h, self._basis_t, positions, frames, curvature, twist)
+        return Truth._trusted(self.s, positions, frames, curvature, twist, temperature.copy(), fixture)
 
 
 def _transport(t_from: np.ndarray, t_to: np.ndarray, u: np.ndarray) -> np.ndarray:

@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 from collections import OrderedDict
+from dataclasses import replace
 
 import numpy as np
 
@@ -29,9 +30,11 @@ from scenarios._common.calibration import calibration_for
 from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.servers.illumisense_server import IllumisenseServer
 from sim_interrogator.sim_source import open_sim
-from twin import FiberModel, Frame, Reconstructor, jsonout, metrics
+from twin import FiberModel, Frame, Reconstructor, jsonout
+from twin.frames import Truth
 from twin.io.source import open_source
 from twin.live import LiveLoop
+from twin.reference_errors import TruthError
 
 #: one-line help (read by `twin --help` without importing this module)
 HELP = "the main job: reconstruct shapes from (simulated) interrogator data and compare"
@@ -44,7 +47,7 @@ class TruthTap:
     """Keeps the truth of the frames the server sends, by sequence number (bounded)."""
 
     def __init__(self, keep: int = 20_000):
-        self._truth: OrderedDict[int, object] = OrderedDict()
+        self._truth: OrderedDict[int, Truth] = OrderedDict()
         self._lock = threading.Lock()
         self.keep = keep
 
@@ -54,42 +57,49 @@ class TruthTap:
             while len(self._truth) > self.keep:
                 self._truth.popitem(last=False)
 
-    def get(self, sequence: int):
+    def get(self, sequence: int) -> Truth | None:
         with self._lock:
             return self._truth.get(sequence)
 
+    def batch(self, sequences: np.ndarray) -> Truth | None:
+        """The truths of a batch of received frames as one batch :class:`~twin.frames.Truth` (rows whose truth
+        is not kept, or of another layout than the first, absent); None when none is kept."""
+        with self._lock:
+            found = [self._truth.get(q) for q in sequences.tolist()]
+        return Truth.stack(found, like=next((t for t in found if t is not None), None))
+
 
 class ErrorSink:
-    """Per-frame error of the reconstruction against the truth (Kabsch on arc length), and the tip error with
-    the true base pose; keeps the received wavelengths for the final comparison with the paper's pipeline."""
+    """The error of the received frames against the truth the server kept for their sequence numbers: the
+    frames carry it into a :class:`twin.reference_errors.TruthError` (Kabsch on arc length, every complete
+    frame compared; docs/figures.md); keeps the compared frames' wavelengths and truth for the paper's
+    pipeline on the same frames."""
 
     def __init__(self, tap: TruthTap, viewer=None, viewer_rate: float = 20.0):
         self.tap, self.viewer = tap, viewer
-        self.t, self.max, self.mean, self.tip, self.seq, self.w = [], [], [], [], [], []
+        self.truth = TruthError(per_second=None)
+        self.w: list[np.ndarray] = []  # per batch: the compared frames' wavelengths (k, G, C), nm
+        self.truths: list[Truth] = []  # and their truth's positions
         self._next_view = 0.0
         self._period = 1.0 / viewer_rate
 
     def __call__(self, frames, shapes, status) -> None:
         if not len(frames) or shapes is None:
             return
-        truths = [self.tap.get(q) for q in frames.sequence.tolist()]
-        ok = [i for i, tr in enumerate(truths) if tr is not None and shapes.all_valid[i]]
-        if not ok:
+        truth = self.tap.batch(frames.sequence)
+        if truth is None:
             return
-        truth = np.stack([truths[i].positions for i in ok])
-        err = metrics.shape_error(shapes.positions[ok], truth, s=shapes.s, truth_s=truths[ok[0]].s)
-        for j, i in enumerate(ok):
-            self.t.append(float(frames.timestamp[i]))
-            self.seq.append(int(frames.sequence[i]))
-            self.max.append(float(np.atleast_1d(err.max)[j]))
-            self.mean.append(float(np.atleast_1d(err.mean)[j]))
-            self.tip.append(float(np.atleast_1d(err.tip)[j]))
-            self.w.append(frames.wavelengths[i])
+        self.truth(replace(frames, truth=truth), shapes, status)
+        ok = np.flatnonzero(shapes.all_valid & truth.all_present)
+        if not ok.size:
+            return
+        self.w.append(frames.wavelengths[ok])
+        self.truths.append(Truth(s=truth.s, positions=truth.positions[ok]))
         if self.viewer is not None and time.monotonic() >= self._next_view:
             self._next_view = time.monotonic() + self._period
-            i = ok[-1]
+            i = int(ok[-1])
             self.viewer.info.update(rate_hz=status.rate_hz, lost=status.lost_samples, frames=status.frames)
-            self.viewer.show(shapes[i], truths[i], vendor=frames[i].vendor)
+            self.viewer.show(shapes[i], self.tap.get(int(frames.sequence[i])), vendor=frames[i].vendor)
 
 
 class LinePrinter:
@@ -103,8 +113,8 @@ class LinePrinter:
         if now < self._next:
             return
         self._next = now + self.period
-        e = self.errors
-        err = f"error now {e.max[-1] * 1e3:5.2f} mm (max), {e.mean[-1] * 1e3:5.2f} mm (mean)" if e.max else "…"
+        e = self.errors.truth.latest
+        err = f"error now {e.max * 1e3:5.2f} mm (max), {e.mean * 1e3:5.2f} mm (mean)" if e is not None else "…"
         self.stream.write(f"\r  {status.state:8s} {status.elapsed:6.1f} s  {status.frames:6d} frames "
                           f"{status.rate_hz:6.1f} Hz  lost {status.lost_samples:3d}  {err}   ")
         self.stream.flush()
@@ -233,22 +243,27 @@ def _result(errors: ErrorSink, summary, fiber, cal, url, wall, true) -> dict:
         "calibration": "lab (two-step in the twin, Δθ and g identified against the fixtures' geometry)",
         "identified": {"delta_theta": cal.delta_theta, "g_um": cal.gain * 1e6},
         "true": {"delta_theta": true["delta_theta"], "g_um": true["gain_m"] * 1e6},
-        "frames_compared": len(errors.max),
+        "frames_compared": errors.truth.frames_compared,
     }
-    if errors.max:
-        mx, mn, tip = (np.array(v) * 1e3 for v in (errors.max, errors.mean, errors.tip))
-        out["default"] = {"max_error_mm": float(mx.max()), "mean_error_mm": float(mn.mean()),
-                          "p95_max_error_mm": float(np.percentile(mx, 95)), "tip_error_mm": float(tip.mean())}
-        # the paper's pipeline on the same received frames
-        paper = Reconstructor.paper(fiber, cal)(np.stack(errors.w))
-        truths = [errors.tap.get(s) for s in errors.seq]
-        perr = metrics.shape_error(paper.positions, np.stack([t.positions for t in truths]), s=paper.s,
-                                   truth_s=truths[0].s)
-        out["paper"] = {"max_error_mm": float(np.max(perr.max) * 1e3),
-                        "mean_error_mm": float(np.mean(perr.mean) * 1e3),
-                        "p95_max_error_mm": float(np.percentile(np.atleast_1d(perr.max) * 1e3, 95)),
-                        "tip_error_mm": float(np.mean(perr.tip) * 1e3)}
+    if errors.w:
+        # the paper's pipeline on the same received frames, compared by the same definition
+        truth = Truth.stack(errors.truths)
+        w = np.concatenate(errors.w)
+        paper = TruthError(per_second=None)
+        paper(Frame(w, truth=truth), Reconstructor.paper(fiber, cal)(w), None)
+        out["default"] = _table(errors.truth)
+        if paper.frames_compared:  # none when the paper's pipeline solved no frame whole
+            out["paper"] = _table(paper)
     return out
+
+
+def _table(errors: TruthError) -> dict:
+    """A row of the demo's table (mm): the figures of docs/figures.md, and the 95th percentile of the per-frame
+    max."""
+    r = errors.result()
+    return {"max_error_mm": r.max_error_mm, "mean_error_mm": r.mean_error_mm,
+            "p95_max_error_mm": round(float(np.percentile(errors.per_frame()["max"], 95)) * 1e3, 4),
+            "tip_error_mm": r.tip_error_mm_mean}
 
 
 def report(r: dict) -> str:
@@ -269,7 +284,10 @@ def report(r: dict) -> str:
             f"  {'pipeline':30s}{'max':>8s}{'p95 of max':>12s}{'mean':>8s}{'tip mean':>10s}",
         ]
         for key, label in (("default", "default (this project)"), ("paper", "the paper's pipeline")):
-            e = r[key]
+            e = r.get(key)
+            if e is None:
+                lines.append(f"  {label:30s}  no frame solved whole")
+                continue
             lines.append(f"  {label:30s}{e['max_error_mm']:8.3f}{e['p95_max_error_mm']:12.3f}"
                          f"{e['mean_error_mm']:8.3f}{e['tip_error_mm']:10.3f}")
     lines.append(f"\n  total wall time {r['wall_s']:.0f} s; MuJoCo solver warnings: {r['mujoco_warnings']} "

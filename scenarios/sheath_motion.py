@@ -305,7 +305,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     truth = coverage.truth_in_base(ser.truth_s, ser.truth_positions, ser.base_frames, ser.base_positions,
                                    shapes["default"].s)
     tube = coverage.run_coverage(sim.fiber, sim.optics.config, used.calibration, shapes["default"], ser.wavelengths,
-                                 truth, progress)
+                                 truth, progress, twist=coverage.SHEATH_TWIST)
     result = Result(params, sim.describe(), t, max_e, mean_e, tip_e, sheath_e, analysed, ser.lost_peaks, lost_g,
                     sheath_k, rod_k, run.hub[:, 0], tips, curvature, run.bore, float(setup.settle_result.time),
                     run.wall_s, used.to_dict(), snapshots(shapes, ser, max_e["default"]), tube)

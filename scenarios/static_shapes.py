@@ -255,7 +255,7 @@ def tube_coverage(params: Params, fiber: FiberModel, settled: list, per_shape: l
         groups.setdefault(id(cal), []).append(j)
     if len(groups) == 1 and len(settled) >= 2:  # one calibration for all: two folds all the same for the model error
         groups = {0: list(range(0, len(settled), 2)), 1: list(range(1, len(settled), 2))}
-    inside, sigma, rows, models = [], [], {}, []
+    inside, outs, truths, rows, models = [], [], [], {}, []
     for idx in groups.values():
         cal = per_shape[idx[0]]
         others = [j for j in range(len(settled)) if j not in idx]
@@ -272,11 +272,12 @@ def tube_coverage(params: Params, fiber: FiberModel, settled: list, per_shape: l
             truth = coverage.truth_of_frames(frames, out.s)
             rows[settled[j][0]] = coverage.summary(out, truth)
             inside.append(inside_tube(out, truth, coverage.LEVEL)[:, out.s > 0].ravel())
-            sigma.append(out.sigma[:, out.s > 0].ravel())
-    total = {"coverage_95": float(np.mean(np.concatenate(inside))), "mean_sigma_mm": float(np.mean(np.concatenate(
-        sigma)) * 1e3)}
+            outs.append(out)
+            truths.append(truth)
+    total = {"coverage_95": float(np.mean(np.concatenate(inside))), **coverage.width(outs, truths)}
     say(f"    95 % tube: {total['coverage_95']:.1%} of the rod's points inside, mean 1σ "
-        f"{total['mean_sigma_mm']:.3f} mm")
+        f"{total['mean_sigma_mm']:.3f} mm against an RMS lateral error of {total['rms_lateral_error_mm']:.3f} mm "
+        f"(width ratio {total['width_ratio']:.2f})")
     return {**total, "model_error": models, "shapes": rows}
 
 

@@ -6,63 +6,106 @@ the rod, average its curvature over each grating, roll it into the fibre's frame
 overhead around a few microseconds of arithmetic. :func:`frame_wavelengths` does the same arithmetic in one
 compiled call into buffers allocated once:
 
-1. material frames and Darboux vectors of every edge (:func:`models._rod_kernels.frames_and_darboux`);
+1. material frames and Darboux vectors of every edge, read through views of ``mjData`` taken once
+   (:class:`models.rod_state.RodView`, :func:`models._rod_kernels.bound_frames_and_darboux`);
 2. (κ1, κ2, τ) averaged over each grating's length: a fixed matrix (n_gratings, n_interior) that folds the
-   cubic interpolation to the grating's Gauss points and their weights (:meth:`models.rod_state.RodReader.
-   interpolation_matrix`, :attr:`sim_interrogator.optics.Optics.sample_weights`);
+   cubic interpolation to the grating's Gauss points and their weights (:func:`grating_average`);
 3. the optional roll of (κ1, κ2) into a fibre frame turned by r about d3 (the fibre-in-lumen setups);
 4. (k_x, k_y) = (κ2, −κ1), the design-form strain and the interrogator's effects
    (:func:`sim_interrogator.optics._design_strain`, :func:`sim_interrogator.optics._apply_effects`).
 
-What stays in Python per frame: the setup's conditions (temperature, axial strain), one normal draw of the
-noise (:meth:`~sim_interrogator.optics.Optics.random_draw`, so the numbers are those of
+What stays in Python per frame: the setup's conditions (temperature, axial strain: a Python float is spread over
+the gratings in the compiled call), the drift's step and the offset of the frame's normal draws in the optics'
+:class:`~sim_interrogator.optics.NormalStream` (so the numbers are those of
 :meth:`~sim_interrogator.optics.Optics.wavelengths` from the same seed) and the two output arrays the frame
-keeps. The result equals the numpy path's to rounding (tests/test_sim.py). A spun fibre's exact path lengths
+keeps. The call goes to the compiled function directly, past numba's dispatcher (:mod:`twin._numba_entry`). The
+result equals the numpy path's to rounding (tests/test_sim.py). A spun fibre's exact path lengths
 (:meth:`~sim_interrogator.optics.Optics.spun_wavelengths`) keep the general path.
 """
 
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 from numba import njit
 
-from models._rod_kernels import frames_and_darboux
-from models.rod_state import RodReader
+from models._rod_kernels import bound_frames_and_darboux
+from models.rod_state import RodReader, RodView
 from sim_interrogator.optics import Optics, _apply_effects, _design_strain
+from twin._numba_entry import compiled_entry
 
-__all__ = ["FramePath", "frame_wavelengths"]
+__all__ = ["FramePath", "frame_wavelengths", "grating_average"]
+
+
+def grating_average(reader: RodReader, optics: Optics) -> np.ndarray:
+    """The fixed matrix (n_gratings, n_interior) that takes the rod's Darboux vectors at its interior vertices to
+    their average over each grating's length: the cubic interpolation to :attr:`Optics.sample_s` folded with
+    :attr:`Optics.sample_weights`."""
+    n_g = optics.nominal.n_gratings
+    basis = reader.interpolation_matrix(optics.sample_s)  # (n_g · n_sub, n_interior)
+    return np.ascontiguousarray(np.einsum("gsv,s->gv", basis.reshape(n_g, -1, basis.shape[-1]),
+                                          optics.sample_weights))
 
 
 @njit(cache=True, nogil=True)
-def frame_wavelengths(x, plastic, theta, site_x, inv_lbar, frames, darboux, average, roll_c, roll_s, axial, temp,
-                      curvature, strain, design, s_eps, s_t, offset, lam0, lam0_nominal, drift, drift_step, z,
-                      noise, quant, slot, separation, band_lo, band_hi, order, lost_flag, w, status):
+def frame_wavelengths(x, plastic, qpos, twist_edges, twist_qadr, theta, site_row, inv_lbar, frames, darboux,
+                      have_frames, average_t, roll, axial_value, temp_value, axial, temp, curvature, strain, design,
+                      s_t, lam0, lam0_nominal, drift, drift_step, normals, z_offset, order, scalars, lost_flag, w,
+                      status):
     """Rod state → curvature at the gratings → wavelengths, in one call (see the module docstring).
 
-    ``frames`` (n_edges, 3, 3) and ``darboux`` (n_interior, 3) are filled as by
-    :func:`~models._rod_kernels.frames_and_darboux`; ``average`` is (n_gratings, n_interior); ``axial``,
-    ``temp`` (1, n_gratings); ``curvature`` (1, n_gratings, 2) receives (k_x, k_y) at the gratings, 1/m;
-    ``strain`` (1, n_gratings, n_cores) the optical strain; ``w`` and ``status`` (1, n_gratings, n_cores) the
-    wavelengths (nm, NaN where lost) and their status. The remaining arguments are those of
+    The first ten arguments are those of :func:`models._rod_kernels.bound_frames_and_darboux` (views of
+    ``mjData`` and the buffers ``frames`` (n_edges, 3, 3), ``darboux`` (n_interior, 3) it fills); with
+    ``have_frames`` the buffers are taken as they are. Returns False, computing nothing, when the rod has no
+    frames yet (``plastic`` still zero: the caller fills the buffers and calls again with ``have_frames``).
+
+    ``average_t`` is :func:`grating_average` transposed, (n_interior, n_gratings); ``roll`` rad; ``axial``,
+    ``temp`` (1, n_gratings) the axial strain and temperature change at the gratings, set to ``axial_value``,
+    ``temp_value`` unless these are NaN; ``curvature`` (1, n_gratings, 2) receives (k_x, k_y) at the gratings,
+    1/m; ``strain`` (1, n_gratings, n_cores) the optical strain; ``w`` and ``status`` (n_gratings, n_cores) the
+    wavelengths (nm, NaN where lost) and their status. ``normals[z_offset:]`` holds the frame's
+    2 · n_gratings · n_cores normal draws (:meth:`~sim_interrogator.optics.Optics.random_draw`'s ``z``, read only
+    with drift or noise); ``scalars`` holds S_ε, the fibre's offset, noise, quantisation, slot, separation and the
+    band's ends (:class:`FramePath`); the remaining arguments are those of
     :func:`~sim_interrogator.optics._design_strain` and :func:`~sim_interrogator.optics._apply_effects`.
     """
-    frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux)
-    n_g, n_v = average.shape
+    if axial_value == axial_value:  # a number for every grating (NaN: ``axial`` holds them already)
+        axial[0, :] = axial_value
+    if temp_value == temp_value:
+        temp[0, :] = temp_value
+    if not have_frames and not bound_frames_and_darboux(x, plastic, qpos, twist_edges, twist_qadr, theta, site_row,
+                                                        inv_lbar, frames, darboux):
+        return False
+    # (κ1, κ2) averaged over each grating: average_t is the matrix transposed, (n_interior, n_gratings), so that
+    # the gratings' sums advance side by side (each still adds its terms in vertex order) instead of one
+    # dependent chain after another
+    n_v, n_g = average_t.shape
+    k = curvature[0]
+    k[:] = 0.0
+    for v in range(n_v):
+        d1, d2 = darboux[v, 0], darboux[v, 1]
+        for g in range(n_g):
+            a = average_t[v, g]
+            k[g, 0] += a * d1
+            k[g, 1] += a * d2
+    roll_c, roll_s = np.cos(roll), np.sin(roll)
     for g in range(n_g):
-        k1 = 0.0
-        k2 = 0.0
-        for v in range(n_v):
-            a = average[g, v]
-            k1 += a * darboux[v, 0]
-            k2 += a * darboux[v, 1]
+        k1, k2 = k[g, 0], k[g, 1]
         r1 = roll_c * k1 + roll_s * k2  # (κ1, κ2) in the frame rolled by r about d3 (r = 0: unchanged)
         r2 = roll_c * k2 - roll_s * k1
-        curvature[0, g, 0] = r2  # (k_x, k_y) = (κ2, −κ1)
-        curvature[0, g, 1] = -r1
+        k[g, 0] = r2  # (k_x, k_y) = (κ2, −κ1)
+        k[g, 1] = -r1
+    s_eps, offset, noise, quant, slot, separation, band_lo, band_hi = (scalars[0], scalars[1], scalars[2],
+                                                                       scalars[3], scalars[4], scalars[5],
+                                                                       scalars[6], scalars[7])
     _design_strain(curvature, axial, temp, design, s_eps, s_t, offset, strain)
+    n_c = w.shape[1]
+    z = normals[z_offset : z_offset + 2 * n_g * n_c].reshape((2, n_g, n_c))
     _apply_effects(strain, lam0, lam0_nominal, drift, drift_step, z, noise, quant, slot, separation, band_lo,
-                   band_hi, order, lost_flag, w, status)
+                   band_hi, order, lost_flag, w.reshape((1, n_g, n_c)), status.reshape((1, n_g, n_c)))
+    return True
 
 
 class FramePath:
@@ -70,49 +113,85 @@ class FramePath:
 
     Parameters
     ----------
-    reader : RodReader
-        The rod the optics read (the catheter's, or a fibre-in-lumen setup's own fibre rod).
+    rod : RodView
+        The rod the optics read (the catheter's, or a fibre-in-lumen setup's own fibre rod), bound to its
+        ``mjData``.
     optics : Optics
         A fibre with straight cores (``spin_rate == 0``).
 
     Attributes
     ----------
     frames, darboux : ndarray
-        The rod's edge frames (n_edges, 3, 3) and interior Darboux vectors (n_interior, 3) of the last call.
+        The rod's edge frames (n_edges, 3, 3) and interior Darboux vectors (n_interior, 3) of the last call
+        (the view's buffers: :class:`models.rod_state.RodTruth` reads them).
+    temperature : ndarray, shape (n_gratings,)
+        The temperature change of the last call at each grating, K (a buffer).
     """
 
-    def __init__(self, reader: RodReader, optics: Optics) -> None:
+    def __init__(self, rod: RodView, optics: Optics) -> None:
         if optics.true_fiber.spin_rate:
             raise ValueError("FramePath: a spun fibre needs the exact path lengths (Optics.spun_wavelengths)")
-        self.reader, self.optics = reader, optics
+        self.rod, self.optics = rod, optics
+        reader = rod.reader
         n_g, n_c = optics.nominal.n_gratings, optics.nominal.n_cores
-        basis = reader.interpolation_matrix(optics.sample_s)  # (n_g · n_sub, n_interior)
-        self.average = np.ascontiguousarray(
-            np.einsum("gsv,s->gv", basis.reshape(n_g, -1, basis.shape[-1]), optics.sample_weights))
-        n_e = reader.n_vertices - 1
-        self.frames = np.empty((n_e, 3, 3))
-        self.darboux = np.empty((n_e - 1, 3))
+        self.average = grating_average(reader, optics)
+        self._average_t = np.ascontiguousarray(self.average.T)
+        self.frames, self.darboux = rod.frames, rod.darboux
         self._axial = np.zeros((1, n_g))
         self._temp = np.zeros((1, n_g))
+        self.temperature = self._temp[0]
         self._curvature = np.empty((1, n_g, 2))
         self._strain = np.empty((1, n_g, n_c))
-        self._shape = (1, n_g, n_c)
-        self._constants = optics.effect_arguments()
+        self._shape = (n_g, n_c)
+        self._n_z = 2 * n_g * n_c  # the normals of a frame: the drift's steps and the noise
+        self._no_draw = np.zeros(self._n_z)
+        self._draws = bool(optics.config.noise)
+        (design, s_eps, s_t, offset, lam0, lam0_nominal, drift, noise, quant, slot, separation, band_lo, band_hi,
+         order, lost_flag) = optics.effect_arguments()
+        self._scalars = np.array([s_eps, offset, noise, quant, slot, separation, band_lo, band_hi])
+        self._rod_args = rod.kernel_arguments()
+        self._design, self._s_t, self._lam0, self._lam0_nominal = design, s_t, lam0, lam0_nominal
+        self._drift, self._order, self._lost_flag = drift, order, lost_flag
+        # the compiled function itself, past numba's dispatcher (twin/_numba_entry.py): the arguments' types
+        # below are those of every call
+        self._kernel = compiled_entry(
+            frame_wavelengths, *self._rod_args, False, self._average_t, 0.0, 0.0, 0.0, self._axial, self._temp,
+            self._curvature, self._strain, design, s_t, lam0, lam0_nominal, drift, 0.0, self._no_draw, 0, order,
+            self._scalars, lost_flag, np.empty(self._shape), np.zeros(self._shape, np.uint8))
 
     def __call__(self, data: mujoco.MjData, axial, delta_t, t: float, roll: float = 0.0
                  ) -> tuple[np.ndarray, np.ndarray]:
         """Wavelengths (n_gratings, n_cores) nm and status (uint8) of the rod in ``data`` at time ``t`` s.
 
-        ``axial`` (strain) and ``delta_t`` (K) are scalars or (n_gratings,) arrays; ``roll`` (rad) turns
-        (κ1, κ2) about d3 before the strain (the fibre's glued roll relative to its rod's material frame)."""
-        x, p, theta, site_x = self.reader.kernel_inputs(data)
-        self._axial[0] = axial
-        self._temp[0] = delta_t
-        step, z = self.optics.random_draw(t, 1)
+        ``data`` is the view's (:attr:`RodView.data`); ``axial`` (strain) and ``delta_t`` (K) are scalars or
+        (n_gratings,) arrays; ``roll`` (rad) turns (κ1, κ2) about d3 before the strain (the fibre's glued roll
+        relative to its rod's material frame)."""
+        if data is not self.rod.data:
+            raise ValueError("FramePath: data is not the mjData its rod view is bound to")
+        # a Python float (what most setups give) is spread over the gratings in the compiled call
+        if type(axial) is float and axial == axial:
+            axial_value = axial
+        else:
+            self._axial[0], axial_value = axial, math.nan
+        if type(delta_t) is float and delta_t == delta_t:
+            temp_value = delta_t
+        else:
+            self._temp[0], temp_value = delta_t, math.nan
+        # the draws of Optics.random_draw (the same numbers from the same seed), read in place from the stream
+        optics = self.optics
+        step = optics.drift_step(t)
+        if self._draws or step:
+            normals = optics.normals
+            offset = normals.take(self._n_z)
+            normals = normals.buffer
+        else:
+            normals, offset = self._no_draw, 0
         w = np.empty(self._shape)
         status = np.zeros(self._shape, np.uint8)
-        design, s_eps, s_t, offset, *effects = self._constants
-        frame_wavelengths(x, p, theta, site_x, self.reader.inverse_lbar, self.frames, self.darboux, self.average,
-                          np.cos(roll), np.sin(roll), self._axial, self._temp, self._curvature, self._strain, design,
-                          s_eps, s_t, offset, effects[0], effects[1], effects[2], step, z, *effects[3:], w, status)
-        return w[0], status[0]
+        args = (*self._rod_args, False, self._average_t, roll, axial_value, temp_value, self._axial, self._temp,
+                self._curvature, self._strain, self._design, self._s_t, self._lam0, self._lam0_nominal, self._drift,
+                step, normals, offset, self._order, self._scalars, self._lost_flag, w, status)
+        if not self._kernel(*args):
+            self.rod.restart()
+            self._kernel(*args[:10], True, *args[11:])
+        return w, status

@@ -20,8 +20,8 @@ import mujoco
 import numpy as np
 
 from models.catheter import WARNINGS_NOTE, collect_warnings
-from models.rod_state import RodReader
-from sim_interrogator.frame_path import FramePath
+from models.rod_state import RodReader, RodTruth
+from sim_interrogator.frame_path import FramePath, grating_average
 from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.setups import Setup
 from twin import FiberModel, Frame
@@ -83,21 +83,18 @@ class SimInterrogator(FrameByFrame):
         # Darboux vectors (κ1, κ2, τ) at the interior vertices → (k_x, k_y) = (κ2, −κ1) averaged over each
         # grating's length (models/rod_state.py), as one fixed matrix (n_g, n_interior); a fibre with straight
         # cores takes the compiled frame path (one numba call per frame, sim_interrogator/frame_path.py), a spun
-        # one the general optics (its exact path lengths need the twist rate too)
-        self._path = None if self.optics.true_fiber.spin_rate else FramePath(self.optics_reader, self.optics)
-        if self._path is not None:
-            self._grating_average = self._path.average
-            self._frames_buf, self._darboux_buf = self._path.frames, self._path.darboux
-        else:
-            basis = self.optics_reader.interpolation_matrix(self.optics.sample_s)
-            n_g = self.fiber.n_gratings
-            self._grating_average = np.einsum("gsv,s->gv", basis.reshape(n_g, -1, basis.shape[-1]),
-                                              self.optics.sample_weights)
-            self._darboux_buf = np.empty((basis.shape[-1], 3))
-            self._frames_buf = np.empty((basis.shape[-1] + 1, 3, 3))
+        # one the general optics (its exact path lengths need the twist rate too). Both read the rod through a
+        # view bound to self.data (models.rod_state.RodView: mjData's arrays taken once).
+        self._optics_rod = self.optics_reader.bind(self.data)
+        self._path = None if self.optics.true_fiber.spin_rate else FramePath(self._optics_rod, self.optics)
+        self._grating_average = (grating_average(self.optics_reader, self.optics) if self._path is None
+                                 else self._path.average)
         self._sign = np.array([1.0, -1.0])
-        # the truth reuses the optics' rod read when both read the same rod
+        # the truth (one compiled call, models.rod_state.RodTruth) reuses the optics' rod read when both read the
+        # same rod, else reads the catheter's itself
         self._truth_from_optics = self.optics_reader is self.reader
+        self._truth_rod = self._optics_rod if self._truth_from_optics else self.reader.bind(self.data)
+        self._truth = RodTruth(self._truth_rod, self.fiber.grating_s)
         self.physics_time = 0.0  # wall seconds in mj_step
         self.optics_time = 0.0  # wall seconds reading the rod and making wavelengths
         self.truth_time = 0.0  # wall seconds making the truth and the frame
@@ -146,8 +143,9 @@ class SimInterrogator(FrameByFrame):
         t0 = time.perf_counter()
         delta_t, axial = self.setup.conditions(t, self.fiber.grating_s)
         roll = 0.0 if self._optics_roll is None else self._optics_roll()  # rad
-        if self._path is not None:
-            w, status = self._path(self.data, axial, delta_t, t, roll)
+        path = self._path
+        if path is not None:
+            w, status = path(self.data, axial, delta_t, t, roll)
         else:
             w, status = self._general_optics(t, delta_t, axial, roll)
         if self._disturb is not None:
@@ -156,21 +154,23 @@ class SimInterrogator(FrameByFrame):
         self.optics_time += t1 - t0
         truth = None
         if self.with_truth:
-            temp = np.broadcast_to(np.asarray(delta_t, float), self.fiber.grating_s.shape).copy()
-            if self._truth_from_optics:
-                state = self.reader.state(self.data, self._frames_buf, self._darboux_buf)
+            if path is not None:
+                temp = path.temperature  # delta_t at the gratings (the truth copies it)
             else:
-                state = self.reader.read(self.data)
-            truth = state.to_truth(self.fiber.grating_s, temperature=temp, fixture=self._fixture)
-        frame = Frame(w, timestamp=self.optics.timestamp(t), sequence=self._k, status=status, truth=truth)
+                temp = np.broadcast_to(np.asarray(delta_t, float), self.fiber.grating_s.shape)
+            if not self._truth_from_optics:
+                self._truth_rod.compute()
+            truth = self._truth(temp, self._fixture)
+        # the optics' arrays are new, float64 and uint8 of shape (n_gratings, n_cores); the timestamp a float
+        frame = Frame._trusted(w, self.optics.timestamp(t), self._k, status=status, truth=truth)
         self._k += 1
         self.truth_time += time.perf_counter() - t1
         return frame
 
     def _general_optics(self, t: float, delta_t, axial, roll: float) -> tuple[np.ndarray, np.ndarray]:
         """The optics through :meth:`Optics.wavelengths` (a spun fibre: it needs the twist rate too)."""
-        self.optics_reader.compute(self.data, self._frames_buf, self._darboux_buf)
-        d = self._grating_average @ self._darboux_buf  # (κ1, κ2, τ) averaged over each grating
+        self._optics_rod.compute()
+        d = self._grating_average @ self._optics_rod.darboux  # (κ1, κ2, τ) averaged over each grating
         c, s = np.cos(roll), np.sin(roll)
         k1, k2 = d[:, 0].copy(), d[:, 1].copy()
         d[:, 0], d[:, 1] = c * k1 + s * k2, c * k2 - s * k1  # (κ1, κ2) in the frame rolled by r about d3

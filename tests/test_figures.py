@@ -1,10 +1,12 @@
 """The figures the tool prints follow docs/figures.md, whatever path the frames take: ``twin live replay://F`` and
-``twin replay F`` report the same counts and errors; the frames compared with a reference do not depend on how
-the frames were batched; the tip error and the max error are what their definitions say (an analytic case where
-the tip error exceeds the max distance to the true curve); ``twin live`` reports the error against a truth."""
+``twin replay F`` report the same counts and errors, for an HDF5 and an MCAP recording of the same frames alike
+(and the two files the same figures); the frames compared with a reference do not depend on how the frames were
+batched; the tip error and the max error are what their definitions say (an analytic case where the tip error
+exceeds the max distance to the true curve); ``twin live`` reports the error against a truth."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -18,16 +20,17 @@ from twin import Reconstructor
 from twin.frames import Frame, Shape, Truth, VendorSensor
 from twin.io.illumisense.vendor import vendor_sensors
 from twin.io.record import Recorder, open_recording
+from twin.io.rosbag import McapRecorder
 from twin.io.source import open_source
-from twin.live import LiveLoop
-from twin.reference_errors import TruthError, VendorDistance
+from twin.live import Counts, LiveLoop
+from twin.reference_errors import TruthError, TubeFigures, VendorDistance
 from twin.synthetic import multicore_fiber
+from twin.uncertainty import Uncertainty, inside, truth_in_base
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg"}
 FIBER = multicore_fiber(4, 18)  # the synthetic source's default sensor
-COUNTS = ("frames", "lost_samples", "sequence_gaps", "sequence_resets", "frames_complete", "frames_partial",
-          "frames_unusable", "frames_missing_peaks", "invalid_nodes", "peaks_outside_window")
+COUNTS = tuple(f.name for f in dataclasses.fields(Counts))  # every count, as the loop defines them
 
 
 @pytest.fixture(scope="module")
@@ -45,19 +48,28 @@ def recording(tmp_path_factory):
         blocks = None if i % 9 == 4 else (VendorSensor(v.curvature, v.angle, bent, v.spacing),)
         out.append(Frame(f.wavelengths, f.timestamp, f.sequence, f.powers, f.status, f.truth, blocks))
     path = tmp_path_factory.mktemp("figures") / "run.h5"
-    with Recorder(path, fiber=FIBER, rate=100) as rec:
+    with Recorder(path, fiber=FIBER, rate=100) as rec, McapRecorder(path.with_suffix(".mcap"), fiber=FIBER,
+                                                                     rate=100) as mcap:
         for i in range(0, len(out), 37):
             rec.append(out[i : i + 37])
+            mcap.append(out[i : i + 37])
     return path
 
 
-def test_live_over_a_recording_and_replay_report_the_same_figures(recording):
-    live = subprocess.run([*TWIN, "live", f"replay://{recording}?speed=max", "--json", "--quiet"],
+def _live_and_replay(path) -> tuple[dict, dict]:
+    live = subprocess.run([*TWIN, "live", f"replay://{path}?speed=max", "--json", "--quiet"],
                           capture_output=True, text=True, env=ENV, timeout=300)
-    replay = subprocess.run([*TWIN, "replay", str(recording), "--json"], capture_output=True, text=True, env=ENV,
+    replay = subprocess.run([*TWIN, "replay", str(path), "--json"], capture_output=True, text=True, env=ENV,
                             timeout=300)
     assert live.returncode == 0 and replay.returncode == 0, live.stderr + replay.stderr
-    a, b = json.loads(live.stdout), json.loads(replay.stdout)
+    return json.loads(live.stdout), json.loads(replay.stdout)
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".mcap"])
+def test_live_over_a_recording_and_replay_report_the_same_figures(recording, suffix):
+    """For the HDF5 and the MCAP recording of the same frames alike: the figures of both paths agree, and
+    (their frames being the same) with the other file's."""
+    a, b = _live_and_replay(recording.with_suffix(suffix))
     assert {k: a[k] for k in COUNTS} == {k: b[k] for k in COUNTS}
     assert a["frames"] == 300 and a["lost_samples"] == 10 and a["frames_partial"] > 0
     # one frame per 0.1 s of the recording's 3.1 s (less the 0.1 s gap): about 30, the same on both paths
@@ -65,10 +77,21 @@ def test_live_over_a_recording_and_replay_report_the_same_figures(recording):
     vendor = ("vendor_frames_compared", "vendor_distance_max_mm", "vendor_distance_mean_mm")
     assert {k: a[k] for k in vendor} == {k: b[k] for k in vendor}
     assert 0.05 < a["vendor_distance_max_mm"] < 0.5 and a["vendor_frames_compared"] >= 20
+    # the confidence tube on the same frames, the same on both paths (docs/figures.md)
+    tube = ("tube_frames", "mean_sigma_mm", "tube_truth_frames", "coverage_95")
+    assert {k: a[k] for k in tube} == {k: b[k] for k in tube}
+    assert 25 <= a["tube_frames"] <= 32 and a["tube_truth_frames"] == a["tube_frames"]
+    assert a["mean_sigma_mm"] > 0 and 0.0 <= a["coverage_95"] <= 1.0
     # the text says what its frames/s measure (docs/figures.md)
-    text = subprocess.run([*TWIN, "replay", str(recording)], capture_output=True, text=True, env=ENV, timeout=300)
+    text = subprocess.run([*TWIN, "replay", str(recording.with_suffix(suffix))], capture_output=True, text=True,
+                          env=ENV, timeout=300)
     assert "reconstruction throughput" in text.stdout and "frames ÷ wall time spent reconstructing" in text.stdout
     assert "tip to the true tip" in text.stdout and "distance to the true curve" in text.stdout
+    if suffix == ".mcap":
+        other = json.loads(subprocess.run([*TWIN, "replay", str(recording), "--json"], capture_output=True,
+                                          text=True, env=ENV, timeout=300).stdout)  # the HDF5 recording's
+        figures = (*COUNTS, "truth", *vendor, "time_span", "rate_hz")
+        assert {k: b[k] for k in figures} == {k: other[k] for k in figures}
 
 
 @pytest.mark.parametrize(("max_batch", "per_second"), [(1, None), (7, None), (256, None), (1, 10.0), (7, 10.0)])
@@ -129,3 +152,30 @@ def test_twin_live_reports_the_error_against_the_truth():
     text = subprocess.run([*TWIN, "live", "synthetic://?pace=max&frames=100&rate=5", "--quiet"],
                           capture_output=True, text=True, env=ENV, timeout=300)
     assert "vs truth (100 frames, kabsch)" in text.stdout  # 5 Hz: each frame in its own 0.1 s slot
+
+
+def test_the_tube_figures_are_what_their_definitions_say(recording):
+    """mean_sigma_mm and coverage_95 recomputed from the recording itself: the first complete frame of each 0.1 s
+    slot, propagated by Uncertainty, σ averaged over the points with s > 0, the truth placed by its own base pose
+    (no registration) and counted inside the 95 % tube point by point; batching does not change them."""
+    got = []
+    for max_batch in (1, 300):
+        sink = TubeFigures(Uncertainty(Reconstructor(FIBER)))
+        LiveLoop(open_source(f"replay://{recording}?speed=max"), Reconstructor(FIBER), [sink],
+                 max_batch=max_batch).run(handle_signals=False)
+        got.append(sink.as_dict())
+    assert got[0] == got[1]
+    with open_recording(recording) as r:
+        frames = r.frames()
+    rec = Reconstructor(FIBER)
+    shapes = rec(frames.wavelengths)
+    slots = np.floor(frames.timestamp * 10.0)
+    ok = np.flatnonzero(shapes.all_valid)
+    first = ok[np.concatenate([[True], slots[ok][1:] != slots[ok][:-1]])]
+    out = Uncertainty(rec).propagate(shapes[first], frames.wavelengths[first])
+    distal = out.s > 0
+    t = frames.truth
+    truth = truth_in_base(t.s, t.positions[first], t.frames[first, 0], t.positions[first, 0], out.s)
+    assert got[0]["tube_frames"] == first.size
+    assert got[0]["mean_sigma_mm"] == pytest.approx(out.sigma[:, distal].mean() * 1e3, abs=1e-4)
+    assert got[0]["coverage_95"] == pytest.approx(inside(out, truth)[:, distal].mean(), abs=1e-4)

@@ -163,7 +163,7 @@ def test_live_loop_counts_a_batch_like_its_frames_one_by_one():
     assert np.array_equal(flags_a, flags_b)
     # the same shapes up to the last bits (a batch of one and one of 61 sum in other orders), 1e-12 m of ~0.2 m
     np.testing.assert_allclose(positions_a, shapes_b.positions, rtol=0, atol=1e-12)
-    assert a.c.reported() == b.c.reported() and a.c.lost_samples == 3 and a.c.peaks_outside_window == 1
+    assert a.c.counts() == b.c.counts() and a.c.lost_samples == 3 and a.c.peaks_outside_window == 1
     assert a.c.frames_missing_peaks == 2
     # a batch of another layout is rejected whole (a configuration error when nothing ever matched)
     wrong = Frame(np.ones((4, 3, 2)) * 1550.0)

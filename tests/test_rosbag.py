@@ -292,3 +292,144 @@ def test_the_interrogators_own_shape_round_trips_and_is_compared_like_hdf5s(run,
         for a, b in zip(e.vendor(), h.vendor(), strict=True):
             assert np.array_equal(a.present, b.present)
             assert np.array_equal(a.positions, b.positions, equal_nan=True)
+
+
+# ------------------------------------------------------------------------------------------------ bounded memory
+def _records(data: bytes) -> list[tuple[int, int, int]]:
+    """(opcode, offset, length) of an MCAP file's top-level records, from their headers alone."""
+    out, at = [], 8
+    while at + 9 <= len(data):
+        opcode, length = data[at], int.from_bytes(data[at + 1:at + 9], "little")
+        out.append((opcode, at, length))
+        if opcode == 0x02:  # footer
+            break
+        at += 9 + length
+    return out
+
+
+@pytest.fixture(scope="module")
+def big(run, tmp_path_factory) -> tuple[Path, object]:
+    """The run three times over in chunks of 8 KiB: a file about a hundred times the 64 KiB bound the reader
+    is given below."""
+    with open_recording(run / "x.mcap") as r:
+        frames, fiber = r.frames(), r.fiber
+    path = tmp_path_factory.mktemp("big") / "big.mcap"
+    with McapRecorder(path, fiber=fiber, chunk_size=1 << 13) as w:
+        for _ in range(3):
+            w.append(frames)
+    return path, frames
+
+
+def test_reading_a_recording_takes_memory_bounded_by_the_record_bound_and_the_slice(big):
+    """Opening indexes the file record by record and reading takes a slice at a time: the memory either takes
+    stays a small part of the file (the reader held all of it in memory before), and the frames come back
+    whole and in order."""
+    import tracemalloc
+
+    from twin.io.rosbag import McapRecording
+
+    path, frames = big
+    size, bound = path.stat().st_size, 1 << 16
+    assert size > 50 * bound
+    tracemalloc.start()
+    try:
+        with McapRecording(path, max_record=bound) as r:
+            opened = tracemalloc.get_traced_memory()[1]
+            tracemalloc.reset_peak()
+            assert r.complete and len(r) == 3 * len(frames)
+            n = 0
+            for start, batch in r.chunks(4):  # a 4-frame slice takes about 0.3 MB decoded (171 truth points)
+                want = frames[np.arange(start, start + len(batch)) % len(frames)]
+                assert np.array_equal(batch.wavelengths, want.wavelengths)
+                assert np.array_equal(batch.truth.positions, want.truth.positions)
+                assert len(r.received(start, start + len(batch))) == len(batch)
+                n += len(batch)
+            read = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert n == 3 * len(frames)
+    assert opened < size / 20 and read < size / 8, (opened, read, size)  # measured: 0.19 and 0.61 MB of 7.1
+
+
+def _patched(data: bytes, at: int, value: bytes) -> bytes:
+    return data[:at] + value + data[at + len(value):]
+
+
+def test_hostile_lengths_are_damage_at_their_byte_and_allocate_nothing(big, tmp_path):
+    """A record claiming more than the file, a chunk claiming an absurd uncompressed size, a record longer than
+    the reader's bound, and a chunk that decompresses to more than it declares (an LZ4 bomb): each is damage
+    naming its byte, the frames before it are kept, and reading takes no more memory than the bound."""
+    import tracemalloc
+
+    import lz4.frame
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Chunk
+
+    from twin.io.rosbag import McapRecording
+
+    path, _ = big
+    data = path.read_bytes()
+    chunks = [(at, length) for op, at, length in _records(data) if op == 0x06]
+    at, length = chunks[5]
+    with McapRecording(path) as whole, McapRecording(_write(tmp_path / "cut.mcap", data[:at + 30])) as cut:
+        before = len(cut)  # frames wholly in the first five chunks
+        assert 0 < before < len(whole)
+    builder = RecordBuilder()
+    Chunk(compression="lz4", data=lz4.frame.compress(bytes(100 << 20)), message_start_time=0,
+          message_end_time=0, uncompressed_crc=0, uncompressed_size=1000).write(builder)
+    bomb = builder.end()
+    cases = {
+        "absurd.mcap": (_patched(data, at + 1, (1 << 62).to_bytes(8, "little")),
+                        f"record at byte {at} claims {1 << 62} bytes, more than the file's"),
+        "inflated.mcap": (_patched(data, at + 9 + 16, (1 << 40).to_bytes(8, "little")),
+                          f"chunk at byte {at} claims {1 << 40} bytes uncompressed"),
+        "bomb.mcap": (data[:at] + bomb + data[at + 9 + length:], f"chunk at byte {at} unreadable (decompresses to"),
+    }
+    for name, (content, why) in cases.items():
+        p = _write(tmp_path / name, content)
+        tracemalloc.start()
+        try:
+            with McapRecording(p) as r:
+                assert r.damaged and not r.complete and len(r) == before, (name, r.damage)
+                assert r.damage[0].startswith(why), (name, r.damage)
+                r.frames()
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < 4 * len(data), (name, peak)  # the bomb alone would be 100 MiB
+        out = _twin("replay", str(p))
+        assert out.returncode == 2 and out.stderr.count("\n") == 1 and str(p) in out.stderr and why in out.stderr
+    # a record longer than the reader's bound: damage there, not an allocation of its size
+    with McapRecording(path, max_record=4096) as r:
+        assert r.damaged and len(r) == 0 and r.damage[0].startswith(f"record at byte {chunks[0][0]} holds")
+
+
+def _write(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
+
+
+def test_sensor_blocks_of_another_layout_are_counted_not_stored(run, tmp_path):
+    """A sensor keeps the layout of its first block (G gratings, N points, spacing), as in HDF5 recordings:
+    later blocks of another layout are counted in vendor_dropped, and the file reads back undamaged."""
+    from dataclasses import replace
+
+    from twin.frames import VendorSensor
+    from twin.io.illumisense.vendor import vendor_sensors
+
+    with open_recording(run / "x.mcap") as r:
+        frames, fiber = r.frames(0, 40), r.fiber
+        shapes = Reconstructor(fiber, r.calibration)(frames.wavelengths)
+    blocks = vendor_sensors(shapes)
+    short = [VendorSensor(b.curvature, b.angle, b.positions[:-5], b.spacing) for b in blocks]
+    first = [replace(f, vendor=(blocks[i],)) for i, f in enumerate(frames[:20])]
+    later = [replace(f, vendor=(short[i],)) for i, f in enumerate(frames[20:], 20)]
+    with McapRecorder(tmp_path / "v.mcap", fiber=fiber) as m:
+        m.append(first)
+        m.append(later)  # one batch of the other layout
+    assert m.vendor_written == 20 and m.vendor_dropped == 20
+    with open_recording(tmp_path / "v.mcap") as r:
+        assert not r.damaged and len(r) == 40
+        (a,) = r.vendor()
+        assert a.present.tolist() == [True] * 20 + [False] * 20
+        assert np.array_equal(a.positions[:20], np.stack([b.positions for b in blocks[:20]]))

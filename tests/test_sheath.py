@@ -266,7 +266,9 @@ def test_repeatability_full():
 @pytest.mark.slow
 def test_sheath_motion_full():
     """In and out of the 510 mm sheath: peaks are lost at the sharp bends; the default pipeline's mean max error
-    at 2 Hz is within the paper's ≈ 2.5 mm; the paper's pipeline loses the bend where peaks are lost."""
+    at 2 Hz is within the paper's ≈ 2.5 mm; the paper's pipeline loses the bend where peaks are lost; the 95 %
+    tube holds 92–98 % of the catheter's points, and at least 90 % of each quarter of its length (94 % and 92.0 %
+    measured)."""
     r = sheath_motion.run_experiment(sheath_motion.Params())
     s = r.summary()
     assert s["lost_peaks"] > 0
@@ -275,3 +277,7 @@ def test_sheath_motion_full():
     assert s["mean_max_error_mm"] <= sheath_motion.PAPER_MEAN_MAX_MM
     assert s["paper_pipeline_lost_mean_max_error_mm"] > 2 * s["paper_pipeline_intact_mean_max_error_mm"]
     assert FiberModel.paper().n_gratings == r.lost_gratings.shape[1]
+    # the 95 % tube with the lab calibration (issue 21: 92–98 % of the truth points), the distal half included:
+    # the twist term carries the catheter's twist the fibre cannot see (docs/math.md §8.1)
+    assert 0.92 <= s["coverage_95"] <= 0.98
+    assert min(r.uncertainty["coverage_95_by_quarter"]) >= 0.90

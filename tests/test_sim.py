@@ -4,8 +4,10 @@ import mujoco
 import numpy as np
 import pytest
 
+from models.rod_state import RodTruth
 from scenarios import static_shapes
-from sim_interrogator.optics import Optics, OpticsConfig
+from sim_interrogator.frame_path import FramePath
+from sim_interrogator.optics import NormalStream, Optics, OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
 from twin import FiberModel, PeakStatus, Reconstructor, strain
@@ -189,6 +191,100 @@ def test_calibration_pose_wakes_the_sleeping_rod():
     np.testing.assert_allclose(k, 16.0, rtol=2e-3)
     sim.read(), sim.read()
     assert (sim.data.tree_asleep >= 0).all()
+
+
+def _twin_pair(cfg: OpticsConfig) -> tuple[SimInterrogator, SimInterrogator]:
+    """Two identical twins, the second on the numpy path (same physics, same seed)."""
+    fast = SimInterrogator(StaticShape("mixed", "connect", segments=30), optics=cfg, rate=500.0)
+    slow = SimInterrogator(StaticShape("mixed", "connect", segments=30), optics=cfg, rate=500.0)
+    slow._path = None
+    return fast, slow
+
+
+@pytest.mark.parametrize("changes, loses", [
+    ({}, False),  # noise, drift, jitter and quantisation to 0.1 pm
+    ({"noise": 0.0, "drift": 0.0, "jitter": 0.0}, False),  # no draws at all
+    ({"quantisation": 0.0, "min_peak_separation": 5.0}, True),  # neighbours (5 nm apart) merge: both lost
+    ({"quantisation": 0.0, "band": (1530.0, 1560.0)}, True),  # out of the interrogator's band
+    ({"quantisation": 0.0, "slot_half_width": 0.02}, True),  # a window interrogator's slots
+])
+def test_compiled_frame_path_equals_the_numpy_path_with_every_effect(changes, loses):
+    """The compiled path with each effect, per-grating or uniform temperature and axial strain (Python floats are
+    spread over the gratings inside the compiled call), against the numpy path: the same status, wavelengths
+    within 1e-12 nm, the same noise, drift and jitter from the same seed."""
+    fast, slow = _twin_pair(OpticsConfig(**changes))
+    for _ in range(2):
+        fast.read(), slow.read()
+    ramp = np.linspace(-1.0, 2.0, 18)
+    cases = [(0.0, 0.0), (1e-4 * ramp, 5.0), (2e-4, 10.0 * ramp), (1e-4 * ramp, 10.0 * ramp), (np.float64(1e-4), 3),
+             (0.0, 20.0)]
+    lost = 0
+    for i, (axial, delta_t) in enumerate(cases):
+        t = 0.1 + 0.01 * i
+        w, st = fast._path(fast.data, axial, delta_t, t, 0.0)
+        w0, st0 = slow._general_optics(t, delta_t, axial, 0.0)
+        np.testing.assert_array_equal(st, st0)
+        np.testing.assert_allclose(w, w0, rtol=0, atol=1e-12)  # NaN where lost, in both
+        np.testing.assert_array_equal(fast._path.temperature, np.broadcast_to(delta_t, (18,)))
+        assert fast.optics.timestamp(t) == slow.optics.timestamp(t)  # the jitter: the stream stays in step
+        lost += int(np.count_nonzero(st))
+    assert (lost > 0) == loses
+    if not changes:  # the drift walked and the noise is there: a test of draws, not of zeros
+        assert np.abs(fast.optics._drift).max() > 0 and np.abs(w - fast._path(fast.data, 1e-4, 0.0, 1.0)[0]).max() > 0
+
+
+def test_normal_stream_serves_the_generators_own_sequence():
+    """NormalStream (sim_interrogator/optics.py) draws ahead in blocks; what it serves, across refills and requests
+    larger than a block, is what the generator gives drawn one call at a time (so a seed's noise is unchanged)."""
+    sizes = [144, 1, 144, 1, 7, 300, 1, 1000, 144, 1, 60]
+    ref = np.random.default_rng(3)
+    expected = [ref.standard_normal() if n == 1 else ref.standard_normal((2, n // 2)) if n % 2 == 0
+                else ref.standard_normal(n) for n in sizes]
+    stream = NormalStream(np.random.default_rng(3), block=256)
+    for n, want in zip(sizes, expected, strict=True):
+        got = stream.next() if n == 1 else stream.array(np.shape(want))
+        np.testing.assert_array_equal(got, want)
+    held = stream.array((5,))
+    stream.take(4000)  # a refill moves the buffer's numbers: array() hands out copies
+    np.testing.assert_array_equal(held, np.random.default_rng(3).standard_normal(sum(sizes) + 5)[-5:])
+
+
+def test_rod_truth_is_the_rod_states_truth():
+    """RodTruth (models/rod_state.py): the truth of one compiled call at samples placed once is RodState.to_truth's
+    (positions exactly: the same arithmetic; frames, curvature, twist within 1e-12), fresh arrays every call."""
+    sim = SimInterrogator(StaticShape("helix", "connect", segments=40), rate=500.0, truth=False)
+    sim.read()
+    view = sim.reader.bind(sim.data)
+    fixture = np.zeros((3, 3))
+    temp = np.linspace(0.0, 5.0, 18)
+    for grating_s in (FIBER.grating_s, np.array([-0.5, 0.0, 0.05, 10.0])):  # outside the rod: held at its ends
+        truth = RodTruth(view, grating_s)
+        view.compute()
+        got = truth(temp[: grating_s.size], fixture)
+        want = sim.reader.read(sim.data).to_truth(grating_s, temperature=temp[: grating_s.size], fixture=fixture)
+        np.testing.assert_array_equal(got.s, want.s)
+        np.testing.assert_array_equal(got.positions, want.positions)
+        for name in ("frames", "curvature", "twist", "temperature"):
+            np.testing.assert_allclose(getattr(got, name), getattr(want, name), rtol=0, atol=1e-12)
+        assert got.fixture is fixture and got.temperature is not temp and got.batch_shape == ()
+    before = got.positions.copy()
+    sim.read()
+    view.compute()
+    after = truth(temp[:4])
+    assert not np.shares_memory(after.positions, got.positions) and np.array_equal(got.positions, before)
+    # before the first step (mjData.plastic still zero) the view and the frame path rebuild the frames as MuJoCo
+    # restarts them, as the reader does
+    data = mujoco.MjData(sim.model)
+    mujoco.mj_forward(sim.model, data)
+    fresh = sim.reader.bind(data)
+    path = FramePath(fresh, Optics(FIBER, OpticsConfig.ideal()))
+    w, _ = path(data, 0.0, 0.0, None)
+    want = sim.reader.read(data)
+    np.testing.assert_allclose(fresh.frames, want.edge_frames, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fresh.darboux, want.darboux, rtol=0, atol=1e-12)
+    fresh.compute()
+    np.testing.assert_allclose(fresh.darboux, want.darboux, rtol=0, atol=1e-12)
+    assert np.isfinite(w).all()
 
 
 def test_sim_url():

@@ -290,3 +290,53 @@ def test_interpolation_term_widens_the_tube_over_a_lost_grating():
     i = np.searchsorted(rec.s, FIBER.grating_s[9])
     # 1.42 times here: the gap's two neighbours carry 3.8 times their σ, the gratings before the gap as before
     assert gap.sigma[i] > 1.2 * whole.sigma[i] > 0
+
+
+def test_twist_term_equals_monte_carlo_of_an_unseen_twist():
+    """The twist term (ModelError.twist, docs/math.md §8.1): the fibre does not see the catheter's twist, and a
+    constant twist rate τ turns the true curvature by ψ(s) = τ s about the tangent, so the reconstruction of
+    the unturned curvature errs by δk = (Rψ − I) k. 2000 draws of τ ~ N(0, (0.05 rad/m)²) — the gratings'
+    curvature turned by τ s_n, reconstructed — against the linearised covariance (only this term), within the
+    Monte-Carlo sampling error; ψ ≤ 0.04 rad at the tip keeps the second order below 2 % of the first. At the
+    gratings and the tip, where the propagation forms C exactly: between them it interpolates C (cubic Hermite),
+    which for an error of rank one — its covariance a single direction turning along s — puts ~5 % of the trace
+    into a component of 1 % of it at 15 mm, more than the other tests' floor (the lateral radius moves by less
+    than that)."""
+    rec = Reconstructor(FIBER)
+    sd = 0.05
+    unc = Uncertainty(rec, wavelength_noise=0.0, model_error=ModelError(twist=sd), parameters=False)
+    k = shapes.get("helix").curvature(FIBER.grating_s)
+    tau = sd * np.random.default_rng(11).standard_normal(N_MC)
+    psi = tau[:, None] * FIBER.grating_s  # (draws, gratings)
+    c, s = np.cos(psi), np.sin(psi)
+    turned = np.stack([c * k[:, 0] - s * k[:, 1], s * k[:, 0] + c * k[:, 1]], axis=-1)
+    at = [10, 20, 50, 100, 130, 170]  # mm: gratings and the tip
+    mc = sample_covariance(rec(strain.forward(FIBER, turned)).positions)[at]
+    lin = unc(wavelengths("helix")).covariance[at]
+    assert_covariance_matches(mc, lin, N_MC)
+    # it moves the positions, not the measured curvature (the cores turn with the catheter)
+    assert np.allclose(unc(wavelengths("helix")).curvature_covariance, 0.0)
+
+
+@pytest.mark.parametrize("lost", [None, 9])
+def test_fourth_difference_of_the_spline_term_is_exact_on_a_quartic(lost):
+    """The spline's interpolation term (order 4) on a quartic curvature profile k(s) = a (s − s0)⁴ + …: 4! times
+    the fourth divided difference over five valid gratings is k⁽⁴⁾ = 24 a exactly on any spacing (a lost
+    grating included), so σ_n = c |24 a| √(½ Σ H¹⁰) / (w_n √2) with H the valid pieces, 1e-9 relative."""
+    s_n = FIBER.grating_s
+    valid = np.ones(s_n.size, bool)
+    if lost is not None:
+        valid[lost] = False
+    a = np.array([3.0e4, -1.0e4])
+    k = a * (s_n[:, None] - 0.07) ** 4 + 5.0 * s_n[:, None] ** 3 - 2.0 * s_n[:, None] + 1.0
+    k[~valid] = np.nan
+    sigma = ModelError(interpolation=0.05).interpolation_sigma(k, s_n, valid, order=4)
+    nodes = np.flatnonzero(valid)
+    h10, w = np.zeros(s_n.size), np.zeros(s_n.size)
+    for p, q in itertools.pairwise(nodes):
+        h10[[p, q]] += 0.5 * (s_n[q] - s_n[p]) ** 10
+        w[[p, q]] += 0.5 * (s_n[q] - s_n[p])
+    expected = np.where(valid, 0.05 * 24 * np.hypot(*a) * np.sqrt(h10) / np.where(valid, w, 1.0) / np.sqrt(2), 0)
+    np.testing.assert_allclose(sigma, expected, rtol=1e-9, atol=0.0)
+    with pytest.raises(ValueError, match="order must be 2 or 4"):
+        ModelError(interpolation=0.05).interpolation_sigma(k, s_n, valid, order=3)

@@ -19,29 +19,35 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from twin._kernels import exp_curve, rk4_curve
+from twin._kernels import LANES, exp_curve, exp_lanes, exp_material, rk4_curve
 
 __all__ = ["integrate", "pack", "reconstruct"]
 
-_HEADER = 8  # window, h, rcond, m, rk4, paper, n_q, (spare)
+_HEADER = 8  # window, h, rcond, m, rk4, paper, n_q, n_seg
 #: frames interpolated by one matrix product in :func:`reconstruct`
 BLOCK = 32
 
 
-def pack(lam0, window, solver, basis, m, h, rk4) -> np.ndarray:
+def pack(lam0, window, solver, basis, m, h, rk4, pieces=None) -> np.ndarray:
     """The constants of :func:`reconstruct` as one float64 array: ``lam0`` (n_g, n_c) nm, ``window`` (|e| bound,
     0: none), ``solver`` = (p, ds, weights, scale, needed, rcond, paper) from ``fused_operator``, ``basis``
-    (n_g, n_steps · m), ``m`` samples per step, ``h`` step (m), ``rk4``."""
+    (n_g, n_steps · m), ``m`` samples per step, ``h`` step (m), ``rk4``, and ``pieces`` the same operator as
+    polynomials per grating interval (:func:`twin.curve.piecewise`: segment, t, coef) or None."""
     p, ds, weights, scale, needed, rcond, paper = solver
-    header = np.array([window, h, rcond, m, float(rk4), float(paper), basis.shape[1], 0.0])
-    return np.concatenate([header, *(np.asarray(a, dtype=np.float64).ravel()
-                                     for a in (lam0, p, ds, weights, scale, needed, basis))])
+    n_seg = 0 if pieces is None else pieces[2].shape[0]
+    header = np.array([window, h, rcond, m, float(rk4), float(paper), basis.shape[1], n_seg])
+    parts = [lam0, p, ds, weights, scale, needed, basis]
+    if pieces is not None:
+        segment, t, coef = pieces
+        parts += [segment, t, np.transpose(coef, (2, 0, 1))]  # (n_g, n_seg, 4): grating-major
+    return np.concatenate([header, *(np.asarray(a, dtype=np.float64).ravel() for a in parts)])
 
 
 @njit(cache=True, nogil=True)
 def _unpack(const, n_g, n_c):
-    """The views of :func:`pack`'s array."""
+    """The views of :func:`pack`'s array (the pieces empty when there are none)."""
     n_q = int(const[6])
+    n_seg = int(const[7])
     o = _HEADER
     lam0 = const[o:o + n_g * n_c].reshape((n_g, n_c))
     o += n_g * n_c
@@ -56,7 +62,13 @@ def _unpack(const, n_g, n_c):
     needed = const[o:o + n_c]
     o += n_c
     basis = const[o:o + n_g * n_q].reshape((n_g, n_q))
-    return lam0, p, ds, weights, scale, needed, basis
+    o += n_g * n_q
+    segment = const[o:o + n_q * (n_seg > 0)]
+    o += segment.size
+    t = const[o:o + n_q * (n_seg > 0)]
+    o += t.size
+    coef = const[o:o + n_seg * 4 * n_g].reshape((n_g, n_seg * 4))
+    return lam0, p, ds, weights, scale, needed, basis, segment, t, coef
 
 
 @njit(cache=True, nogil=True)
@@ -143,7 +155,7 @@ def _chain(k, valid, basis, rates, r0, h, rk4, pos, frames, store_frames):
     if rk4:
         rk4_curve(rates, False, h, r0, pos, frames, store_frames)
     else:
-        exp_curve(rates, False, h, r0, pos, frames, store_frames)
+        exp_material(rates, h, pos, frames, store_frames)
 
 
 @njit(cache=True, nogil=True)
@@ -169,7 +181,7 @@ def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames):
     n_f, n_g, n_c = x.shape
     window, h, rcond = const[0], const[1], const[2]
     m, rk4, paper = int(const[3]), const[4] != 0.0, const[5] != 0.0
-    lam0, p, ds, weights, scale, needed, basis = _unpack(const, n_g, n_c)
+    lam0, p, ds, weights, scale, needed, basis, segment, tq, coef = _unpack(const, n_g, n_c)
     n_steps = pos.shape[1] - 1
     n_q = n_steps * m
     e = np.empty((n_g, n_c))
@@ -204,19 +216,27 @@ def reconstruct(x, const, is_wavelength, k, valid, pos, frames, store_frames):
         kt[2 * filled + 1] = k[f, :, 1]
         filled += 1
         if filled == block:
-            _chain_block(kt, basis, rates, which, filled, r0, h, m, rk4, pos, frames, store_frames)
+            _chain_block(kt, basis, segment, tq, coef, rates, which, filled, r0, h, m, rk4, pos, frames,
+                         store_frames)
             filled = 0
     if filled:
-        _chain_block(kt[:2 * filled], basis, rates[:2 * filled], which, filled, r0, h, m, rk4, pos, frames,
-                     store_frames)
+        _chain_block(kt[:2 * filled], basis, segment, tq, coef, rates[:2 * filled], which, filled, r0, h, m, rk4,
+                     pos, frames, store_frames)
     return n_pending
 
 
 @njit(cache=True, nogil=True)
-def _chain_block(kt, basis, rates, which, n, r0, h, m, rk4, pos, frames, store_frames):
-    """Rates of ``n`` frames at once, ``rates`` (2n, n_q) = ``kt`` (2n, n_g) @ ``basis`` (n_g, n_q), then the
-    chain of each from ``r0`` into ``pos[which[i]]`` and ``frames[which[i]]``."""
-    if n >= 4:
+def _chain_block(kt, basis, segment, tq, coef, rates, which, n, r0, h, m, rk4, pos, frames, store_frames):
+    """Rates of ``n`` frames at once, ``rates`` (2n, n_q) = ``kt`` (2n, n_g) @ ``basis`` (n_g, n_q) (a lone
+    frame's by the polynomial pieces where there are some), then the chain of each from ``r0`` into
+    ``pos[which[i]]`` and ``frames[which[i]]``: :data:`LANES` frames at a time on SIMD lanes
+    (:func:`_lanes_block`) for the exponential integrators, one by one for RK4 and a lone frame."""
+    if not rk4 and n >= 2:
+        _lanes_block(kt, basis, segment, tq, coef, which, n, r0, h, m, pos, frames, store_frames)
+        return
+    if coef.size and not rk4:  # a lone frame: its two rates by the polynomial pieces
+        _piecewise_pair(kt[0], kt[1], segment, tq, coef, rates[0], rates[1])
+    elif n >= 4:
         np.dot(kt, basis, rates)
     else:  # BLAS would copy the whole operator for a product this small: sum it here, grating by grating
         n_g, n_q = basis.shape
@@ -235,7 +255,91 @@ def _chain_block(kt, basis, rates, which, n, r0, h, m, rk4, pos, frames, store_f
         if rk4:
             rk4_curve(r, False, h, r0, pos[f], frames[f if store_frames else 0], store_frames)
         else:
-            exp_curve(r, False, h, r0, pos[f], frames[f if store_frames else 0], store_frames)
+            exp_material(r, h, pos[f], frames[f if store_frames else 0], store_frames)
+
+
+@njit(cache=True, nogil=True)
+def _lanes_block(kt, basis, segment, tq, coef, which, n, r0, h, m, pos, frames, store_frames):
+    """:func:`_chain_block` for the exponential integrators: the rates in lane order, ``rt`` (n_q, 2n) = the
+    interpolant (the polynomial pieces where there are some, else ``basis``ᵀ @) of the (k_x, k_y) of the frames
+    as columns, group by group of :data:`LANES` frames (k_x of the group, then k_y), chained by
+    :func:`twin._kernels.exp_lanes` (a frame with a step beyond the series' range again by :func:`exp_curve`),
+    a group of half the lanes or fewer by :func:`exp_material` frame by frame."""
+    n_g, n_q = basis.shape
+    n_steps = n_q // m
+    ktt = np.empty((n_g, 2 * n))
+    for g0 in range(0, n, LANES):
+        nl = min(LANES, n - g0)
+        for i in range(nl):
+            for g in range(n_g):
+                ktt[g, 2 * g0 + i] = kt[2 * (g0 + i), g]
+                ktt[g, 2 * g0 + nl + i] = kt[2 * (g0 + i) + 1, g]
+    if coef.size:
+        rt = np.empty((n_q, 2 * n))
+        _piecewise_rates(ktt, segment, tq, coef, rt)
+    else:
+        rt = np.dot(basis.T, ktt)
+    ok = np.zeros(LANES, np.bool_)
+    r = np.empty((2, n_steps, m))
+    for g0 in range(0, n, LANES):
+        nl = min(LANES, n - g0)
+        # a group costs the same however few of its lanes are used: up to half of them, one frame at a time
+        lanes = nl > LANES // 2
+        if lanes:
+            exp_lanes(rt[:, 2 * g0:2 * (g0 + nl)], h, m, which[g0:g0 + nl], pos, frames, store_frames, ok)
+        for i in range(nl):
+            if lanes and ok[i]:
+                continue
+            f = which[g0 + i]
+            for j in range(n_steps):
+                for k in range(m):
+                    r[0, j, k] = rt[j * m + k, 2 * g0 + i]
+                    r[1, j, k] = rt[j * m + k, 2 * g0 + nl + i]
+            fr = frames[f if store_frames else 0]
+            if lanes:  # a step beyond the series' range: the exact coefficients
+                exp_curve(r, False, h, r0, pos[f], fr, store_frames)
+            else:
+                exp_material(r, h, pos[f], fr, store_frames)
+
+
+@njit(cache=True, nogil=True)
+def _piecewise_rates(kcols, segment, tq, coef, out):
+    """``out`` (n_q, C) = the interpolant of the node values ``kcols`` (n_g, C) at the samples, by its
+    polynomial pieces (``coef`` (n_g, n_seg · 4): t⁰ … t³ of each interval; ``segment``, ``tq`` per sample):
+    4 · n_seg · n_g + 3 · n_q multiply-adds per column instead of n_q · n_g."""
+    n_c = kcols.shape[1]
+    ck = np.dot(coef.T, kcols)  # (n_seg · 4, C)
+    for q in range(tq.size):
+        o = 4 * int(segment[q])
+        t = tq[q]
+        c0 = ck[o]
+        c1 = ck[o + 1]
+        c2 = ck[o + 2]
+        c3 = ck[o + 3]
+        row = out[q]
+        for i in range(n_c):
+            row[i] = ((c3[i] * t + c2[i]) * t + c1[i]) * t + c0[i]
+
+
+@njit(cache=True, nogil=True)
+def _piecewise_pair(kx, ky, segment, tq, coef, rx, ry):
+    """:func:`_piecewise_rates` for one frame's (k_x, k_y) (n_g,) each, into ``rx``, ``ry`` (n_q,), without BLAS
+    (its call and copies cost more than this product)."""
+    n_g, n_r = coef.shape
+    cx = np.zeros(n_r)
+    cy = np.zeros(n_r)
+    for g in range(n_g):  # grating by grating, so that the inner loop runs along the coefficients (SIMD)
+        a = kx[g]
+        b = ky[g]
+        row = coef[g]
+        for r in range(n_r):
+            cx[r] += row[r] * a
+            cy[r] += row[r] * b
+    for q in range(tq.size):
+        o = 4 * int(segment[q])
+        t = tq[q]
+        rx[q] = ((cx[o + 3] * t + cx[o + 2]) * t + cx[o + 1]) * t + cx[o]
+        ry[q] = ((cy[o + 3] * t + cy[o + 2]) * t + cy[o + 1]) * t + cy[o]
 
 
 @njit(cache=True, nogil=True)

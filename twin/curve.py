@@ -116,6 +116,35 @@ def basis(s_nodes, s_eval, kind: str, derivative: bool = False) -> np.ndarray:
     return np.ascontiguousarray(b)
 
 
+def piecewise(s_nodes, s_eval, kind: str):
+    """:func:`basis` as polynomials per node interval, for an evaluation in O(degree) instead of O(n_nodes).
+
+    Returns ``(segment, t, coef)`` with values(s_eval[q]) = Σ_d t[q]^d · (coef[segment[q], d] @ values(s_nodes)):
+    ``segment`` (n_eval,) int, the node interval of each (clamped) point, ``t`` (n_eval,) its distance from the
+    interval's left node (m), ``coef`` (n_intervals, 4, n_nodes) the coefficients of t⁰ … t³. None for the
+    kinds that are not polynomial between nodes (knn) and for fewer than two nodes. The caller may check it
+    against :func:`basis`; it matches to rounding.
+    """
+    s_nodes = np.asarray(s_nodes, dtype=np.float64)
+    n = s_nodes.size
+    if kind not in ("spline", "linear") or n < 2:
+        return None
+    x = np.clip(np.asarray(s_eval, dtype=np.float64), s_nodes[0], s_nodes[-1])
+    segment = np.clip(np.searchsorted(s_nodes, x, side="right") - 1, 0, n - 2)
+    t = x - s_nodes[segment]
+    coef = np.zeros((n - 1, 4, n))
+    if kind == "spline":
+        c = CubicSpline(s_nodes, np.eye(n), axis=0, bc_type="not-a-knot").c  # (4, n - 1, n), t³ first
+        coef[:] = np.transpose(c[::-1], (1, 0, 2))
+    else:
+        i = np.arange(n - 1)
+        slope = 1.0 / np.diff(s_nodes)
+        coef[i, 0, i] = 1.0
+        coef[i, 1, i] = -slope
+        coef[i, 1, i + 1] = slope
+    return segment, t, coef
+
+
 def apply_basis(b: np.ndarray, values: np.ndarray) -> np.ndarray:
     """``b @ values`` along the node axis (-2) of a batch (..., n_nodes, c), as a single matrix product."""
     n, c = values.shape[-2:]

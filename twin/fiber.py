@@ -239,18 +239,11 @@ class FiberModel:
         (0 … 170 mm). The paper does not list grating wavelengths; here grating n sits at 1510 + 5 n nm in every
         core, spanning the 1510–1595 nm range of a WDM interrogator.
         """
-        n_g = 18
-        lam = np.repeat((1510.0 + 5.0 * np.arange(n_g))[:, None], 4, axis=1)
         return cls(
             core_angles=[0.0, 0.0, np.pi / 3, 2 * np.pi / 3],
             core_radii=[0.0, 37.5e-6, 37.5e-6, 37.5e-6],
-            grating_s=0.01 * np.arange(n_g),
-            lambda0=lam,
-            central_core=0,
-            strain_sensitivity=0.777,
-            temperature_sensitivity=6.6e-6,
-            handedness=1,
             name="Al-Ahmad et al. 7-core MCF (centre + 3 adjacent outer cores)",
+            **_paper_gratings(),
         ).with_origin("the reference fibre FiberModel.paper()")
 
     @classmethod
@@ -258,17 +251,10 @@ class FiberModel:
         """A spun 4-core fibre: a central core and 3 outer cores 120° apart at ``radius`` (m), wound at
         ``spin_rate`` turns/m (Khan et al., Sens. Actuators A 317:112442 (2021): 50 turns/m, r ≈ 35 µm), with
         the paper fibre's 18 gratings every 10 mm at 1510 + 5 n nm."""
-        n_g = 18
-        lam = np.repeat((1510.0 + 5.0 * np.arange(n_g))[:, None], 4, axis=1)
         return cls(
             core_angles=[0.0, 0.0, 2 * np.pi / 3, 4 * np.pi / 3],
             core_radii=[0.0, radius, radius, radius],
-            grating_s=0.01 * np.arange(n_g),
-            lambda0=lam,
-            central_core=0,
-            strain_sensitivity=0.777,
-            temperature_sensitivity=6.6e-6,
-            handedness=1,
+            **_paper_gratings(),
             name=f"spun 4-core MCF (centre + 3 outer cores at 120°, {spin_rate:g} turns/m)",
             spin_rate=spin_rate,
         )
@@ -336,6 +322,15 @@ def _core_count_mismatch(n_angles: int, n_radii: int, lambda0) -> str:
     if n_lam == n_angles:
         return f"{_OWNER}.core_radii: {both} (lambda0 has {n_lam} cores per grating)"
     return f"{_OWNER}.core_angles, core_radii: {both}"
+
+
+def _paper_gratings() -> dict:
+    """What the reference fibre and the spun one share: 18 gratings every 10 mm on 4 cores (core 0 central) at
+    1510 + 5 n nm, and the sensitivities."""
+    n_g = 18
+    return {"grating_s": 0.01 * np.arange(n_g),
+            "lambda0": np.repeat((1510.0 + 5.0 * np.arange(n_g))[:, None], 4, axis=1),
+            "central_core": 0, "strain_sensitivity": 0.777, "temperature_sensitivity": 6.6e-6, "handedness": 1}
 
 
 def origin(obj, default: str = "") -> str:

@@ -94,6 +94,19 @@ class Truth:
                 raise ValueError(f"Truth.present: expected shape {batch}, got {p.shape}")
             object.__setattr__(self, "present", None if not batch else p)
 
+    @classmethod
+    def _trusted(cls, s: np.ndarray, positions: np.ndarray, frames: np.ndarray, curvature: np.ndarray,
+                 twist: np.ndarray, temperature: np.ndarray, fixture: np.ndarray | None) -> Truth:
+        """A single Truth built WITHOUT the checks of ``__post_init__`` (private, for the simulator's hot path,
+        :class:`models.rod_state.RodTruth`, where they cost as much as the arithmetic). The caller guarantees
+        one sample: ``positions`` (m, 3), ``frames`` (m, 3, 3), ``curvature`` (n_g, 2), ``twist`` and
+        ``temperature`` (n_g,), float64; no ``present``. Nothing is checked."""
+        obj = object.__new__(cls)
+        # a frozen dataclass refuses setattr; its fields live in the instance dict all the same
+        obj.__dict__.update(s=s, positions=positions, frames=frames, curvature=curvature, twist=twist,
+                            temperature=temperature, fixture=fixture, present=None)
+        return obj
+
     @property
     def batch_shape(self) -> tuple[int, ...]:
         return tuple(np.shape(self.positions)[:-2])
@@ -388,19 +401,21 @@ class Frame:
 
     @classmethod
     def _trusted(cls, wavelengths: np.ndarray, timestamp, sequence, powers: np.ndarray | None = None,
-                 status: np.ndarray | None = None, vendor: tuple | None = None) -> Frame:
-        """A Frame built WITHOUT the checks and conversions of ``__post_init__`` (private, for decoders).
+                 status: np.ndarray | None = None, vendor: tuple | None = None, truth: Truth | None = None) -> Frame:
+        """A Frame built WITHOUT the checks and conversions of ``__post_init__`` (private, for decoders and the
+        simulator).
 
         The caller guarantees what ``__post_init__`` would establish: ``wavelengths`` float64 of shape
         (..., n_gratings, n_cores); ``powers`` float64 and ``status`` uint8 of the same shape, or None; for a
         single frame ``timestamp`` a Python float and ``sequence`` a Python int, for a batch float64 and int64
-        arrays of the batch shape; no truth. The ILLumiSense decoder uses it on its hot path (the checks cost
+        arrays of the batch shape; a ``truth`` of the same batch shape, or None. The ILLumiSense decoder and the
+        simulator (:class:`sim_interrogator.sim.SimInterrogator`) use it on their hot paths (the checks cost
         1.5–4 µs a frame, more than decoding the record); nothing here catches a wrong argument.
         """
         f = object.__new__(cls)
         # a frozen dataclass refuses setattr; its fields live in the instance dict all the same
         f.__dict__.update(wavelengths=wavelengths, timestamp=timestamp, sequence=sequence, powers=powers,
-                          status=status, truth=None, vendor=vendor)
+                          status=status, truth=truth, vendor=vendor)
         return f
 
     @property

@@ -42,9 +42,10 @@ batch :class:`~twin.frames.Frame` (``len``, indexing, arrays ``frames.sequence``
 could not be reconstructed), ``status`` a :class:`LiveStatus`. Between batches sinks get heartbeats with an empty
 batch (``len(frames) == 0``) and ``shapes`` None, at least every ``heartbeat`` s and on every state change.
 
-The counts live in one small object, :class:`Counters`; ``twin live``, ``twin replay`` (the loop over a file
-source at full speed), the demo and the viewer and OpenIGTLink sinks all read the same books
-(docs/figures.md defines every figure).
+The counts are defined once, in :class:`Counts`, and kept in one small object, :class:`Counters`, which makes the
+``Counts`` every :class:`LiveStatus` is; ``twin live``, ``twin replay`` (the loop over a file source at full
+speed), the demo and the viewer and OpenIGTLink sinks all read the same books (docs/figures.md defines every
+figure).
 
 Why one module of this size: the loop, its status and counters and its summary are one state machine; split,
 the counters' one meaning would be spread over files.
@@ -52,6 +53,7 @@ the counters' one meaning would be spread over files.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import enum
 import math
@@ -75,6 +77,7 @@ from twin.reconstruct import Reconstructor
 
 __all__ = [
     "Counters",
+    "Counts",
     "FrameFlag",
     "LatestUsable",
     "LiveLoop",
@@ -107,13 +110,31 @@ class Sink(Protocol):
     def __call__(self, frames: Frame, shapes: Shape | None, status: LiveStatus) -> None: ...
 
 
-@dataclass
-class Counters:
-    """The loop's book of counts since it started (docs/figures.md): what :class:`LiveStatus` reports besides
-    the source's own counters and the rates. Meanings in :class:`LiveStatus`; ``reopens`` are the loop's own
-    reopenings of a source that raised (reported inside ``reconnects``); ``process_s`` is the wall time spent
-    in :meth:`LiveLoop.process` (window check, reconstruction, books), s; ``time_first`` / ``time_last`` the
-    first and last finite source timestamps, s (NaN before)."""
+@dataclass(frozen=True)
+class Counts:
+    """The loop's counts since it started, each defined once here (docs/figures.md gives the definitions the
+    reports print): :class:`Counters` keeps them, a :class:`LiveStatus` carries them (it is a ``Counts``).
+
+    Attributes
+    ----------
+    frames : int
+        Frames received and matching the fibre model.
+    frames_complete, frames_partial, frames_unusable, frames_missing_peaks : int
+        Every grating solved / some dropped / none solved / some peak missing (absent, or outside the
+        physical window).
+    peaks_outside_window : int
+        Peaks reported but outside the reconstructor's physical window (or infinite), treated as missing.
+    frames_rejected : int
+        Frames whose (n_gratings, n_cores) does not match the fibre model (not reconstructed, not recorded).
+    lost_samples, sequence_gaps, sequence_resets : int
+        From the frames' sequence numbers.
+    invalid_nodes : int
+        Gratings that could not be solved, summed over frames.
+    source_errors, reconstruct_errors : int
+        Exceptions out of ``source.read`` and out of the reconstructor (each batch counted once).
+    stale_events : int
+        Transitions into ``stale``.
+    """
 
     frames: int = 0
     frames_complete: int = 0
@@ -129,14 +150,30 @@ class Counters:
     source_errors: int = 0
     reconstruct_errors: int = 0
     stale_events: int = 0
-    reopens: int = 0
-    process_s: float = 0.0
-    time_first: float = float("nan")
-    time_last: float = float("nan")
 
-    def reported(self) -> dict:
-        """The counts a :class:`LiveStatus` carries as they are (:data:`REPORTED`)."""
-        return {k: getattr(self, k) for k in REPORTED}
+
+_COUNTS = tuple(f.name for f in dataclasses.fields(Counts))
+
+
+class Counters:
+    """The loop's book since it started, which the loop adds to: every count of :class:`Counts` (an attribute
+    of that name, from its default), and its own ``reopens`` (reopenings of a source that raised, reported
+    inside ``reconnects``), ``process_s`` (wall time spent in :meth:`LiveLoop.process`: window check,
+    reconstruction, books, s), ``time_first`` / ``time_last`` (first and last finite source timestamps, s;
+    NaN before)."""
+
+    def __init__(self) -> None:
+        self.__dict__.update({f.name: f.default for f in dataclasses.fields(Counts)})
+        self.reopens = 0
+        self.process_s = 0.0
+        self.time_first = self.time_last = float("nan")
+
+    def counts(self) -> Counts:
+        """The counts as they are now (what a :class:`LiveStatus` carries)."""
+        return Counts(**{k: self.__dict__[k] for k in _COUNTS})
+
+    def copy(self) -> Counters:
+        return copy.copy(self)
 
     @property
     def time_span(self) -> float | None:
@@ -146,7 +183,7 @@ class Counters:
 
 
 @dataclass(frozen=True, eq=False)
-class LiveStatus:
+class LiveStatus(Counts):
     """A snapshot of the loop's state and counters (all counts since the loop started).
 
     Attributes
@@ -158,25 +195,10 @@ class LiveStatus:
         The source's own state when it reports one (``connected`` / ``disconnected``).
     elapsed : float
         s since the loop started.
-    frames : int
-        Frames received and matching the fibre model.
-    frames_complete, frames_partial, frames_unusable, frames_missing_peaks : int
-        Every grating solved / some dropped / none solved / some peak missing (absent, or outside the
-        physical window).
-    peaks_outside_window : int
-        Peaks reported but outside the reconstructor's physical window (or infinite), treated as missing.
-    frames_rejected : int
-        Frames whose (n_gratings, n_cores) does not match the fibre model (not reconstructed, not recorded).
-    lost_samples, sequence_gaps, sequence_resets : int
-        From the frames' sequence numbers.
-    invalid_nodes : int
-        Gratings that could not be solved, summed over frames.
+    frames, frames_complete, …, stale_events : int
+        The loop's counts (:class:`Counts`, which a status is).
     framing_errors, reconnects, disconnects : int
         From the source's counters (plus the loop's own reopenings of a source that raised).
-    source_errors, reconstruct_errors : int
-        Exceptions out of ``source.read`` and out of the reconstructor (each batch counted once).
-    stale_events : int
-        Transitions into ``stale``.
     last_valid_age : float
         s since the last usable frame (inf before the first).
     rate_hz : float
@@ -200,23 +222,9 @@ class LiveStatus:
     state: str = "starting"
     connection: str | None = None
     elapsed: float = 0.0
-    frames: int = 0
-    frames_complete: int = 0
-    frames_partial: int = 0
-    frames_unusable: int = 0
-    frames_missing_peaks: int = 0
-    peaks_outside_window: int = 0
-    frames_rejected: int = 0
-    lost_samples: int = 0
-    sequence_gaps: int = 0
-    sequence_resets: int = 0
-    invalid_nodes: int = 0
     framing_errors: int = 0
     reconnects: int = 0
     disconnects: int = 0
-    source_errors: int = 0
-    reconstruct_errors: int = 0
-    stale_events: int = 0
     last_valid_age: float = float("inf")
     rate_hz: float = 0.0
     arrival_hz: float = 0.0
@@ -235,11 +243,6 @@ class LiveStatus:
         out["arrival_hz"] = round(self.arrival_hz, 3)
         out["source"] = {k: v for k, v in self.source.items() if isinstance(v, int | float | str | bool | None)}
         return out
-
-
-#: the counts a :class:`LiveStatus` carries straight from :class:`Counters`: every field the two share, named
-#: once in each class (a count added to both is reported without a third list to keep in step)
-REPORTED = tuple(f.name for f in dataclasses.fields(Counters) if f.name in LiveStatus.__dataclass_fields__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -481,7 +484,7 @@ class LiveLoop:
             state=self._state,
             connection=s.get("state") if isinstance(s.get("state"), str) else None,
             elapsed=now - self._t0,
-            **self.c.reported(),
+            **vars(self.c.counts()),
             framing_errors=int(s.get("framing_errors", 0)),
             reconnects=int(s.get("reconnects", 0)) + self.c.reopens,
             disconnects=int(s.get("disconnects", 0)),
@@ -636,7 +639,7 @@ class LiveLoop:
                 _close(self.source)
             final = self.status()
         return LiveSummary(final, time.monotonic() - self._t0, reason, tuple(self.sink_errors),
-                           dataclasses.replace(self.c))
+                           self.c.copy())
 
     def _say_behind(self) -> None:
         m = self._meter

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from twin import _fused, curve
+from twin._recycle import Recycler
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.frames import Frame, Shape
@@ -86,7 +87,9 @@ class Reconstructor:
     The common case — the material method without twist, a linear interpolant (spline, linear, knn), any
     integrator, either inversion — runs as one compiled call per batch (:mod:`twin._fused`, docs/math.md §3.8);
     the attribute ``fused`` tells whether this reconstructor does. The paper's Frenet pipeline, PCHIP and the
-    twist of a spun fibre take the general path of numpy steps.
+    twist of a spun fibre take the general path of numpy steps. A large batch's positions and frames (≥ 4 MiB)
+    may reuse the memory of an earlier result that nothing refers to any more (:mod:`twin._recycle`); results
+    alive at the same time never share memory.
 
     Examples
     --------
@@ -166,6 +169,7 @@ class Reconstructor:
         #: whether calls run the fused compiled path (class docstring)
         self.fused = possible if fused is None else bool(fused)
         self._no_frames = np.empty((1, 1, 3, 3))  # the kernels' frames argument when frames are not wanted
+        self._outputs = Recycler()  # a large batch's positions and frames on the memory of results let go
         self._full = self._prepare(np.ones(fiber.n_gratings, bool))
         self.s.setflags(write=False)  # shared by every Shape
         self._dims = (fiber.n_gratings, fiber.n_cores, self.s.size)
@@ -223,6 +227,8 @@ class Reconstructor:
                 # the fused kernel's operator: (all gratings, samples), zero on the gratings left out
                 prep["b_fused"] = np.zeros((nodes.size, flat.size))
                 prep["b_fused"][nodes] = prep["b_k"]
+                if nodes.all():  # and as polynomial pieces, for the frames with every grating
+                    prep["pieces"] = curve.piecewise(s_nodes, flat, self.interpolation)
         else:
             if linear:
                 prep["b_kappa"] = curve.basis(s_nodes, flat, self.interpolation)
@@ -323,12 +329,13 @@ class Reconstructor:
         n_f = xf.shape[0]
         k = np.empty((n_f, n_g, 2))
         valid = np.empty((n_f, n_g), bool)
-        pos = np.empty((n_f, n_p, 3))
-        fr = np.empty((n_f, n_p, 3, 3)) if want_frames else self._no_frames
+        pos = self._outputs.empty((n_f, n_p, 3))
+        fr = self._outputs.empty((n_f, n_p, 3, 3)) if want_frames else self._no_frames
         const = self._const
         if const is None:
             const = self._const = _fused.pack(self._lam0, self.peak_window or 0.0, self._solver.fused_operator(),
-                                              self._full["b_fused"], self._m, self.h, self.integrator == "rk4")
+                                              self._full["b_fused"], self._m, self.h, self.integrator == "rk4",
+                                              self._full.get("pieces"))
         n_pending = _fused.reconstruct(xf, const, is_wavelength, k, valid, pos, fr, want_frames)
         if n_pending < 0:
             raise ValueError(_INF)

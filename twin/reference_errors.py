@@ -11,6 +11,11 @@ source), the demo and the tests count the same frames the same way; docs/figures
   :data:`twin.io.illumisense.vendor.VENDOR_FROM_BASE`'s, and the registration makes the figures independent
   of it.
 
+- :class:`TubeFigures`: the confidence tube (:mod:`twin.uncertainty`) on the same kind of sample of frames: its
+  mean 1σ radius and, where the frames carry a truth, the fraction of the true points inside the 95 % tube
+  (the truth placed by its own base pose, no registration). It costs one propagation per compared frame, and
+  runs only where a command asks for the figures (``--json``).
+
 Which frames: among the frames whose reconstruction is complete (all gratings solved) and which carry the
 reference (a truth present; sensor ``sensor``'s block present), the first of each 1/``per_second`` s slot of the
 source's timestamps (10 a second of source time by default: a comparison costs about as much as a
@@ -28,7 +33,8 @@ import numpy as np
 from twin.frames import Frame, Shape
 from twin.metrics import ErrorStats, kabsch, shape_error
 
-__all__ = ["TruthError", "TruthErrors", "VendorDistance", "vendor_distance", "vendor_in_base"]
+__all__ = ["TruthError", "TruthErrors", "TubeFigures", "VendorDistance", "tube_figures", "vendor_distance",
+           "vendor_in_base"]
 
 
 def vendor_distance(positions: np.ndarray, s: np.ndarray, vendor_positions: np.ndarray, vendor_s: np.ndarray):
@@ -191,7 +197,7 @@ class TruthError:
         """The figures over every compared frame, or None when none was compared."""
         if not self._parts["mean"]:
             return None
-        e = {k: np.concatenate(v) for k, v in self._parts.items()}
+        e = self.per_frame()
         return TruthErrors(
             frames_compared=int(e["mean"].size),
             register=self.register,
@@ -201,6 +207,10 @@ class TruthError:
             tip_error_mm_mean=_mm(e["tip"].mean()),
             tip_error_mm_max=_mm(e["tip"].max()),
         )
+
+    def per_frame(self) -> dict[str, np.ndarray]:
+        """Each compared frame's figures, m: ``max``, ``mean``, ``rms``, ``tip`` (k,) in the order compared."""
+        return {k: np.concatenate(v) if v else np.zeros(0) for k, v in self._parts.items()}
 
     def status_text(self) -> str | None:
         """The latest frame's error, for a status line (None before the first comparison)."""
@@ -274,3 +284,88 @@ class VendorDistance:
         """The latest compared frame's distance, for a status line (None before the first comparison)."""
         e = self.latest
         return None if e is None else f"vs interrogator max {e.max * 1e3:.2f} mm"
+
+
+class TubeFigures:
+    """Live-loop sink: the confidence tube's figures (docs/figures.md) on the first complete frame of each
+    1/``per_second`` s slot of the source's timestamps (the module docstring's rule; with or without a truth).
+
+    Parameters
+    ----------
+    uncertainty : twin.uncertainty.Uncertainty
+        For the loop's reconstructor (its model error: the twin's default unless given).
+    per_second : float or None
+        Frames per second of source time; None: every complete frame.
+    level : float
+        The tube whose coverage is counted.
+    """
+
+    def __init__(self, uncertainty, per_second: float | None = 10.0, level: float = 0.95):
+        self.uncertainty = uncertainty
+        self.level = level
+        self._slots = _Slots(per_second)
+        self._sigma: list[np.ndarray] = []  # per frame: the sum of σ over its points with s > 0
+        self._points = 0
+        self._inside: list[np.ndarray] = []  # per frame with a truth: true points inside the tube
+        self._truth_points = 0
+        self.note: str | None = None
+
+    def __call__(self, frames: Frame, shapes: Shape | None, status) -> None:
+        if not len(frames) or shapes is None:
+            return
+        sel = self._slots.take(shapes.all_valid, frames.timestamp)
+        if not sel.size:
+            return
+        from twin.uncertainty import inside, truth_in_base
+
+        out = self.uncertainty.propagate(shapes[sel], frames.wavelengths[sel])
+        distal = out.s > 0  # the base point is exact by construction
+        self._sigma.append(out.sigma[:, distal].sum(axis=-1))
+        self._points += int(distal.sum()) * sel.size
+        truth = frames.truth
+        if truth is None or self.note is not None:
+            return
+        if truth.frames is None:
+            self.note = "coverage skipped: the truth carries no material frames (its base pose)"
+            return
+        have = np.flatnonzero(np.broadcast_to(truth.all_present, (len(frames),))[sel])
+        if not have.size:
+            return
+        i0 = int(np.argmin(np.abs(truth.s)))
+        if abs(truth.s[i0]) > 1e-9 or truth.s[-1] < out.s[-1] - 1e-9:
+            self.note = "coverage skipped: the truth does not cover the reconstruction from its base"
+            return
+        rows = sel[have]
+        t = truth_in_base(truth.s, truth.positions[rows], truth.frames[rows, i0], truth.positions[rows, i0], out.s)
+        self._inside.append(inside(out[have], t, self.level)[:, distal].sum(axis=-1))
+        self._truth_points += int(distal.sum()) * have.size
+
+    @property
+    def frames(self) -> int:
+        return int(sum(a.size for a in self._sigma))
+
+    def as_dict(self) -> dict:
+        """``tube_frames``, ``mean_sigma_mm`` (mean 1σ lateral radius over their points with s > 0) and, over
+        those carrying a truth, ``tube_truth_frames`` and ``coverage_95`` (fraction of the true points inside
+        the 95 % tube); empty when no frame was taken."""
+        if not self._sigma:
+            return {}
+        out = {"tube_frames": self.frames, "mean_sigma_mm": _mm(np.concatenate(self._sigma).sum() / self._points)}
+        if self._inside:
+            n = np.concatenate(self._inside)
+            out.update({"tube_truth_frames": int(n.size),
+                        f"coverage_{round(self.level * 100)}": round(float(n.sum()) / self._truth_points, 4)})
+        if self.note is not None:
+            out["tube_note"] = self.note
+        return out
+
+
+def tube_figures(rec, per_second: float | None = 10.0) -> TubeFigures | None:
+    """:class:`TubeFigures` for the reconstructor ``rec`` with the twin's default model error, or None where the
+    linearised propagation does not apply (:class:`twin.uncertainty.Uncertainty` says which methods it covers)."""
+    from twin.uncertainty import Uncertainty
+
+    try:
+        return TubeFigures(Uncertainty(rec), per_second=per_second)
+    except ValueError:
+        return None

@@ -6,7 +6,8 @@ speed, and a summary.
 sinks of :mod:`twin.reference_errors`, so ``twin replay F`` and ``twin live replay://F`` count the same frames the
 same way and report the same figures (docs/figures.md): frames, time span, lost samples and resets, complete /
 partial / unusable frames, frames with missing peaks, peaks outside their window, invalid nodes, the damage of a
-damaged file, the shape error against the recorded truth and the distance to the interrogator's own shape.
+damaged file, the shape error against the recorded truth, the distance to the interrogator's own shape and, when
+asked (``tube``), the confidence tube's mean 1σ and its coverage of the truth.
 """
 
 from __future__ import annotations
@@ -18,20 +19,17 @@ from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.io.errors import RecordingDamaged
 from twin.io.replay import ReplaySource
-from twin.live import LiveLoop, LiveSummary
+from twin.live import Counts, LiveLoop, LiveSummary
 from twin.reconstruct import Reconstructor
-from twin.reference_errors import TruthError, TruthErrors, VendorDistance
+from twin.reference_errors import TruthError, TruthErrors, TubeFigures, VendorDistance, tube_figures
 
 __all__ = ["ReplaySummary", "TruthErrors", "summarize"]
 
-#: the live loop's counts a replay summary carries as they are (docs/figures.md)
-_COUNTED = ("lost_samples", "sequence_gaps", "sequence_resets", "frames_complete", "frames_partial",
-            "frames_unusable", "frames_missing_peaks", "invalid_nodes", "peaks_outside_window")
-
-
-@dataclass(frozen=True)
-class ReplaySummary:
-    """The summary of one recording (JSON-ready through :meth:`as_dict`; None where unknown, never NaN).
+@dataclass(frozen=True, kw_only=True)
+class ReplaySummary(Counts):
+    """The summary of one recording (JSON-ready through :meth:`as_dict`; None where unknown, never NaN): the
+    live loop's counts over the file (:class:`twin.live.Counts`, which a summary is: ``frames``,
+    ``lost_samples``, ``frames_complete``, … as ``twin live`` counts them, docs/figures.md) and what follows.
 
     Attributes
     ----------
@@ -42,19 +40,12 @@ class ReplaySummary:
     damaged : bool
     damage : tuple of str
         What is damaged, each naming the place.
-    frames : int
-        Frames read and reconstructed (those before the first damage).
     frames_recorded : int
         Frames the file says it holds.
     time_span : float or None
         Last minus first finite timestamp, s.
     rate_hz : float or None
         (frames − 1) / time_span: the recorded sampling rate, Hz.
-    lost_samples, sequence_gaps, sequence_resets : int
-    frames_complete, frames_partial, frames_unusable, frames_missing_peaks, invalid_nodes : int
-        As :class:`twin.live.LiveStatus` counts them.
-    peaks_outside_window : int
-        Peaks outside the reconstructor's physical window (or infinite), treated as missing.
     reconstruct_frames_per_s : float or None
         Reconstruction throughput of this run: frames / wall time spent in the loop's processing (docs/figures.md;
         not a benchmark: ``twin bench``).
@@ -65,6 +56,9 @@ class ReplaySummary:
         When the recording carries the interrogator's own shape (sensor 0): ``vendor_frames_compared``,
         ``vendor_distance_max_mm``, ``vendor_distance_mean_mm`` (:class:`twin.reference_errors.VendorDistance`);
         empty otherwise.
+    tube : dict
+        When asked: ``tube_frames``, ``mean_sigma_mm`` and, with a truth, ``tube_truth_frames``, ``coverage_95``
+        (:class:`twin.reference_errors.TubeFigures`); empty otherwise.
     notes : tuple of str
     """
 
@@ -74,30 +68,22 @@ class ReplaySummary:
     damaged: bool
     source_url: str
     fiber: str
-    frames: int
     frames_recorded: int
     time_span: float | None
     rate_hz: float | None
-    lost_samples: int
-    sequence_gaps: int
-    sequence_resets: int
-    frames_complete: int
-    frames_partial: int
-    frames_unusable: int
-    frames_missing_peaks: int
-    invalid_nodes: int
-    peaks_outside_window: int
     reconstruct_frames_per_s: float | None
     skipped_lines: int
     damage: tuple[str, ...] = ()
     truth: TruthErrors | None = None
     vendor: dict = field(default_factory=dict)
+    tube: dict = field(default_factory=dict)
     notes: tuple[str, ...] = field(default_factory=tuple)
 
     def as_dict(self) -> dict:
         out = asdict(self)
         out["damage"], out["notes"] = list(self.damage), list(self.notes)
         out.update(out.pop("vendor"))
+        out.update(out.pop("tube"))
         if self.truth is None:
             del out["truth"]
         return out
@@ -106,7 +92,7 @@ class ReplaySummary:
 def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration: Calibration | None = None,
               method: str = "material", register: str = "kabsch", compare_rate: float | None = 10.0,
               channels_as: str = "cores", n_cores: int | None = None, batch: int = 512,
-              salvage: bool = False, handle_signals: bool = False) -> ReplaySummary:
+              salvage: bool = False, handle_signals: bool = False, tube: bool = False) -> ReplaySummary:
     """Reconstruct a recording through the live loop and summarise it.
 
     Parameters
@@ -128,6 +114,9 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
         A damaged recording is summarised from its readable frames instead of raising.
     handle_signals : bool
         Ctrl-C ends the run with the summary of what was read (the command's choice).
+    tube : bool
+        Also the confidence tube's figures on the compared frames (:class:`twin.reference_errors.TubeFigures`,
+        the twin's default model error; a propagation per compared frame), for the methods it covers.
 
     Raises
     ------
@@ -157,7 +146,11 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
         raise
     rec = Reconstructor(fiber, calibration, method=method)
     truth, vendor = TruthError(register, per_second=compare_rate), VendorDistance(per_second=compare_rate)
-    loop = LiveLoop(source, rec, [truth, vendor], max_batch=batch, realtime=False, quiet=True)
+    sinks: list = [truth, vendor]
+    tubes = tube_figures(rec, per_second=compare_rate) if tube else None
+    if tubes is not None:
+        sinks.append(tubes)
+    loop = LiveLoop(source, rec, sinks, max_batch=batch, realtime=False, quiet=True)
     run = loop.run(handle_signals=handle_signals)
     info = source.info
     if not salvage:  # damage found while reading (a chunk failing its checksum, an unreadable chunk)
@@ -165,11 +158,13 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
             raise RecordingDamaged(info["damage_line"])
         if run.reason == "source failed":
             raise RecordingDamaged(str(run.status.source.get("last_error", "unreadable")))
-    return _summary(path, info, fiber, run, truth, vendor, notes)
+    if tube and tubes is None:
+        notes.append(f"no confidence tube for the {method} method (the material method's only)")
+    return _summary(path, info, fiber, run, truth, vendor, notes, tubes)
 
 
 def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth: TruthError,
-             vendor: VendorDistance, notes: list[str]) -> ReplaySummary:
+             vendor: VendorDistance, notes: list[str], tubes: TubeFigures | None) -> ReplaySummary:
     st, c = run.status, run.counters
     if truth.note is not None:
         notes.append(truth.note)
@@ -196,15 +191,15 @@ def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth:
         damaged=info["damaged"],
         source_url=info["source_url"],
         fiber=fiber.name,
-        frames=n,
         frames_recorded=max(n, info["frames_recorded"]),
         time_span=None if span is None else round(span, 6),
         rate_hz=round((n - 1) / span, 3) if span is not None and span > 0 and n >= 2 else None,
-        **{k: getattr(st, k) for k in _COUNTED},
+        **vars(c.counts()),
         reconstruct_frames_per_s=None if rfs is None else round(rfs, 1),
         skipped_lines=info["skipped_lines"],
         damage=tuple(info["damage"]),
         truth=result,
         vendor=vendor.as_dict(),
+        tube={} if tubes is None else tubes.as_dict(),
         notes=tuple(notes),
     )

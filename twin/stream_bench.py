@@ -15,7 +15,7 @@ CPU; docs/protocols-illumisense.md for the layout):
     slows the others down. Goal ≥ 40,000 frames/s (issue 13).
 ``decode_frames_per_s`` / ``reconstruct_frames_per_s``
     The two stages alone, same data (decode: ``feed_batch`` from bytes to batch Frames, the live path's
-    decode, through the compiled tokenizer and batch decode). Goal ≥ 60,000 (issue 13).
+    decode, through the compiled framing and the one-pass reader of the known layout). Goal ≥ 60,000 (issue 13).
 ``decode_list_frames_per_s``
     Decoding through :meth:`~twin.io.illumisense.StreamDecoder.feed`, which returns one single
     :class:`~twin.frames.Frame` per record (other callers than the live loop).

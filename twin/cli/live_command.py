@@ -7,7 +7,8 @@
 Prints a status line about once a second (state, frame rate, lost samples, framing errors, reconnects,
 partial/unusable frames, tip position in mm, and the latest error against the truth or the interrogator's own
 shape when the frames carry one; on stderr with ``--json``) and a summary at the end (with the errors over every
-complete frame: docs/figures.md); ``--json`` prints the summary as one JSON object on stdout. Ctrl-C ends the
+complete frame: docs/figures.md); ``--json`` prints the summary as one JSON object on stdout, with the confidence
+tube's figures (``mean_sigma_mm``; ``coverage_95`` with a truth) on the compared frames. Ctrl-C ends the
 run cleanly: the recording is flushed and marked complete, and the summary is printed. Exit status 0; 130 when
 Ctrl-C cut a run with ``--duration`` or ``--frames`` short (without a bound, Ctrl-C is how a run ends: 0); 1 when
 a sink failed (e.g. the recording could not be written) or the source failed for good (a damaged recording:
@@ -52,7 +53,7 @@ from twin.fiber import FiberModel
 from twin.io.source import open_source, parse_url
 from twin.live import LiveLoop, LiveSummary, PrinterSink
 from twin.reconstruct import Reconstructor
-from twin.reference_errors import TruthError, VendorDistance
+from twin.reference_errors import TruthError, VendorDistance, tube_figures
 
 #: one-line help (read by `twin --help` without importing this module)
 HELP = "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"
@@ -149,11 +150,9 @@ def run(args: argparse.Namespace) -> int:
         rec = Reconstructor(fiber, calibration, method=args.method)
         # the references the frames may carry: the simulator's truth, the interrogator's own shape
         truth, vendor = TruthError(), VendorDistance()
-        uncertainty = None  # the confidence tube for the viewer and OpenIGTLink (the default pipeline's)
-        if rec.method == "material" and not rec.twist:
-            from twin.uncertainty import Uncertainty
-
-            uncertainty = Uncertainty(rec)
+        # the confidence tube for the viewer, OpenIGTLink and --json's figures (the default pipeline's)
+        tubes = tube_figures(rec)
+        uncertainty = None if tubes is None else tubes.uncertainty
         if not args.quiet:
             sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate,
                                      extras=(truth.status_text, vendor.status_text)))
@@ -164,6 +163,8 @@ def run(args: argparse.Namespace) -> int:
                                            rate=first.rate))
         sinks.extend(recorders)
         sinks += [truth, vendor]
+        if args.json and tubes is not None:  # a propagation per compared frame: only when the figures are asked
+            sinks.append(tubes)
         if args.viewer:
             from twin.viewer import Viewer, ViewerConfig, ViewerSink
 
@@ -217,6 +218,8 @@ def run(args: argparse.Namespace) -> int:
     elif truth.note is not None:
         out["truth_note"] = truth.note
     out.update(vendor.as_dict())
+    if args.json and tubes is not None:
+        out.update(tubes.as_dict())
     if recorders:  # the first recording's figures under the old keys; every recording's in "recordings"
         out["recordings"] = [{"file": str(r.path), "frames": r.frames_written, "vendor_dropped": r.vendor_dropped}
                              for r in recorders]

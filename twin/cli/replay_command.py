@@ -13,7 +13,8 @@ the run. When the recording holds the simulator's truth, it also reports the sha
 or on ``--compare-rate`` frames a second, 0 for every complete frame; in mm). When the recording (a
 twin HDF5 recording or an ILLumiSense log) carries the interrogator's own shape (sensor blocks), it reports the
 distance between that shape and ours after a rigid registration (``vendor_distance_*_mm``,
-:mod:`twin.reference_errors`). docs/figures.md defines every figure.
+:mod:`twin.reference_errors`). With ``--json`` it also reports the confidence tube on the same frames
+(``mean_sigma_mm``; ``coverage_95`` with a truth). docs/figures.md defines every figure.
 
 A damaged recording (cut short, or with chunks that fail their checksum) is an error (one line: how many frames
 are readable, what is damaged; exit status 2) unless ``--salvage`` is given: then the frames before the damage
@@ -67,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     calibration = Calibration.load(args.calibration) if args.calibration else None
     summary = summarize(args.file, fiber=fiber, calibration=calibration, method=args.method, register=args.register,
                         compare_rate=args.compare_rate or None, channels_as=args.channels, n_cores=args.cores,
-                        salvage=args.salvage, handle_signals=True)
+                        salvage=args.salvage, handle_signals=True, tube=args.json)
     if args.json:
         print(jsonout.dumps(summary.as_dict()))
     else:

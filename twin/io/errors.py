@@ -11,7 +11,7 @@ cannot cure, so the live loop ends on it.
 
 from __future__ import annotations
 
-__all__ = ["FramingError", "OversizeFrameError", "RecordingDamaged", "SourceFailed", "TruncatedFrameError"]
+__all__ = ["FramingError", "OversizeFrameError", "RecordingDamaged", "SourceFailed", "TruncatedFrameError", "brief"]
 
 
 class FramingError(ValueError):
@@ -76,3 +76,9 @@ def _rebuild(
     cls: type[FramingError], what: str, offset: int | None, expected: str | None, protocol: str
 ) -> FramingError:
     return cls(what, offset=offset, expected=expected, protocol=protocol)
+
+
+def brief(exc: BaseException) -> str:
+    """An exception as one short line for an error message: its first line (its type's name when it says
+    nothing), at most 200 characters."""
+    return (str(exc).strip() or type(exc).__name__).splitlines()[0][:200]

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import os
 import stat
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,7 @@ import numpy as np
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.frames import Frame, Truth, VendorArrays
+from twin.io.errors import brief
 from twin.io.hdf5 import (
     FORMAT,
     FRAME_FIELDS,
@@ -42,6 +43,7 @@ from twin.io.hdf5 import (
     open_hdf5,
     readable_rows,
 )
+from twin.io.reading import ReaderBase
 
 __all__ = ["FORMAT", "Recorder", "RecordingReader", "chunk_rows", "open_recorder", "open_recording"]
 
@@ -52,7 +54,7 @@ _MCAP_SIGNATURE = b"\x89MCAP0\r\n"
 # ------------------------------------------------------------------------------------------------- reading
 
 
-class RecordingReader:
+class RecordingReader(ReaderBase):
     """Read access to a recording: a twin HDF5 file (also while it is being written, after its writer was
     killed, or damaged) or an ILLumiSense log file (module docstring). Use :func:`open_recording`.
 
@@ -130,14 +132,6 @@ class RecordingReader:
         self._vendor_mem = log.vendor
         return Frame(log.wavelengths, log.timestamps, log.sequences, powers=log.powers, status=log.status)
 
-    @property
-    def complete(self) -> bool:
-        return self._closed_cleanly and not self.damage
-
-    @property
-    def damaged(self) -> bool:
-        return bool(self.damage)
-
     def _open_hdf5(self) -> None:
         opened = open_hdf5(self.path)
         self._file, self._swmr = opened.file, opened.swmr
@@ -174,7 +168,7 @@ class RecordingReader:
             self._file.close()
             if isinstance(exc, ValueError | OSError) and str(exc).startswith(str(self.path)):
                 raise
-            raise ValueError(f"{self.path}: not a readable twin recording ({_brief(exc)})") from None
+            raise ValueError(f"{self.path}: not a readable twin recording ({brief(exc)})") from None
 
     def _check_layout(self) -> None:
         """Check every dataset's shape and type against the layout (:mod:`twin.io.hdf5`) before anything is read.
@@ -272,7 +266,7 @@ class RecordingReader:
         except Exception as exc:
             if self._n and not self._closed_cleanly:  # a writer caught mid-flush: try again later
                 return self._n
-            raise ValueError(f"{self.path}: not a readable twin recording ({_brief(exc)})") from None
+            raise ValueError(f"{self.path}: not a readable twin recording ({brief(exc)})") from None
         if count < 0:
             self._damaged(0, f"frames/count is {count}")
             count = 0
@@ -318,9 +312,6 @@ class RecordingReader:
         if why not in self.damage:
             self.damage.append(why)
 
-    def __len__(self) -> int:
-        return self._n
-
     def damage_line(self) -> str:
         """One line for a damaged file: the file, frames readable of how many, the first damage, what to do."""
         return (f"{self.path}: damaged recording: {self._n} of {self.frames_recorded} frames readable "
@@ -339,10 +330,6 @@ class RecordingReader:
     @property
     def has_truth(self) -> bool:
         return bool(self._truth_names)
-
-    def _span(self, start: int, stop: int | None) -> tuple[int, int]:
-        stop = self._n if stop is None else min(stop, self._n)
-        return max(0, min(start, stop)), stop
 
     def _read(self, names: Sequence[str], start: int, stop: int, part: str | None = None
               ) -> tuple[dict[str, np.ndarray], int]:
@@ -364,7 +351,7 @@ class RecordingReader:
                 try:
                     parts.append(ds[row:nxt])
                 except Exception as exc:
-                    self._damaged(row, f"{name} rows {row}–{nxt - 1} unreadable ({_brief(exc)})", part)
+                    self._damaged(row, f"{name} rows {row}–{nxt - 1} unreadable ({brief(exc)})", part)
                     break
                 row = nxt
             end = row
@@ -448,26 +435,10 @@ class RecordingReader:
             return np.full(stop - start, np.nan)
         return self._read(["frames/received"], start, stop)[0]["frames/received"]
 
-    def chunks(self, size: int = 1024, *, truth: bool = True) -> Iterator[tuple[int, Frame]]:
-        """(start, batch) for consecutive slices of ``size`` frames (ending early at damage)."""
-        start = 0
-        while start < self._n:
-            batch = self.frames(start, start + size, truth=truth)
-            if len(batch) == 0:
-                return
-            yield start, batch
-            start += len(batch)
-
     def close(self) -> None:
         if self._file is not None:
             self._file.close()
             self._file = None
-
-    def __enter__(self) -> RecordingReader:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def _size(path: Path) -> int:
@@ -475,10 +446,6 @@ def _size(path: Path) -> int:
         return path.stat().st_size
     except OSError:
         return 0
-
-
-def _brief(exc: BaseException) -> str:
-    return (str(exc).strip() or type(exc).__name__).splitlines()[0][:200]
 
 
 def _text(v) -> str:

@@ -42,7 +42,11 @@ Encoding (the simulator's choices): date ``YYYY/MM/DD``, time ``HH:MM:SS.ffffff`
 with a CHANNEL_ERROR peak, sensor blocks with curvature 6 decimals (1/cm), angle 5 decimals (rad), shape 5
 decimals (cm), line ending CR LF.
 
-Speed: payloads are tokenized in one compiled pass (:func:`twin.io.illumisense.scan.scan`); records whose
+Speed: once a layout is known (the stream's steady state), its records are read in one compiled pass that
+knows what each field must be and writes the Frame arrays directly
+(:func:`twin.io.illumisense.scan.parse_layout`); it reads only what the general path would read with the same
+values, and leaves every other record (damaged, of another layout, a number off the exact fast path) to it.
+The general path tokenizes payloads in one compiled pass (:func:`twin.io.illumisense.scan.scan`); records whose
 layout matches a known layout (same token count, counts, labels) are checked and extracted as one batch
 (compiled: :func:`~twin.io.illumisense.scan.match_layout`, :func:`~twin.io.illumisense.scan.channels`); only
 the others are walked field by field, which also builds the layout for the next ones. The batch stays a set
@@ -364,6 +368,25 @@ class _Layout:
     extra: int
     single: int  # n_cores for channels_as="single", else 0
 
+    @cached_property
+    def roles(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """What each token must be, for :func:`~twin.io.illumisense.scan.parse_layout` (role, want); None when
+        the layout's checks do not map one role to each token (then only the general path reads it)."""
+        n = self.n
+        role = np.full(n, _scan.ROLE_ANY, np.int8)
+        want = np.zeros(n)
+        role[self.numbers] = _scan.ROLE_NUMBER
+        role[self.ints] = _scan.ROLE_INT
+        if not np.isin(self.fixed, self.ints).all() or np.isin(self.labels, np.r_[self.ints, self.numbers]).any():
+            return None
+        role[self.fixed] = _scan.ROLE_FIXED
+        want[self.fixed] = self.fixed_val
+        role[self.labels] = _scan.ROLE_LABEL
+        want[self.labels] = self.label_hash
+        if self.extra or n < 2 or (role[2:] == _scan.ROLE_ANY).any():  # only the date and time are free text
+            return None
+        return role, want
+
 
 class _Tokens:
     """The tokens of one payload (views into a :func:`scan` result), for the field-by-field walk."""
@@ -574,11 +597,14 @@ class _Group:
                       len(self.sensors) - self.usable_sensors)
 
 
-def _extract(lay: _Layout, V: np.ndarray, seq: np.ndarray, stamps: np.ndarray, data: bytes,
-             dt_bounds: np.ndarray) -> _Group:
-    """Records of layout ``lay`` from their token values V (m, lay.n), as one batch."""
-    lam, pw, st, status4 = _scan.channels(V, lay.wl, lay.pw, lay.status, lay.single or lay.wl.shape[0],
-                                          _MISSING, _CHANNEL_ERROR, _INVALID)
+def _extract(lay: _Layout, V: np.ndarray, stamps: np.ndarray, data: bytes, dt_bounds: np.ndarray,
+             *channels: np.ndarray, seq: np.ndarray | None = None) -> _Group:
+    """Records of layout ``lay`` from their token values V (m, lay.n), as one batch (``channels``: the channel
+    arrays when they are made already; ``seq``: the sample numbers, default token 2)."""
+    lam, pw, st, status4 = channels or _scan.channels(V, lay.wl, lay.pw, lay.status, lay.single or lay.wl.shape[0],
+                                                      _MISSING, _CHANNEL_ERROR, _INVALID)
+    if seq is None:
+        seq = V[:, 2].astype(np.int64)
     sens = tuple((V[:, curv] * ks, V[:, ang] * as_, V[:, xyz] * ps) for curv, ang, xyz, (ks, as_, ps) in lay.sensors)
     eng = V[:, lay.eng] if lay.eng is not None else None
     return _Group(lay, lam, pw, st, status4, np.asarray(seq, np.int64), np.asarray(stamps, np.float64), sens, eng,
@@ -604,13 +630,49 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
     starts = np.asarray(starts, dtype=np.int64)
     ends = np.asarray(ends, dtype=np.int64)
     n_rec = starts.size
+    buf = np.frombuffer(data, np.uint8)
+    layouts = [] if layouts is None else layouts
+    single = n_cores if channels_as == "single" else 0
+    # the common case first: the records of the layout the general path would try first, read in one pass
+    ok = found = None
+    lay = next((x for x in layouts if not x.extra and x.single == single), None)
+    if n_rec and lay is not None and lay.roles is not None:
+        ok, *arrays = _scan.parse_layout(buf, starts, ends, *lay.roles, lay.wl, lay.pw, lay.status,
+                                         lay.single or lay.wl.shape[0], _MISSING, _CHANNEL_ERROR, _INVALID)
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok == n_rec:  # all of them: one group, no other bookkeeping
+            return [None] * n_rec, [_extract(lay, *arrays[:2], data, *arrays[2:])], np.zeros(n_rec, np.int64), \
+                np.arange(n_rec)
+        if n_ok:
+            V, stamp, dtb, *chan = [a[ok] for a in arrays]
+            found = _extract(lay, V, stamp, data, dtb, *chan)
     gid = np.full(n_rec, -1, np.int64)
     gidx = np.full(n_rec, -1, np.int64)
     errors: list = [None] * n_rec
     groups: list[_Group] = []
-    if n_rec == 0:
-        return errors, groups, gid, gidx
-    buf = np.frombuffer(data, np.uint8)
+
+    def add(rows, grp):
+        gid[rows] = len(groups)
+        gidx[rows] = np.arange(rows.size)
+        groups.append(grp)
+
+    if found is not None:
+        add(np.flatnonzero(ok), found)
+    if n_rec:
+        _decode_general(data, buf, starts, ends, None if ok is None else np.flatnonzero(~ok), channels_as, n_cores,
+                        max_cells, layouts, errors, add)
+    return errors, groups, gid, gidx
+
+
+def _decode_general(data: bytes, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, subset: np.ndarray | None,
+                    channels_as: ChannelsAs, n_cores: int | None, max_cells: int, layouts: list, errors: list,
+                    add) -> None:
+    """The records ``subset`` (all when None) through the tokenizer: matched against the known layouts, the
+    others walked field by field (which learns their layout). ``errors[i]`` is set for payload i that is not a
+    record; ``add(rows, group)`` takes each decoded group (rows: payload indices)."""
+    if subset is not None:
+        starts, ends = starts[subset], ends[subset]
+    n_rec = starts.size
     counts, kind, value, ts, te, stamp, bad, _ = _scan.scan(buf, starts, ends)
     for j in np.flatnonzero(kind == _scan.SLOW).tolist():
         try:
@@ -622,21 +684,16 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
     for r in np.flatnonzero(stamp == _scan.TIME_SLOW).tolist():
         c0 = counts[r]
         stamp[r] = parse_timestamp(data[ts[c0] : te[c0]], data[ts[c0 + 1] : te[c0 + 1]])
-    layouts = [] if layouts is None else layouts
+    index = np.arange(n_rec) if subset is None else subset  # payload index of each record here
     ntok = np.diff(counts)
     todo = np.flatnonzero(bad < 0)
     for r in (np.flatnonzero(bad >= 0).tolist() if todo.size < n_rec else ()):
-        errors[r] = FramingError("NUL, CR or LF inside the record", offset=int(bad[r]),
-                                 expected="one line of text", protocol=PROTOCOL)
+        errors[int(index[r])] = FramingError("NUL, CR or LF inside the record", offset=int(bad[r]),
+                                             expected="one line of text", protocol=PROTOCOL)
 
     def dt_bounds(rows):
         c0 = counts[rows]
         return np.stack([ts[c0], te[c0], ts[c0 + 1], te[c0 + 1]], axis=1)
-
-    def add(rows, grp):
-        gid[rows] = len(groups)
-        gidx[rows] = np.arange(rows.size)
-        groups.append(grp)
 
     single = n_cores if channels_as == "single" else 0
     while todo.size:
@@ -660,7 +717,7 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
                 if not ok.any():
                     continue
                 rows, V = rows[ok], V[ok]
-            add(rows, _extract(lay, V, V[:, 2].astype(np.int64), stamp[rows], data, dt_bounds(rows)))
+            add(index[rows], _extract(lay, V, stamp[rows], data, dt_bounds(rows)))
             done[sel[ok]] = True
         rest = todo[~done]
         if not rest.size:
@@ -671,7 +728,7 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
         try:
             lay = _walk(tok, channels_as, n_cores, max_cells)
         except FramingError as exc:
-            errors[r] = exc
+            errors[int(index[r])] = exc
             todo = rest[1:]
             continue
         if not lay.extra and not any(x.n == lay.n and x.key == lay.key and np.array_equal(x.labels, lay.labels)
@@ -680,9 +737,8 @@ def _decode_groups(data: bytes, starts, ends, *, channels_as: ChannelsAs = "core
             del layouts[8:]
         rows = np.array([r])
         seq = np.array([tok.int(2, "sample number")], dtype=np.int64)
-        add(rows, _extract(lay, value[a:b][None], seq, stamp[rows], data, dt_bounds(rows)))
+        add(index[rows], _extract(lay, value[a:b][None], stamp[rows], data, dt_bounds(rows), seq=seq))
         todo = rest[1:]
-    return errors, groups, gid, gidx
 
 
 def decode_many(

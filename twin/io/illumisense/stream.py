@@ -275,26 +275,31 @@ class StreamDecoder:
         out: list = []
         seqs: list = []
         cons = self.consensus
+        fast = True
         while True:
-            spans = self._frame()
-            if not spans:
+            spans = self._frame(fast)
+            if spans is None:
                 break
-            lo = spans[0][0]
-            chunk = bytes(memoryview(self._buf)[lo : spans[-1][1]])  # one copy (the view is released at once)
-            errors, groups, gid, gidx = _decode_groups(chunk, [p + 4 - lo for p, _ in spans],
-                                                       [e - lo for _, e in spans], layouts=self._layouts, **self._kw)
-            failed = np.flatnonzero(gid < 0)
-            n_ok = int(failed[0]) if failed.size else len(spans)
+            prefix, end, compiled = spans
+            n = prefix.size
+            lo, hi = int(prefix[0]), int(end[-1])
+            chunk = bytes(memoryview(self._buf)[lo:hi])  # one copy (the view is released at once)
+            errors, groups, gid, gidx = _decode_groups(chunk, prefix + (4 - lo), end - lo, layouts=self._layouts,
+                                                       **self._kw)
+            if len(groups) == 1 and groups[0].sequence.size == n:  # the common case: every record, one group
+                n_ok, runs = n, [(groups[0], 0, n)]
+            else:
+                failed = np.flatnonzero(gid < 0)
+                n_ok = int(failed[0]) if failed.size else n
+                # runs of consecutive records of one group
+                cuts = [0, *(np.flatnonzero(np.diff(gid[:n_ok])) + 1).tolist(), n_ok] if n_ok else [0]
+                runs = [(groups[int(gid[s0])], int(gidx[s0]), int(gidx[s0]) + s1 - s0) for s0, s1 in pairwise(cuts)]
             if n_ok:
-                self._pos = spans[n_ok - 1][1]
+                self._pos = int(end[n_ok - 1])
                 self._scanned = 0
                 self._hunting = False
-            # runs of consecutive records of one group
-            cuts = [0, *(np.flatnonzero(np.diff(gid[:n_ok])) + 1).tolist(), n_ok] if n_ok else [0]
-            for s0, s1 in pairwise(cuts):
-                grp = groups[int(gid[s0])]
+            for grp, i, i1 in runs:
                 key = grp.lay.key
-                i, i1 = int(gidx[s0]), int(gidx[s0]) + s1 - s0
                 while i < i1 and not cons.admits(key):  # the layout is being decided: record by record
                     released = cons.push(grp.record(i))
                     out += released
@@ -306,13 +311,15 @@ class StreamDecoder:
                     self.sensor_blocks_absent += (i1 - i) * (len(grp.sensors) - grp.usable_sensors)
                     out.append((grp, i, i1))
                     seqs.append(grp.sequence[i:i1])
-            if n_ok < len(spans):
-                p = spans[n_ok][0]
+            if n_ok < n:
+                p = int(prefix[n_ok])
                 e = errors[n_ok]
                 off = None if e.offset is None else self._base + p + 4 + e.offset
                 self._fail(p, type(e)(e.what, offset=off, expected=e.expected, protocol=PROTOCOL))
-            elif self._pos < spans[-1][1]:
+            elif self._pos < hi:
                 break
+            # after a run from the compiled framing decoded whole, that framing would stop where it stopped
+            fast = n_ok < n or not compiled
         if self._pos > 65536 and self._pos * 2 > len(self._buf):
             del self._buf[: self._pos]
             self._base += self._pos
@@ -331,18 +338,27 @@ class StreamDecoder:
         self.sensor_blocks_absent += sum(r.absent_sensors for r in out)
         return out
 
-    def _frame(self) -> list[tuple[int, int]]:
-        """Complete candidate records from the current position: (prefix offset, payload end) in the buffer.
-        While hunting, at most one (it is accepted only if it decodes)."""
+    def _frame(self, fast: bool = True) -> tuple[np.ndarray, np.ndarray, bool] | None:
+        """Complete candidate records from the current position: (prefix offsets, payload ends, whether the
+        compiled pass found them) in the buffer, or None. While hunting, at most one (it is accepted only if it
+        decodes). ``fast=False`` skips the compiled pass (the caller knows it would find nothing: it stopped
+        here before and no byte has come since)."""
         buf = self._buf
-        if not self._hunting and len(buf) - self._pos >= 4:
+        if fast and not self._hunting and len(buf) - self._pos >= 4:
             # in sync, the run of well-formed prefixes is found in one compiled pass; a bad prefix after
             # them is left to the loop below on the next call
             view = np.frombuffer(buf, np.uint8)
             prefix, end = _scan.spans(view, self._pos, MIN_PAYLOAD, self.max_payload)
             del view  # a live view would forbid resizing the bytearray
             if prefix.size:
-                return list(zip(prefix.tolist(), end.tolist(), strict=True))
+                return prefix, end, True
+        spans = self._frame_slowly()
+        return (np.array([p for p, _ in spans], np.int64), np.array([e for _, e in spans], np.int64), False) \
+            if spans else None
+
+    def _frame_slowly(self) -> list[tuple[int, int]]:
+        """:meth:`_frame` byte by byte: hunting, at a bad prefix, or waiting for the rest of a payload."""
+        buf = self._buf
         spans: list[tuple[int, int]] = []
         p = self._pos
         while True:

@@ -47,7 +47,7 @@ from twin import so3
 from twin.calibration import Calibration
 from twin.extras import require
 from twin.fiber import FiberModel
-from twin.frames import Frame, Shape, frame_vendor
+from twin.frames import Frame, Shape, VendorArrays, vendor_rows
 from twin.io.rosbag import ros_messages as msgs
 
 __all__ = ["FORMAT", "TOPICS", "McapRecorder"]
@@ -99,7 +99,8 @@ class McapRecorder:
     shapes_written, truth_written, vendor_written : int
         Messages on those topics.
     vendor_dropped : int
-        Always 0 (every sensor block is stored); for the live summary's symmetry with the HDF5 recorder.
+        Sensor blocks not stored: of another layout (G, N, spacing) than that sensor's first block in the file,
+        as the HDF5 recorder counts them (a reader has one layout per sensor).
     """
 
     def __init__(self, path: str | Path, *, fiber: FiberModel | None = None, calibration: Calibration | None = None,
@@ -135,6 +136,7 @@ class McapRecorder:
         self._last_flush = time.monotonic()
         self.frames_written = self.shapes_written = self.truth_written = self.vendor_written = 0
         self.vendor_dropped = 0
+        self._vendor_layout: dict[int, tuple] = {}  # (G, N, spacing) of each sensor's first block
         self._closed = False
 
     # ---------------------------------------------------------------- sink interface
@@ -151,19 +153,17 @@ class McapRecorder:
         their reconstructions (``shapes[i]`` of ``frames[i]``; unusable ones — not finite — are left out).
 
         ``received``: wall-clock time of the batch, or of each frame (n,), s since the Unix epoch (default now):
-        the messages' log time (NaN: now). ``vendor``: the interrogator's blocks of each frame (a tuple of
-        VendorSensor or None, n entries); default: the frames' :attr:`Frame.vendor` (a batch's per row).
+        the messages' log time (NaN: now). ``vendor``: the interrogator's blocks of the frames, one
+        :class:`~twin.frames.VendorArrays` (n rows) per sensor; default: the batch's :attr:`Frame.vendor`.
         """
         if self._closed:
             raise ValueError(f"{self.path}: recorder is closed")
         items = [frames] if isinstance(frames, Frame) else list(frames)
         if not items:
             return
-        if vendor is None:
-            vendor = [v for f in items for v in (
-                (f.vendor,) if not f.batch_shape else
-                [frame_vendor(f.vendor, i) for i in range(len(f))] if f.vendor else [None] * len(f))]
         batch = Frame.stack(items) if not (len(items) == 1 and items[0].batch_shape) else items[0]
+        if vendor is None:
+            vendor = vendor_rows(batch)
         n = len(batch)
         rows = self.frames_written + np.arange(n)
         now = time.time_ns()
@@ -184,7 +184,7 @@ class McapRecorder:
                 self.shapes_written += sel.size
         if batch.truth is not None:
             self._write_truth(batch, rows, log)
-        if any(v for v in vendor):
+        if vendor:
             self._write_vendor(vendor, t, rows, log)
         self._emit()
         self.frames_written += n
@@ -232,18 +232,21 @@ class McapRecorder:
                     rows[sel], log[sel])
         self.truth_written += sel.size
 
-    def _write_vendor(self, vendor: Sequence, t: np.ndarray, rows: np.ndarray, log: np.ndarray) -> None:
-        # group the blocks by (sensor, G, N, spacing) so each group encodes as one batch
-        groups: dict[tuple, list[int]] = {}
-        for i, blocks in enumerate(vendor):
-            for k, b in enumerate(blocks or ()):
-                groups.setdefault((k, len(b.curvature), len(b.positions), float(b.spacing)), []).append(i)
-        for (k, _, _, spacing), idx in groups.items():
-            blocks = [vendor[i][k] for i in idx]
+    def _write_vendor(self, sensors: Sequence[VendorArrays | None], t: np.ndarray, rows: np.ndarray,
+                      log: np.ndarray) -> None:
+        """Each sensor's blocks of the batch as one encoded batch; a sensor keeps its first layout (others
+        counted in :attr:`vendor_dropped`)."""
+        for k, arrays in enumerate(sensors):
+            if arrays is None or not arrays.present.any():
+                continue
+            sel = np.flatnonzero(arrays.present)
+            if self._vendor_layout.setdefault(k, arrays.layout) != arrays.layout:
+                self.vendor_dropped += sel.size
+                continue
             self._write("/fbg/vendor_shape", msgs.encode_vendor(
-                k, np.stack([b.curvature for b in blocks]), np.stack([b.angle for b in blocks]),
-                np.stack([b.positions for b in blocks]), spacing, t[idx]), rows[idx], log[idx])
-            self.vendor_written += len(idx)
+                k, arrays.curvature[sel], arrays.angle[sel], arrays.positions[sel], arrays.spacing, t[sel]),
+                rows[sel], log[sel])
+            self.vendor_written += sel.size
 
     def flush(self) -> None:
         """Write the chunk in progress and flush the file."""
