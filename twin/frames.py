@@ -600,6 +600,18 @@ class Shape:
             frames.setflags(write=False)
         return obj
 
+    def _with_uncertainty(self, covariance: np.ndarray, curvature_covariance: np.ndarray) -> Shape:
+        """This Shape with ``covariance`` and ``curvature_covariance`` (new arrays of the documented shapes,
+        frozen here), built as :meth:`_trusted` is (private, for :class:`twin.uncertainty.Uncertainty`'s hot
+        path). Nothing is checked."""
+        obj = object.__new__(type(self))
+        obj.__dict__.update(self.__dict__)
+        obj.__dict__["covariance"] = covariance
+        obj.__dict__["curvature_covariance"] = curvature_covariance
+        covariance.setflags(write=False)
+        curvature_covariance.setflags(write=False)
+        return obj
+
     @property
     def batch_shape(self) -> tuple[int, ...]:
         return self.positions.shape[:-2]

@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
-from twin import curve
+from twin import _propagate, curve
+from twin._propagate import interpolation_kernel as _interpolation_kernel
 from twin.calibration import Calibration, nominal_delta_theta, nominal_gain
 from twin.frames import Shape
 from twin.reconstruct import Reconstructor
@@ -243,16 +244,13 @@ class Uncertainty:
         fiber, cal = rec.fiber, rec.calibration
         self._design = cal.design_for(fiber)  # (n_g, n_c, 3)
         self._var_e = (sigma / cal.reference_for(fiber)) ** 2  # (n_g, n_c): variance of the optical strain
-        p_full, cov_full = _masked_inverse(self._design, np.ones(self._design.shape[:2], bool), self._var_e)
-        self._p_full = p_full[:, 1:]  # (n_g, 2, n_c): the curvature rows
-        self._ck_full = np.ascontiguousarray(cov_full[:, 1:, 1:])
         self._dd, self._par_sd = self._parameter_terms(cal) if parameters else (None, np.zeros(0))
-        # ∂k/∂p = −P (∂D/∂p) x, x = (c, k): Δθ and g move the bending columns only, so the common mode drops out
-        self._sens_full = (None if self._dd is None else
-                           -np.einsum("nic,pncj->nipj", self._p_full, self._dd))  # (n_g, 2, n_par, 2)
+        self._ck_table, self._sens_table = self._peak_tables()
         self._bases: dict[bytes, np.ndarray] = {}
         self._quad = _quadrature(rec)
-        self._full_basis = self._basis(np.ones(fiber.n_gratings, bool))[None]
+        self._full_weights = self._weights(np.ones(fiber.n_gratings, bool))[None]
+        self._const_for: tuple | None = None
+        self._no_wavelengths = np.empty((0, fiber.n_gratings, fiber.n_cores))
 
     def with_model_error(self, model_error: ModelError) -> Uncertainty:
         """The same propagation with another model error (cheap: everything else is shared)."""
@@ -271,36 +269,38 @@ class Uncertainty:
         ``wavelengths`` (array, Frame or frames; the shape's input) tell which peaks were missing, which
         changes the inversion's noise at those gratings; without them every peak of a valid grating counts as
         present."""
-        k = np.nan_to_num(shape.curvature)
+        k = shape.curvature
         valid = shape.valid
         batch, n_g = k.shape[:-2], k.shape[-2]
-        ck = self._ck_full
-        sens_op = self._sens_full
-        if wavelengths is not None:
+        n_p = shape.positions.shape[-2]
+        n_f = math.prod(batch)
+        if shape.frames is None:
+            raise ValueError("Uncertainty.propagate needs the material frames: reconstruct with frames=True")
+        if wavelengths is None:
+            w = self._no_wavelengths
+        else:
             w = _wavelengths(wavelengths)
-            missing = np.isnan(w)
-            outside = self.reconstructor.peaks_outside(w)
-            if missing.any() or outside.any():
-                ck, sens_op = self._masked(~(missing | outside))
-        ck = np.broadcast_to(ck, (*batch, n_g, 2, 2))
-        me = self.model_error
-        sig_m = me.sigma(k, self.reconstructor.fiber.grating_s, valid, self.interpolation_order)
-        if me.curvature or me.relative or me.interpolation:
-            ck = ck + (sig_m**2)[..., None, None] * np.eye(2)
-        sens = None
-        sd = self._par_sd * me.parameter_scale
-        if sens_op is not None:
-            sens = np.einsum("...nipj,...nj->...nip", sens_op, k)  # (..., n_g, 2, n_par)
-        twist = me.twist_sensitivity(k, self.reconstructor.fiber.grating_s)  # per 1σ: (..., n_g, 2, 1)
-        if twist is None:
-            cov = self.position_covariance(shape, ck, sens, valid)
-        else:  # one more error shared by the gratings; it moves the positions, not the measured curvature
-            shared = twist if sens is None else np.concatenate([sens, twist], axis=-1)
-            cov = self.position_covariance(shape, ck, shared, valid, shared_sd=np.append(sd, 1.0))
-        if sens is not None:
-            ck = ck + np.einsum("...nip,p,...njp->...nij", sens, sd**2, sens)
-        ck = np.where(valid[..., None, None], ck, np.nan)
-        return dataclasses.replace(shape, covariance=cov, curvature_covariance=ck)
+            n_c = self._no_wavelengths.shape[-1]
+            if w.size != n_f * n_g * n_c:  # the compiled pass reads (n_f, n_g, n_c) without checking
+                raise ValueError(f"Uncertainty.propagate: wavelengths of shape {w.shape} do not match the shape's "
+                                 f"batch {batch} × ({n_g} gratings, {n_c} cores)")
+            w = w.reshape(n_f, n_g, n_c)
+        vf = np.ascontiguousarray(valid.reshape(n_f, n_g))
+        args = (np.ascontiguousarray(shape.positions.reshape(n_f, n_p, 3)),
+                np.ascontiguousarray(shape.frames.reshape(n_f, n_p, 3, 3)),
+                np.ascontiguousarray(k.reshape(n_f, n_g, 2)), vf, np.ascontiguousarray(w, dtype=np.float64))
+        cov = np.empty((n_f, n_p, 3, 3))
+        ck = np.empty((n_f, n_g, 2, 2))
+        const = self._const()
+        # intact frames with the intact pattern; those that lost a grating, if any, again with their patterns
+        if _propagate.propagate(const, *args, self._full_weights, _NO_FRAMES, cov, ck):
+            lost = np.flatnonzero(~vf.all(axis=1))
+            bases, which = self._patterns(vf[lost])
+            sub = [a[lost] if a.shape[0] else a for a in args]
+            sub_cov, sub_ck = np.empty((lost.size, n_p, 3, 3)), np.empty((lost.size, n_g, 2, 2))
+            _propagate.propagate(const, *sub, bases, which, sub_cov, sub_ck)
+            cov[lost] = sub_cov
+        return shape._with_uncertainty(cov.reshape(*batch, n_p, 3, 3), ck.reshape(*batch, n_g, 2, 2))
 
     # ------------------------------------------------------------------ curvature
     def _parameter_terms(self, cal: Calibration):
@@ -325,35 +325,56 @@ class Uncertainty:
             return None, np.zeros(0)
         return np.stack(cols), np.array(sd)
 
-    def _masked(self, present: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Noise covariance of k (..., n_g, 2, 2) and the parameter operator (..., n_g, 2, n_par, 2) per frame
-        for peak masks ``present`` (..., n_g, n_c): the inversion without the missing peaks where some are."""
-        batch = present.shape[:-2]
-        ck = np.array(np.broadcast_to(self._ck_full, (*batch, *self._ck_full.shape)))
-        full = present.all(axis=-1)
-        idx = np.nonzero(~full)
-        g = idx[-1]
-        p, cov = _masked_inverse(self._design[g], present[idx], self._var_e[g])
-        ck[idx] = cov[:, 1:, 1:]
-        sens = None
-        if self._sens_full is not None:
-            sens = np.array(np.broadcast_to(self._sens_full, (*batch, *self._sens_full.shape)))
-            sens[idx] = -np.einsum("mic,pmcj->mipj", p[:, 1:], self._dd[:, g])
-        return ck, sens
+    def _peak_tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """The inversion's curvature covariance (n_g, 2^n_c, 2, 2) and the parameter operator k ↦ ∂k/∂p
+        (n_g, 2^n_c, 2, n_par, 2) for every pattern of present peaks (bit c: core c present), so that a frame's
+        missing peaks are a look-up in the compiled pass: the inversion without them (:func:`_masked_inverse`);
+        ∂k/∂p = −P (∂D/∂p) x, where Δθ and g move the bending columns only, so the common mode drops out."""
+        n_g, n_c = self._design.shape[:2]
+        if n_c > 12:
+            raise ValueError(f"Uncertainty: at most 12 cores are supported, got {n_c}")
+        codes = np.arange(2**n_c)
+        present = ((codes[:, None] >> np.arange(n_c)) & 1).astype(bool)  # (2^n_c, n_c)
+        p, cov = _masked_inverse(self._design[:, None], present[None], self._var_e[:, None])
+        ck = np.ascontiguousarray(cov[..., 1:, 1:])
+        n_par = self._par_sd.size
+        if self._dd is None:
+            return ck, np.zeros((n_g, codes.size, 2, n_par, 2))
+        return ck, np.ascontiguousarray(-np.einsum("nkic,pncj->nkipj", p[..., 1:, :], self._dd))
+
+    def _const(self) -> np.ndarray:
+        """The constants of the compiled pass (:func:`twin._propagate.pack`) for the current model error."""
+        me = self.model_error
+        key = (me.curvature, me.relative, me.interpolation, me.base_angle, me.parameter_scale, me.twist)
+        if self._const_for != key:
+            rec = self.reconstructor
+            self._packed = _propagate.pack(
+                self._quad, rec.fiber.grating_s, rec.calibration.reference_for(rec.fiber), rec.peak_window,
+                self._ck_table, self._sens_table, self._par_sd * me.parameter_scale, me.curvature, me.relative,
+                me.interpolation, me.base_angle**2, me.twist, self.interpolation_order)
+            self._const_for = key
+        return self._packed
 
     # ------------------------------------------------------------------ positions
-    def _basis(self, nodes: np.ndarray) -> np.ndarray:
-        """Interpolation basis (n_points, n_gratings) of the reconstructor for the valid gratings ``nodes``
-        (zero columns for the others), cached per pattern."""
+    def _weights(self, nodes: np.ndarray) -> np.ndarray:
+        """The quadrature's weights times the interpolation basis for the valid gratings ``nodes`` (zero columns
+        for the others; :func:`twin._propagate.pattern_weights`), cached per pattern."""
         key = nodes.tobytes()
         b = self._bases.get(key)
         if b is None:
             rec = self.reconstructor
-            b = np.zeros((rec.s.size, nodes.size))
+            basis = np.zeros((rec.s.size, nodes.size))
             if nodes.any():
-                b[:, nodes] = curve.basis(rec.fiber.grating_s[nodes], rec.s, rec.interpolation)
-            self._bases[key] = b
+                basis[:, nodes] = curve.basis(rec.fiber.grating_s[nodes], rec.s, rec.interpolation)
+            b = self._bases[key] = _propagate.pattern_weights(self._quad, basis)
         return b
+
+    def _patterns(self, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The weights of each pattern of valid gratings in ``valid`` (F, n_g) and each frame's pattern (F,)."""
+        if valid.all():
+            return self._full_weights, np.zeros(valid.shape[0], np.int64)
+        patterns, which = _patterns(valid)
+        return np.stack([self._weights(p) for p in patterns]), which
 
     def position_covariance(self, shape: Shape, curvature_covariance: np.ndarray, sensitivity: np.ndarray | None,
                             valid: np.ndarray, shared_sd: np.ndarray | None = None) -> np.ndarray:
@@ -361,7 +382,8 @@ class Uncertainty:
         errors independent between gratings (noise, model error; (..., n_g, 2, 2)) and the curvature's
         sensitivity to the shared errors (..., n_g, 2, n_par) or None, whose 1σ are ``shared_sd`` (n_par,)
         (default the calibration's parameters' scaled by ``parameter_scale``); invalid gratings (not
-        interpolated through) carry nothing. Frames without a usable grating get NaN.
+        interpolated through) carry nothing. Frames without a usable grating get NaN. (:meth:`propagate` does
+        the same in one compiled pass with the covariance it forms itself.)
 
         Exact first-order sensitivities J_n(s) = ∫_0^s B_n(u) (R E)(u) × (p(s) − p(u)) du at the breakpoints of
         the interpolant (the gratings and the ends), by the 3-point rule on each piece (Simpson's where the
@@ -371,31 +393,22 @@ class Uncertainty:
         first piece, where C grows as s⁴ from the base (s⁶ along the tangent), t⁴ (a + b t + c t²) through C
         and C' at its end and C at its middle point instead."""
         n_p = shape.positions.shape[-2]
-        pos = np.ascontiguousarray(shape.positions.reshape(-1, n_p, 3))
-        frames = np.ascontiguousarray(shape.frames.reshape(-1, n_p, 3, 3))
-        n_f, n_g = pos.shape[0], valid.shape[-1]
-        vf = valid.reshape(n_f, n_g)
-        v = np.ascontiguousarray(np.broadcast_to(curvature_covariance, (*valid.shape, 2, 2)).reshape(n_f, n_g, 2, 2))
-        sens = (np.zeros((n_f, n_g, 2, 0)) if sensitivity is None
-                else np.ascontiguousarray(sensitivity.reshape(n_f, n_g, 2, -1)))
-        all_valid = bool(vf.all())
-        if all_valid:
-            bases, which = self._full_basis, np.zeros(n_f, np.int64)
-        else:
-            patterns, which = _patterns(vf)
-            bases = np.stack([self._basis(p) for p in patterns])
-            # an invalid grating is not interpolated through: its column of the basis is zero already
+        n_f, n_g = int(np.prod(valid.shape[:-1], dtype=np.int64)), valid.shape[-1]
+        vf = np.ascontiguousarray(valid.reshape(n_f, n_g))
+        v = np.ascontiguousarray(np.broadcast_to(curvature_covariance, (*valid.shape, 2, 2)).reshape(n_f, n_g, 2, 2),
+                                 dtype=np.float64)
+        sd = self._par_sd * self.model_error.parameter_scale if shared_sd is None else np.asarray(shared_sd, float)
+        sp = (np.zeros((n_f, n_g, 2, 0)) if sensitivity is None
+              else np.ascontiguousarray(sensitivity.reshape(n_f, n_g, 2, -1) * sd, dtype=np.float64))
+        bases, which = self._patterns(vf)
         out = np.empty((n_f, n_p, 3, 3))
-        q = self._quad
-        if shared_sd is None:
-            shared_sd = self._par_sd * self.model_error.parameter_scale
-        _covariance_kernel(pos, frames, bases, which, v, sens, np.asarray(shared_sd, dtype=np.float64),
-                           self.model_error.base_angle**2,
-                           q["points"], q["weights"], q["breaks"], q["interval"], q["t"], q["h"], q["first"],
-                           q["half_points"], q["half_weights"], out)
-        if not all_valid:
-            out[~vf.any(axis=-1)] = np.nan
+        _propagate.covariance(self._const(), np.ascontiguousarray(shape.positions.reshape(n_f, n_p, 3)),
+                              np.ascontiguousarray(shape.frames.reshape(n_f, n_p, 3, 3)), v, sp, vf, bases, which,
+                              out)
         return out.reshape((*shape.positions.shape[:-1], 3, 3))
+
+
+_NO_FRAMES = np.zeros(0, np.int64)
 
 
 def _patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -407,45 +420,6 @@ def _patterns(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     key = valid @ (np.int64(1) << np.arange(valid.shape[-1], dtype=np.int64))
     _, first, which = np.unique(key, return_index=True, return_inverse=True)
     return valid[first], which.ravel().astype(np.int64)
-
-
-@njit(cache=True, nogil=True)
-def _interpolation_kernel(k, valid, s, order, out):  # pragma: no cover (compiled)
-    """|k⁽ᵖ⁾_n| √(½ Σ H^(2p+2)) / (w_n √2) per frame and grating (:meth:`ModelError.interpolation_sigma`
-    without c), p = ``order`` (2 or 4): k (F, n, 2), valid (F, n), s (n,), out (F, n); k⁽ᵖ⁾_n is p! times the
-    p-th divided difference over p + 1 consecutive valid gratings centred on n (shifted inwards at the ends, so
-    the end gratings share their neighbours' stencil); 0 at invalid gratings, and with fewer than p + 1 valid."""
-    n_f, n = valid.shape
-    idx = np.empty(n, np.int64)
-    tab = np.empty((order + 1, 2))
-    fact = 1.0
-    for q in range(2, order + 1):
-        fact *= q
-    for f in range(n_f):
-        m = 0
-        for i in range(n):
-            out[f, i] = 0.0
-            if valid[f, i]:
-                idx[m] = i
-                m += 1
-        if m < order + 1:
-            continue
-        for j in range(m):
-            start = min(max(j - order // 2, 0), m - order - 1)
-            for q in range(order + 1):
-                tab[q, 0] = k[f, idx[start + q], 0]
-                tab[q, 1] = k[f, idx[start + q], 1]
-            for lev in range(1, order + 1):  # divided differences in place
-                for q in range(order, lev - 1, -1):
-                    d = s[idx[start + q]] - s[idx[start + q - lev]]
-                    tab[q, 0] = (tab[q, 0] - tab[q - 1, 0]) / d
-                    tab[q, 1] = (tab[q, 1] - tab[q - 1, 1]) / d
-            dk = fact * np.sqrt(tab[order, 0] ** 2 + tab[order, 1] ** 2)
-            i = idx[j]
-            hm = s[i] - s[idx[j - 1]] if j > 0 else 0.0
-            hp = s[idx[j + 1]] - s[i] if j < m - 1 else 0.0
-            e = 2 * order + 2
-            out[f, i] = dk * np.sqrt(0.5 * (hm**e + hp**e)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
 
 
 def _quadrature(rec: Reconstructor) -> dict:
@@ -496,179 +470,6 @@ def _quadrature(rec: Reconstructor) -> dict:
             "t": t, "h": h[interval], "first": first, "half_points": half_points, "half_weights": half_weights}
 
 
-@njit(cache=True, nogil=True, fastmath=True)
-def _add_point(pos, frames, basis, f, i, w, ia, ic):  # pragma: no cover (compiled)
-    """Add w · B_n(s_i) (R E, (R E) × p)(s_i) to the running integrals of every grating n."""
-    p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
-    # δk_x turns about d2, δk_y about −d1 (u = (−k_y, k_x, 0) in the body frame)
-    for c in range(2):
-        if c == 0:
-            a0, a1, a2 = frames[f, i, 0, 1], frames[f, i, 1, 1], frames[f, i, 2, 1]
-        else:
-            a0, a1, a2 = -frames[f, i, 0, 0], -frames[f, i, 1, 0], -frames[f, i, 2, 0]
-        x0 = a1 * p2 - a2 * p1
-        x1 = a2 * p0 - a0 * p2
-        x2 = a0 * p1 - a1 * p0
-        for n in range(basis.shape[1]):
-            b = w * basis[i, n]
-            ia[n, c, 0] += b * a0
-            ia[n, c, 1] += b * a1
-            ia[n, c, 2] += b * a2
-            ic[n, c, 0] += b * x0
-            ic[n, c, 1] += b * x1
-            ic[n, c, 2] += b * x2
-
-
-@njit(cache=True, nogil=True, fastmath=True)
-def _moments(pos, frames, var, sens, par_sd, f, i, ia, ic, x, y, z, am, ad, ay, dy, c_out, d_out):
-    """C and C' (3 × 3 each) at output point i from the running integrals (see :func:`_covariance_kernel`)."""
-    n_g, n_par = var.shape[1], sens.shape[3]
-    y[:] = 0.0
-    z[:] = 0.0
-    for n in range(n_g):
-        v00, v01, v11 = var[f, n, 0, 0], var[f, n, 0, 1], var[f, n, 1, 1]
-        for r in range(3):
-            x[r, 0], x[r, 1] = ia[n, 0, r], ia[n, 1, r]
-            x[r + 3, 0], x[r + 3, 1] = ic[n, 0, r], ic[n, 1, r]
-        for r in range(6):
-            xv0 = x[r, 0] * v00 + x[r, 1] * v01
-            xv1 = x[r, 0] * v01 + x[r, 1] * v11
-            for c in range(r, 6):
-                y[r, c] += xv0 * x[c, 0] + xv1 * x[c, 1]
-        for q in range(n_par):
-            sa, sb = sens[f, n, 0, q] * par_sd[q], sens[f, n, 1, q] * par_sd[q]
-            for r in range(6):
-                z[r, q] += x[r, 0] * sa + x[r, 1] * sb
-    for r in range(6):
-        for c in range(r):
-            y[r, c] = y[c, r]
-    p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
-    t0, t1, t2 = frames[f, i, 0, 2], frames[f, i, 1, 2], frames[f, i, 2, 2]
-    # A = (−[p]×, −I), A' = (−[t]×, 0)
-    am[:] = 0.0
-    ad[:] = 0.0
-    am[0, 1], am[0, 2], am[1, 0], am[1, 2], am[2, 0], am[2, 1] = p2, -p1, -p2, p0, p1, -p0
-    ad[0, 1], ad[0, 2], ad[1, 0], ad[1, 2], ad[2, 0], ad[2, 1] = t2, -t1, -t2, t0, t1, -t0
-    am[0, 3], am[1, 4], am[2, 5] = -1.0, -1.0, -1.0
-    for r in range(3):
-        for c in range(6):
-            sa = 0.0
-            sb = 0.0
-            for e in range(6):
-                sa += am[r, e] * y[e, c]
-                sb += ad[r, e] * y[e, c]
-            ay[r, c] = sa
-            dy[r, c] = sb
-    for r in range(3):
-        for c in range(3):
-            sa = 0.0
-            sb = 0.0
-            for e in range(6):
-                sa += ay[r, e] * am[c, e]
-                sb += dy[r, e] * am[c, e] + ay[r, e] * ad[c, e]
-            c_out[r, c] = sa
-            d_out[r, c] = sb
-    for q in range(n_par):
-        for r in range(3):
-            gr = 0.0
-            gdr = 0.0
-            for e in range(6):
-                gr += am[r, e] * z[e, q]
-                gdr += ad[r, e] * z[e, q]
-            for c in range(3):
-                gc = 0.0
-                gdc = 0.0
-                for e in range(6):
-                    gc += am[c, e] * z[e, q]
-                    gdc += ad[c, e] * z[e, q]
-                c_out[r, c] += gr * gc
-                d_out[r, c] += gdr * gc + gr * gdc
-
-
-@njit(cache=True, nogil=True, fastmath=True)
-def _covariance_kernel(pos, frames, bases, which, var, sens, par_sd, base_var, points, weights, breaks, interval,
-                       tt, hh, first, half_points, half_weights, out):  # pragma: no cover (compiled)
-    """Position covariance of every frame (see :meth:`Uncertainty.position_covariance`): ``var`` (F, n_g, 2, 2)
-    the independent curvature covariance, ``sens`` (F, n_g, 2, n_par) ∂k/∂p, ``par_sd`` the parameters' 1σ,
-    ``base_var`` the variance of the base frame's angle about each axis (δp = δφ × p: σ²(|p|² I − p pᵀ)),
-    ``first`` (3, 3) the inverse of the first piece's interpolation conditions, ``half_points``,
-    ``half_weights`` the rule integrating from the base to the first piece's middle point (see
-    :func:`_quadrature`).
-
-    With X_n = (Φ_n, Ψ_n) (6 × 2: the integrals of B_n R E and B_n (R E) × p), J_n = A X_n with
-    A = (−[p]×, −I) and J_n' = A' X_n with A' = (−[t]×, 0), so C = A Y Aᵀ and C' = A' Y Aᵀ + A Y A'ᵀ with
-    Y = Σ_n X_n V_n X_nᵀ (6 × 6) — per grating only the 6 × 6 update — plus the same with the parameters'
-    columns Z = Σ_n X_n S_n σ_p."""
-    n_f, n_p = pos.shape[0], pos.shape[1]
-    n_g, n_par = var.shape[1], sens.shape[3]
-    n_b = breaks.shape[0]
-    cb = np.zeros((n_b, 3, 3))  # C at the breakpoints
-    db = np.zeros((n_b, 3, 3))  # and C'
-    cm = np.zeros((3, 3))  # C at the first piece's middle point
-    dm = np.zeros((3, 3))
-    ia = np.zeros((n_g, 2, 3))
-    ic = np.zeros((n_g, 2, 3))
-    ih = np.zeros((n_g, 2, 3))  # the integrals to the first piece's middle point
-    jh = np.zeros((n_g, 2, 3))
-    x = np.zeros((6, 2))
-    y = np.zeros((6, 6))
-    z = np.zeros((6, n_par))
-    am = np.zeros((3, 6))
-    ad = np.zeros((3, 6))
-    ay = np.zeros((3, 6))
-    dy = np.zeros((3, 6))
-    coef = np.zeros((3, 3, 3))  # the first piece's C = t⁴ (a + b t + c t²), a b c per element
-    for f in range(n_f):
-        basis = bases[which[f]]
-        ia[:] = 0.0
-        ic[:] = 0.0
-        for k in range(n_b):
-            if k > 0:
-                _add_point(pos, frames, basis, f, points[k - 1, 1], weights[k - 1, 1], ia, ic)
-                _add_point(pos, frames, basis, f, points[k - 1, 2], weights[k - 1, 2], ia, ic)
-            if k == 1:
-                ih[:] = 0.0
-                jh[:] = 0.0
-                for e in range(3):
-                    _add_point(pos, frames, basis, f, half_points[e], half_weights[e], ih, jh)
-                _moments(pos, frames, var, sens, par_sd, f, half_points[2], ih, jh, x, y, z, am, ad, ay, dy, cm, dm)
-            _moments(pos, frames, var, sens, par_sd, f, breaks[k], ia, ic, x, y, z, am, ad, ay, dy, cb[k], db[k])
-            if k == 1:
-                # conditions C(1), h C'(1), C(t_m) on t⁴ (a + b t + c t²): solved with the precomputed inverse
-                for r in range(3):
-                    for c in range(3):
-                        rhs0, rhs1, rhs2 = cb[1, r, c], hh[0] * db[1, r, c], cm[r, c]
-                        for e in range(3):
-                            coef[e, r, c] = first[e, 0] * rhs0 + first[e, 1] * rhs1 + first[e, 2] * rhs2
-            if k < n_b - 1:
-                _add_point(pos, frames, basis, f, points[k, 0], weights[k, 0], ia, ic)
-        # cubic Hermite between breakpoints: C and C' at both ends of each piece
-        for j in range(n_p):
-            q = interval[j]
-            t = tt[j]
-            h = hh[j]
-            t2_ = t * t
-            t3 = t2_ * t
-            t4 = t2_ * t2_
-            h00 = 2 * t3 - 3 * t2_ + 1
-            h10 = (t3 - 2 * t2_ + t) * h
-            h01 = -2 * t3 + 3 * t2_
-            h11 = (t3 - t2_) * h
-            q0, q1, q2 = pos[f, j, 0], pos[f, j, 1], pos[f, j, 2]
-            pp = q0 * q0 + q1 * q1 + q2 * q2
-            for r in range(3):
-                for c in range(r, 3):
-                    if q == 0:
-                        # the first piece: C ~ s⁴ from the base (an angle error times an arm, both ∝ s; s⁶ along
-                        # the tangent), which a cubic cannot follow
-                        v = t4 * (coef[0, r, c] + t * coef[1, r, c] + t2_ * coef[2, r, c])
-                    else:
-                        v = h00 * cb[q, r, c] + h10 * db[q, r, c] + h01 * cb[q + 1, r, c] + h11 * db[q + 1, r, c]
-                    v += base_var * ((pp if r == c else 0.0) - pos[f, j, r] * pos[f, j, c])
-                    out[f, j, r, c] = v
-                    out[f, j, c, r] = v
-
-
 def _masked_inverse(design: np.ndarray, present: np.ndarray, var_e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The least-squares inverse P = (Dᵀ M D)⁺ Dᵀ M (..., 3, n_c) for peak masks M (..., n_c) and the covariance
     P diag(var_e) Pᵀ (..., 3, 3) of x = (c, k_x, k_y); equal weights, as :class:`~twin.strain.CurvatureSolver`."""
@@ -680,6 +481,8 @@ def _masked_inverse(design: np.ndarray, present: np.ndarray, var_e: np.ndarray) 
 
 def _wavelengths(data) -> np.ndarray:
     """Wavelengths (..., n_gratings, n_cores) nm from an array, a Frame or a sequence of Frames."""
+    if isinstance(data, np.ndarray):
+        return data if data.dtype == np.float64 else data.astype(np.float64)
     from twin.frames import Frame
 
     if isinstance(data, Frame):

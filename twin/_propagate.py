@@ -1,0 +1,415 @@
+"""The compiled propagation of :class:`twin.uncertainty.Uncertainty` (numba): curvature covariance per grating →
+position covariance per point, one call per frame or batch (docs/math.md §8.2).
+
+Per frame it evaluates, at the interpolant's breakpoints (the base, the gratings, the end) and at the first
+piece's middle point, the running integrals X_n = (Φ_n, Ψ_n) (6 × 2 per grating: the integrals of B_n R E and
+B_n (R E) × p) by the 3-point rule on each piece, then Y = Σ_n X_n V_n X_nᵀ + Z Zᵀ (6 × 6), C = A Y Aᵀ and
+C' = A' Y Aᵀ + A Y A'ᵀ, and fills C in between by cubic Hermite interpolation (t⁴(a + b t + c t²) on the first
+piece). Every array it loops over keeps the breakpoints along its last axis, so the work per grating is a
+handful of element-wise loops over ~20 breakpoints that the compiler turns into vector instructions: no
+reduction across lanes, nothing allocated per frame.
+
+:func:`propagate` also forms the per-grating covariance itself (the noise of the inversion for the frame's peak
+pattern, looked up in a table of every pattern; the model error's white and interpolation parts; the
+calibration parameters' columns ∂k/∂p σ_p), so that one call does all of :meth:`Uncertainty.propagate`.
+Constants travel as one flat array made by :func:`pack`, the interpolation weights of each pattern of valid
+gratings as one row of ``bases`` (:func:`pattern_weights`): numba checks every array argument on every call.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["covariance", "interpolation_kernel", "pack", "pattern_weights", "propagate"]
+
+_HEADER = 16
+#: fast-math without the no-NaN/no-inf assumptions: a NaN position stays NaN, and the NaN tests stay tests
+_FAST = {"contract", "reassoc", "nsz", "arcp", "afn"}
+
+
+def pack(quad: dict, grating_s: np.ndarray, lam0: np.ndarray, window: float | None, ck_table: np.ndarray,
+         sens_table: np.ndarray, par_sd: np.ndarray, curvature: float, relative: float, interpolation: float,
+         base_var: float, twist: float = 0.0, order: int = 2) -> np.ndarray:
+    """The constants of :func:`propagate` and :func:`covariance` as one float64 array.
+
+    ``quad`` the quadrature of :func:`twin.uncertainty._quadrature`; ``grating_s`` (n_g,) m; ``lam0`` (n_g, n_c)
+    nm the reference; ``window`` the physical window |e| (None: none); ``ck_table`` (n_g, 2^n_c, 2, 2) the
+    inversion's curvature covariance for every pattern of present peaks (bit c = core c present);
+    ``sens_table`` (n_g, 2^n_c, 2, n_par, 2) the operator k ↦ ∂k/∂p per pattern; ``par_sd`` (n_par,) the
+    parameters' 1σ (scaled); the model error's ``curvature`` (1/m), ``relative``, ``interpolation`` and the base
+    angle's variance ``base_var`` (rad²), the unmeasured twist rate's 1σ ``twist`` (rad/m) and the interpolation
+    term's difference ``order`` (2 or 4)."""
+    n_g, n_c = lam0.shape
+    n_p = quad["interval"].size
+    n_b = quad["breaks"].size
+    n_par = par_sd.size
+    header = np.zeros(_HEADER)
+    header[:12] = (n_g, n_c, n_p, n_b, n_par, np.inf if window is None else window, curvature, relative,
+                   interpolation, base_var, ck_table.shape[1], quad["h"][0])
+    header[12:14] = (twist, order)
+    parts = (header, grating_s, lam0, ck_table, sens_table, par_sd, quad["breaks"], quad["points"],
+             quad["interval"], _hermite_weights(quad), quad["first"], quad["half_points"])
+    return np.concatenate([np.asarray(a, dtype=np.float64).ravel() for a in parts])
+
+
+def _hermite_weights(quad: dict) -> np.ndarray:
+    """Per output point (n_p, 4) the weights of C and h C' at its piece's ends (cubic Hermite: h00, h10·h, h01,
+    h11·h), or on the first piece those of t⁴, t⁵, t⁶ (and 0)."""
+    t, h = quad["t"], quad["h"]
+    hw = np.stack([2 * t**3 - 3 * t**2 + 1, (t**3 - 2 * t**2 + t) * h, -2 * t**3 + 3 * t**2, (t**3 - t**2) * h], 1)
+    first = quad["interval"] == 0
+    hw[first] = np.stack([t[first] ** 4, t[first] ** 5, t[first] ** 6, 0 * t[first]], 1)
+    return hw
+
+
+@njit(cache=True, nogil=True)
+def _unpack(const):  # pragma: no cover (compiled)
+    n_g, n_c, n_p, n_b, n_par = int(const[0]), int(const[1]), int(const[2]), int(const[3]), int(const[4])
+    n_codes = int(const[10])
+    o = _HEADER
+    grating_s = const[o:o + n_g]
+    o += n_g
+    lam0 = const[o:o + n_g * n_c].reshape((n_g, n_c))
+    o += n_g * n_c
+    ck_table = const[o:o + n_g * n_codes * 4].reshape((n_g, n_codes, 2, 2))
+    o += n_g * n_codes * 4
+    sens_table = const[o:o + n_g * n_codes * 4 * n_par].reshape((n_g, n_codes, 2, n_par, 2))
+    o += n_g * n_codes * 4 * n_par
+    par_sd = const[o:o + n_par]
+    o += n_par
+    breaks = const[o:o + n_b].astype(np.int64)
+    o += n_b
+    points = const[o:o + (n_b - 1) * 3].astype(np.int64).reshape((n_b - 1, 3))
+    o += (n_b - 1) * 3
+    interval = const[o:o + n_p].astype(np.int64)
+    o += n_p
+    hw = const[o:o + 4 * n_p].reshape((n_p, 4))
+    o += 4 * n_p
+    first = const[o:o + 9].reshape((3, 3))
+    o += 9
+    half_points = const[o:o + 3].astype(np.int64)
+    return grating_s, lam0, ck_table, sens_table, par_sd, breaks, points, interval, hw, first, half_points
+
+
+def pattern_weights(quad: dict, basis: np.ndarray) -> np.ndarray:
+    """The quadrature weights times the interpolation basis (n_points, n_g) at the rule's points, as one row
+    (3 · n_g · n_int + 3 · n_g,): w_e B_n(u_e) per piece (e, n, piece), then the rule to the first piece's middle
+    point (e, n)."""
+    wb = (quad["weights"][:, :, None] * basis[quad["points"]]).transpose(1, 2, 0)  # (3, n_g, n_int)
+    wh = quad["half_weights"][:, None] * basis[quad["half_points"]]  # (3, n_g)
+    return np.concatenate([wb.ravel(), wh.ravel()])
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST)
+def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw, first, half_points, work,
+           out):  # pragma: no cover (compiled)
+    """Position covariance (n_p, 3, 3) of one frame into ``out`` from its positions (n_p, 3), frames
+    (n_p, 3, 3), per-grating covariance ``v`` (n_g, 2, 2), parameter columns ``sp`` (n_g, 2, n_par) (∂k/∂p σ_p)
+    and the gratings in ``use`` (n_g,); ``wrow`` the pattern's weights (:func:`pattern_weights`), ``work`` a
+    scratch buffer of :func:`_work_size`."""
+    n_g, n_par = v.shape[0], sp.shape[2]
+    n_b = breaks.size
+    n_int = n_b - 1
+    kk = _lanes(n_b)  # the breakpoints, the first piece's middle point, zeros to a multiple of 8
+    wb = wrow[:3 * n_g * n_int].reshape((3, n_g, n_int))
+    wh = wrow[3 * n_g * n_int:].reshape((3, n_g))
+    o = 0
+    g = work[o:o + 3 * 12 * n_int].reshape((3, 12, n_int))
+    o += 3 * 12 * n_int
+    gh = work[o:o + 36].reshape((3, 12))
+    o += 36
+    xn = work[o:o + 12 * kk].reshape((12, kk))  # one grating's X_n
+    o += 12 * kk
+    y = work[o:o + 36 * kk].reshape((6, 6, kk))
+    o += 36 * kk
+    z = work[o:o + 6 * n_par * kk].reshape((6, n_par, kk))
+    o += 6 * n_par * kk
+    xv = work[o:o + 12 * kk].reshape((2, 6, kk))
+    o += 12 * kk
+    m = work[o:o + 36 * kk].reshape((2, 3, 6, kk))  # A Y and A' Y
+    o += 36 * kk
+    pt = work[o:o + 6 * kk].reshape((2, 3, kk))  # p and t at the breakpoints
+    o += 6 * kk
+    cb = work[o:o + 18 * kk].reshape((2, 3, 3, kk))  # C and C'
+    o += 18 * kk
+    pc = work[o:o + n_int * 36].reshape((n_int, 4, 3, 3))
+
+    # (R E, (R E) × p) at the rule's points: δk_x turns about d2, δk_y about −d1; row r·2 + c
+    for j in range(n_int):
+        for e in range(3):
+            _integrand(pos, fr, points[j, e], g[e, :, j])
+    for e in range(3):
+        _integrand(pos, fr, half_points[e], gh[e])
+    # grating by grating (one grating's integrals stay in the first-level cache): the running integrals X_n at
+    # the breakpoints and the first piece's middle point — each piece's increment along the pieces (vectorised),
+    # then the running sum with the 12 rows side by side (the sum along one row alone would wait on its own
+    # additions) — then Y += X_n V_n X_nᵀ (upper triangle) and Z += X_n S_n σ_p, element-wise along the lanes
+    y[:] = 0.0
+    z[:] = 0.0
+    for n in range(n_g):
+        if not use[n]:
+            continue
+        for rc in range(12):
+            for j in range(n_int):
+                xn[rc, j + 1] = wb[0, n, j] * g[0, rc, j] + wb[1, n, j] * g[1, rc, j] + wb[2, n, j] * g[2, rc, j]
+            xn[rc, 0] = 0.0
+            xn[rc, n_b] = wh[0, n] * gh[0, rc] + wh[1, n] * gh[1, rc] + wh[2, n] * gh[2, rc]
+            for i in range(n_b + 1, kk):
+                xn[rc, i] = 0.0
+        for j in range(1, n_int):
+            for rc in range(12):
+                xn[rc, j + 1] += xn[rc, j]
+        v00, v01, v11 = v[n, 0, 0], v[n, 0, 1], v[n, 1, 1]
+        for r in range(6):
+            for i in range(kk):
+                a0, a1 = xn[2 * r, i], xn[2 * r + 1, i]
+                xv[0, r, i] = a0 * v00 + a1 * v01
+                xv[1, r, i] = a0 * v01 + a1 * v11
+        for r in range(6):
+            for c in range(r, 6):
+                for i in range(kk):
+                    y[r, c, i] += xv[0, r, i] * xn[2 * c, i] + xv[1, r, i] * xn[2 * c + 1, i]
+        for q in range(n_par):
+            s0, s1 = sp[n, 0, q], sp[n, 1, q]
+            for r in range(6):
+                for i in range(kk):
+                    z[r, q, i] += xn[2 * r, i] * s0 + xn[2 * r + 1, i] * s1
+    for r in range(6):
+        for c in range(r, 6):
+            for q in range(n_par):
+                for i in range(kk):
+                    y[r, c, i] += z[r, q, i] * z[c, q, i]
+            if c > r:
+                for i in range(kk):
+                    y[c, r, i] = y[r, c, i]
+    # p and t where C is formed
+    for i in range(kk):
+        idx = breaks[i] if i < n_b else half_points[2]  # (the padding repeats the middle point)
+        for r in range(3):
+            pt[0, r, i] = pos[idx, r]
+            pt[1, r, i] = fr[idx, r, 2]
+    # A = (−[p]×, −I), A' = (−[t]×, 0): m0 = A Y, m1 = A' Y
+    p0, p1, p2 = pt[0, 0], pt[0, 1], pt[0, 2]
+    t0, t1, t2 = pt[1, 0], pt[1, 1], pt[1, 2]
+    for e in range(6):
+        for i in range(kk):
+            u0, u1, u2 = y[0, e, i], y[1, e, i], y[2, e, i]
+            m[0, 0, e, i] = p2[i] * u1 - p1[i] * u2 - y[3, e, i]
+            m[0, 1, e, i] = p0[i] * u2 - p2[i] * u0 - y[4, e, i]
+            m[0, 2, e, i] = p1[i] * u0 - p0[i] * u1 - y[5, e, i]
+            m[1, 0, e, i] = t2[i] * u1 - t1[i] * u2
+            m[1, 1, e, i] = t0[i] * u2 - t2[i] * u0
+            m[1, 2, e, i] = t1[i] * u0 - t0[i] * u1
+    # C = (A Y) Aᵀ, C' = (A' Y) Aᵀ + (A Y) A'ᵀ
+    for r in range(3):
+        for i in range(kk):
+            a0, a1, a2 = m[0, r, 0, i], m[0, r, 1, i], m[0, r, 2, i]
+            d0, d1, d2 = m[1, r, 0, i], m[1, r, 1, i], m[1, r, 2, i]
+            cb[0, r, 0, i] = p2[i] * a1 - p1[i] * a2 - m[0, r, 3, i]
+            cb[0, r, 1, i] = p0[i] * a2 - p2[i] * a0 - m[0, r, 4, i]
+            cb[0, r, 2, i] = p1[i] * a0 - p0[i] * a1 - m[0, r, 5, i]
+            cb[1, r, 0, i] = p2[i] * d1 - p1[i] * d2 - m[1, r, 3, i] + t2[i] * a1 - t1[i] * a2
+            cb[1, r, 1, i] = p0[i] * d2 - p2[i] * d0 - m[1, r, 4, i] + t0[i] * a2 - t2[i] * a0
+            cb[1, r, 2, i] = p1[i] * d0 - p0[i] * d1 - m[1, r, 5, i] + t1[i] * a0 - t0[i] * a1
+    # per piece the four 3 × 3 coefficients of its points' weights (:func:`_hermite_weights`): C and C' at its
+    # ends; on the first piece t⁴ (a + b t + c t²) through C(1), h C'(1) and C at the middle point, solved
+    # with the precomputed inverse ``first`` (C ~ s⁴ from the base, an angle times an arm, s⁶ along the tangent,
+    # which a cubic cannot follow)
+    for r in range(3):
+        for c in range(3):
+            rhs0, rhs1, rhs2 = cb[0, r, c, 1], h0 * cb[1, r, c, 1], cb[0, r, c, n_b]
+            for e in range(3):
+                pc[0, e, r, c] = first[e, 0] * rhs0 + first[e, 1] * rhs1 + first[e, 2] * rhs2
+            pc[0, 3, r, c] = 0.0
+            for q in range(1, n_int):
+                pc[q, 0, r, c] = cb[0, r, c, q]
+                pc[q, 1, r, c] = cb[1, r, c, q]
+                pc[q, 2, r, c] = cb[0, r, c, q + 1]
+                pc[q, 3, r, c] = cb[1, r, c, q + 1]
+    # then every point from its piece's coefficients, plus the base angle exactly
+    for j in range(pos.shape[0]):
+        q = interval[j]
+        w0, w1, w2, w3 = hw[j, 0], hw[j, 1], hw[j, 2], hw[j, 3]
+        q0, q1, q2 = pos[j, 0], pos[j, 1], pos[j, 2]
+        pp = q0 * q0 + q1 * q1 + q2 * q2
+        for r in range(3):
+            for c in range(r, 3):
+                val = w0 * pc[q, 0, r, c] + w1 * pc[q, 1, r, c] + w2 * pc[q, 2, r, c] + w3 * pc[q, 3, r, c]
+                val += base_var * ((pp if r == c else 0.0) - pos[j, r] * pos[j, c])
+                out[j, r, c] = val
+                out[j, c, r] = val
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _integrand(pos, fr, i, dst):  # pragma: no cover (compiled)
+    """(R E, (R E) × p) at output point i into ``dst`` (12,), row r·2 + c: the axes δk_x (d2) and δk_y (−d1)
+    turn the fibre about, and their moments about the origin."""
+    p0, p1, p2 = pos[i, 0], pos[i, 1], pos[i, 2]
+    for c in range(2):
+        if c == 0:
+            a0, a1, a2 = fr[i, 0, 1], fr[i, 1, 1], fr[i, 2, 1]
+        else:
+            a0, a1, a2 = -fr[i, 0, 0], -fr[i, 1, 0], -fr[i, 2, 0]
+        dst[c] = a0
+        dst[2 + c] = a1
+        dst[4 + c] = a2
+        dst[6 + c] = a1 * p2 - a2 * p1
+        dst[8 + c] = a2 * p0 - a0 * p2
+        dst[10 + c] = a0 * p1 - a1 * p0
+
+
+@njit(cache=True, nogil=True)
+def _lanes(n_b):  # pragma: no cover (compiled)
+    """The length of the arrays along the breakpoints: n_b + 1 rounded up to a multiple of 8, so that the loops
+    along them run in whole vectors (no scalar remainder)."""
+    return (n_b + 1 + 7) // 8 * 8
+
+
+@njit(cache=True, nogil=True)
+def _work_size(n_g, n_b, n_par):  # pragma: no cover (compiled)
+    kk = _lanes(n_b)
+    # g, gh, x, y, z, xv, m, pt, cb, pc
+    return 36 * (n_b - 1) + 36 + 12 * kk + 36 * kk + 6 * n_par * kk + 12 * kk + 36 * kk + 6 * kk + 18 * kk \
+        + 36 * (n_b - 1)
+
+
+@njit(cache=True, nogil=True)
+def covariance(const, pos, frames, v, sp, valid, bases, which, out):  # pragma: no cover (compiled)
+    """Position covariance (F, n_p, 3, 3) into ``out`` from the per-grating covariance ``v`` (F, n_g, 2, 2) and
+    parameter columns ``sp`` (F, n_g, 2, n_par) (∂k/∂p σ_p) given; ``valid`` (F, n_g), ``bases`` the patterns'
+    weights (:func:`pattern_weights`), ``which`` (F,) each frame's pattern. NaN for a frame without a valid
+    grating."""
+    (_, _, _, _, _, breaks, points, interval, hw, first, half_points) = _unpack(const)
+    n_f, n_g = v.shape[0], v.shape[1]
+    base_var = const[9]
+    work = np.empty(_work_size(n_g, breaks.size, sp.shape[3]))
+    for f in range(n_f):
+        if not valid[f].any():
+            out[f] = np.nan
+            continue
+        _frame(pos[f], frames[f], v[f], sp[f], valid[f], base_var, const[11], bases[which[f]], breaks, points,
+               interval, hw, first, half_points, work, out[f])
+
+
+@njit(cache=True, nogil=True)
+def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  # pragma: no cover (compiled)
+    """All of :meth:`twin.uncertainty.Uncertainty.propagate` for F frames: ``pos`` (F, n_p, 3), ``frames``
+    (F, n_p, 3, 3), curvature ``k`` (F, n_g, 2) (NaN where invalid), ``valid`` (F, n_g), wavelengths ``w``
+    (F, n_g, n_c) nm (or (0, n_g, n_c): every peak of a valid grating present) → ``cov_out`` (F, n_p, 3, 3) m²,
+    ``ck_out`` (F, n_g, 2, 2) (1/m)², NaN at invalid gratings. ``which`` (F,) each frame's row of ``bases``; or
+    empty: then ``bases[0]`` is the intact pattern's, and the frames that lost a grating are left out of
+    ``cov_out`` (not of ``ck_out``) for a second call with their patterns. Returns the number left out."""
+    (grating_s, lam0, ck_table, sens_table, par_sd, breaks, points, interval, hw, first,
+     half_points) = _unpack(const)
+    n_f, n_g = k.shape[0], k.shape[1]
+    n_c, n_par = lam0.shape[1], par_sd.size
+    window, white, relative, interp, base_var = const[5], const[6], const[7], const[8], const[9]
+    twist, order = const[12], int(const[13])
+    n_sh = n_par + (1 if twist != 0.0 else 0)  # the shared columns: the parameters, the twist
+    full = (1 << n_c) - 1
+    work = np.empty(_work_size(n_g, breaks.size, n_sh))
+    v = np.empty((n_g, 2, 2))
+    sp = np.empty((n_g, 2, n_sh))
+    kf = np.empty((n_g, 2))
+    sig = np.empty(n_g)
+    idx = np.empty(n_g, np.int64)
+    tab = np.empty((order + 1, 2))
+    left_out = 0
+    for f in range(n_f):
+        n_valid = 0
+        for n in range(n_g):
+            kf[n, 0] = k[f, n, 0] if valid[f, n] else 0.0
+            kf[n, 1] = k[f, n, 1] if valid[f, n] else 0.0
+            n_valid += valid[f, n]
+        # the model error: white + relative·|k|, and the interpolation part, added in variance
+        if interp != 0.0:
+            _interpolation_frame(kf, valid[f], grating_s, order, idx, tab, sig)
+        for n in range(n_g):
+            wsig = white + relative * np.sqrt(kf[n, 0] ** 2 + kf[n, 1] ** 2)
+            isig = interp * sig[n] if interp != 0.0 else 0.0
+            var_m = wsig * wsig + isig * isig
+            # the peaks present (not NaN, finite, inside the window: as the reconstructor's strain())
+            code = full
+            if w.shape[0] > 0:
+                code = 0
+                for c in range(n_c):
+                    e = (w[f, n, c] - lam0[n, c]) / lam0[n, c]
+                    if np.isfinite(e) and np.abs(e) <= window:
+                        code |= 1 << c
+            v[n, 0, 0] = ck_table[n, code, 0, 0] + var_m
+            v[n, 0, 1] = ck_table[n, code, 0, 1]
+            v[n, 1, 0] = ck_table[n, code, 1, 0]
+            v[n, 1, 1] = ck_table[n, code, 1, 1] + var_m
+            for i in range(2):
+                for q in range(n_par):
+                    sp[n, i, q] = par_sd[q] * (sens_table[n, code, i, q, 0] * kf[n, 0]
+                                               + sens_table[n, code, i, q, 1] * kf[n, 1])
+            if n_sh > n_par:
+                # the unmeasured twist: δk_n = τ s_n J k_n, J k = (−k_y, k_x), per 1σ of τ; it moves the
+                # positions, not the measured curvature (ModelError.twist_sensitivity)
+                sp[n, 0, n_par] = -twist * grating_s[n] * kf[n, 1]
+                sp[n, 1, n_par] = twist * grating_s[n] * kf[n, 0]
+            for i in range(2):
+                for j in range(2):
+                    acc = v[n, i, j]
+                    for q in range(n_par):
+                        acc += sp[n, i, q] * sp[n, j, q]
+                    ck_out[f, n, i, j] = acc if valid[f, n] else np.nan
+        if n_valid == 0:
+            cov_out[f] = np.nan
+            continue
+        if which.size == 0 and n_valid < n_g:
+            left_out += 1
+            continue
+        row = bases[0] if which.size == 0 else bases[which[f]]
+        _frame(pos[f], frames[f], v, sp, valid[f], base_var, const[11], row, breaks, points, interval, hw, first,
+               half_points, work, cov_out[f])
+    return left_out
+
+
+@njit(cache=True, nogil=True)
+def _interpolation_frame(k, valid, s, order, idx, tab, out):  # pragma: no cover (compiled)
+    """:func:`interpolation_kernel` for one frame: k (n, 2), valid (n,) → out (n,); ``idx`` (n,) int64 and
+    ``tab`` (order + 1, 2) scratch."""
+    n = valid.shape[0]
+    fact = 1.0
+    for q in range(2, order + 1):
+        fact *= q
+    m = 0
+    for i in range(n):
+        out[i] = 0.0
+        if valid[i]:
+            idx[m] = i
+            m += 1
+    if m < order + 1:
+        return
+    for j in range(m):
+        start = min(max(j - order // 2, 0), m - order - 1)
+        for q in range(order + 1):
+            tab[q, 0] = k[idx[start + q], 0]
+            tab[q, 1] = k[idx[start + q], 1]
+        for lev in range(1, order + 1):  # divided differences in place
+            for q in range(order, lev - 1, -1):
+                d = s[idx[start + q]] - s[idx[start + q - lev]]
+                tab[q, 0] = (tab[q, 0] - tab[q - 1, 0]) / d
+                tab[q, 1] = (tab[q, 1] - tab[q - 1, 1]) / d
+        dk = fact * np.sqrt(tab[order, 0] ** 2 + tab[order, 1] ** 2)
+        i = idx[j]
+        hm = s[i] - s[idx[j - 1]] if j > 0 else 0.0
+        hp = s[idx[j + 1]] - s[i] if j < m - 1 else 0.0
+        e = 2 * order + 2
+        out[i] = dk * np.sqrt(0.5 * (hm**e + hp**e)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
+
+
+@njit(cache=True, nogil=True)
+def interpolation_kernel(k, valid, s, order, out):  # pragma: no cover (compiled)
+    """|k⁽ᵖ⁾_n| √(½ Σ H^(2p+2)) / (w_n √2) per frame and grating (:meth:`ModelError.interpolation_sigma`
+    without c), p = ``order`` (2 or 4): k (F, n, 2), valid (F, n), s (n,), out (F, n); k⁽ᵖ⁾_n is p! times the
+    p-th divided difference over p + 1 consecutive valid gratings centred on n (shifted inwards at the ends, so
+    the end gratings share their neighbours' stencil); 0 at invalid gratings, and with fewer than p + 1 valid."""
+    n_f, n = valid.shape
+    idx = np.empty(n, np.int64)
+    tab = np.empty((order + 1, 2))
+    for f in range(n_f):
+        _interpolation_frame(k[f], valid[f], s, order, idx, tab, out[f])
