@@ -493,7 +493,7 @@ class Scene:
         ``roll_joint`` (the parent's hinge about the rod's axis; None: the twist is held at 0). The parent may only
         translate and roll about the rod's axis. Why: MuJoCo assembles the rod's stiffness in 3×3 vertex blocks only
         while no flex vertex sits on a body with joints; a rod pinned to one has it pulled back through the
-        attachment Jacobians, and its effective-metric solve runs to the iteration cap — 2–2.5× the step of the same
+        attachment Jacobians, and its effective-metric solve runs long — 2.2–2.6× the step of the same
         sheath scene (docs/simulation.md §4).
         """
         spec = spec or CatheterSpec()
