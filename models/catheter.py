@@ -479,15 +479,27 @@ class Scene:
 
     # -- the rod --
     def add_rod(
-        self, spec: CatheterSpec | None = None, pose: Pose | None = None, parent: str | None = None
+        self, spec: CatheterSpec | None = None, pose: Pose | None = None, parent: str | None = None, *,
+        parent_world: Pose | None = None, roll_joint: str | None = None,
     ) -> RodHandle:
         """Add a catheter rod with its clamp at ``pose`` (in the parent body's frame).
 
         The rod lies straight along the pose's +z axis in ``qpos0`` (its rest shape), first edge clamped to
         the parent body (the world, or e.g. a hub body with joints for insertion and rotation).
+
+        A parent that moves is best given with ``parent_world``, its world pose in ``qpos0``: the rod then lies in
+        the world and hangs from the parent by constraints instead of a pin — connect equalities hold the clamped
+        edge's two vertices where the pin would, and a joint equality makes that edge's twist joint follow
+        ``roll_joint`` (the parent's hinge about the rod's axis; None: the twist is held at 0). The parent may only
+        translate and roll about the rod's axis. Why: MuJoCo assembles the rod's stiffness in 3×3 vertex blocks only
+        while no flex vertex sits on a body with joints; a rod pinned to one has it pulled back through the
+        attachment Jacobians, and its effective-metric solve runs long — 2.2–2.6× the step of the same
+        sheath scene (docs/simulation.md §4).
         """
         spec = spec or CatheterSpec()
         pose = pose or Pose()
+        if parent_world is not None and parent is None:
+            raise ValueError(f"Scene {self.name!r}: parent_world needs the parent body the rod hangs from")
         if any(r.name == spec.name for r in self.rods):
             raise ValueError(f"Scene {self.name!r}: a rod named {spec.name!r} exists already")
         if self.rods:
@@ -523,21 +535,34 @@ class Scene:
             size="0.0005",
             group="3",
         )
+        rod_pose = pose if parent_world is None else parent_world @ pose
         fc = ET.SubElement(
-            p,
+            p if parent_world is None else self._world,
             "flexcomp",
             name=spec.name,
             type="direct",
             dim="1",
             radius=_fmt(spec.radius),
             mass=_fmt(spec.simulated_mass),
-            pos=_fmt(pose.pos),
-            quat=_fmt(pose.quat),
+            pos=_fmt(rod_pose.pos),
+            quat=_fmt(rod_pose.quat),
             rgba="0.85 0.45 0.2 1",
             point=_fmt(points),
             element=_fmt(elements),
         )
-        ET.SubElement(fc, "pin", id="0 1")  # clamp the first edge and its material frame
+        if parent_world is None:
+            ET.SubElement(fc, "pin", id="0 1")  # clamp the first edge and its material frame
+        else:  # the same clamp by constraints (the vertex bodies' origins are their places in qpos0)
+            # stiffer than the rod's own rows (equality rows are stable at any time constant under the discrete
+            # integrator): at 2·dt the clamped edge tilted by up to 1e-4 rad under the sheath's friction (≈ 18 µm
+            # at the tip), at 0.1·dt by 1.7e-5 rad
+            clamp = _fmt((0.1 * spec.timestep, 1.0))
+            for i in (0, 1):
+                self.add_equality("connect", name=f"{spec.name}_clamp_{i}", body1=f"{spec.name}_{i}", body2=parent,
+                                  anchor="0 0 0", solref=clamp, solimp=solimp)
+            twist = {"joint2": roll_joint} if roll_joint is not None else {}
+            self.add_equality("joint", name=f"{spec.name}_clamp_twist", joint1=f"{spec.name}_twist_0", **twist,
+                              solref=clamp, solimp=solimp)
         ET.SubElement(fc, "edge", equality="true", solref=solref, solimp=solimp)  # inextensible
         ET.SubElement(
             fc,

@@ -200,7 +200,7 @@ def test_a_view_of_a_result_keeps_its_memory_from_being_reused():
     assert np.array_equal(tip, before)
 
 
-def test_no_centre_fibre_in_lanes():
+def test_no_centre_fiber_in_lanes():
     fiber = FiberModel(core_angles=[0.0, np.pi / 2, np.pi, 3 * np.pi / 2], core_radii=[37.5e-6] * 4,
                        grating_s=PAPER.grating_s, lambda0=PAPER.lambda0)
     w = lose(wavelengths(fiber, 2 * LANES + 1), "one core here and there")

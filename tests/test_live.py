@@ -652,3 +652,85 @@ def test_wavelengths_of_the_wrong_shape_name_expected_and_got(bad, got):
         Reconstructor(FiberModel.paper())(bad)
     msg = str(err.value)
     assert "(..., 18, 4)" in msg and got in msg and "\n" not in msg
+
+
+def _reference_books(rec, frames: Frame, raises: bool = False) -> tuple[dict, list[int]]:
+    """The counts and flags of docs/figures.md for a batch, frame by frame from their definitions (numpy and the
+    sequence counter one number at a time): what the live loop's one compiled pass must equal."""
+    from twin.io.sequence import SequenceCounter
+
+    e, outside = rec.strain(frames.wavelengths)
+    g = rec.fiber.n_gratings
+    valid = np.zeros((len(frames), g), bool) if raises else rec.from_strain(e).valid
+    seq = SequenceCounter()
+    flags, n = [], len(frames)
+    for i in range(n):
+        f = FrameFlag.MISSING_PEAKS if np.isnan(e[i]).any() else 0
+        solved = int(valid[i].sum())
+        f |= FrameFlag.UNUSABLE if solved == 0 else FrameFlag.PARTIAL if solved < g else 0
+        f |= FrameFlag.SEQUENCE_GAP if seq.count(int(frames.sequence[i])) else 0
+        flags.append(int(f))
+    fl = np.array(flags)
+    counts = {
+        "frames": n, "peaks_outside_window": int(outside.sum()),
+        "frames_missing_peaks": int(np.count_nonzero(fl & FrameFlag.MISSING_PEAKS)),
+        "frames_partial": int(np.count_nonzero(fl & FrameFlag.PARTIAL)),
+        "frames_unusable": int(np.count_nonzero(fl & FrameFlag.UNUSABLE)),
+        "frames_complete": int(np.count_nonzero((fl & (FrameFlag.PARTIAL | FrameFlag.UNUSABLE)) == 0)),
+        "invalid_nodes": int(g * n - valid.sum()),
+        **seq.as_dict(),
+    }
+    return counts, flags
+
+
+class _Failing(Reconstructor):
+    def from_strain(self, strain, *, frames=True):
+        raise RuntimeError("broken on purpose")
+
+
+@pytest.mark.parametrize("raises", [False, True])
+def test_the_loops_compiled_books_equal_the_definitions_over_a_damaged_stream(raises):
+    """LiveLoop.process keeps its books in one compiled pass per batch (twin.live._batch_books); over a damaged
+    stream (missing peaks, whole gratings and frames gone, absurd and infinite peaks, lost, repeated and unknown
+    sequence numbers) cut into batches of every size, its counts and flags equal the per-frame definitions."""
+    f = FiberModel.paper()
+    rng = np.random.default_rng(24)
+    n = 300
+    w = np.broadcast_to(f.lambda0, (n, *f.lambda0.shape)).copy()
+    w += rng.normal(0, 0.02, w.shape)
+    w[rng.random(w.shape) < 0.03] = np.nan  # single peaks missing
+    w[rng.random(n) < 0.05, 4, :] = np.nan  # a grating gone
+    w[rng.random(n) < 0.03] = np.nan  # a frame gone
+    hit = rng.random(w.shape) < 0.005
+    w[hit] = rng.choice([1e300, -1e300, np.inf, -np.inf, 0.0], hit.sum())
+    seq = np.cumsum(rng.choice([1, 1, 1, 2, 5, 0, -7], n))
+    seq[rng.random(n) < 0.03] = -1  # unknown
+    stream = Frame(w, np.arange(n) * 1e-3, seq)
+    rec = (_Failing if raises else Reconstructor)(f)
+    want, want_flags = _reference_books(rec, stream, raises)
+    assert want["frames_missing_peaks"] and want["lost_samples"] and want["sequence_resets"]
+    if not raises:
+        assert want["frames_partial"] and want["frames_unusable"] and want["peaks_outside_window"]
+    loop = LiveLoop(lambda: None, rec, quiet=True)
+    cuts = np.sort(rng.choice(np.arange(1, n), 40, replace=False))
+    flags, parts = [], np.split(np.arange(n), cuts)
+    for part in parts:
+        good, shapes, fl = loop.process(stream[part])
+        assert len(good) == len(part) and (shapes is None) == raises
+        flags += fl.tolist()
+    got = {k: getattr(loop.c, k) for k in want}
+    assert got == want and flags == want_flags
+    assert loop.c.reconstruct_errors == (len(parts) if raises else 0)  # each batch counted once
+
+
+def test_the_rate_meters_compiled_timestamp_check_equals_numpys():
+    """RateMeter.add judges a batch's timestamps usable (all finite, none going back) in one compiled pass."""
+    from twin.io.rate import _finite_and_ordered
+
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        ts = np.cumsum(rng.choice([0.0, 1e-3, 1e-3, -1e-3], rng.integers(1, 6)))
+        if rng.random() < 0.3:
+            ts[rng.integers(ts.size)] = rng.choice([np.nan, np.inf, -np.inf])
+        want = bool(np.isfinite(ts).all()) and bool((ts[1:] >= ts[:-1]).all())
+        assert _finite_and_ordered(ts) == want

@@ -1,7 +1,5 @@
 """The synthetic interrogator: optics effects, the SimInterrogator, sim:// URLs and the static-shapes regression."""
 
-import re
-
 import mujoco
 import numpy as np
 import pytest
@@ -155,6 +153,44 @@ def test_compiled_frame_path_equals_the_numpy_path():
         np.testing.assert_array_equal(st, st0)
         np.testing.assert_allclose(w, w0, rtol=0, atol=1e-12)
     assert np.abs(w - fast._path(fast.data, 1e-4, 5.0, 0.6, 0.0)[0]).max() > 1e-3  # the roll changes the peaks
+
+
+def test_connect_shape_sleeps_at_rest_and_reads_as_the_awake_rod():
+    """A settled rod held by connect constraints is put to sleep (models.fixtures.sleep_at_rest) and then reads as
+    the same rod kept awake does 3 s later: curvature at the gratings within 1e-4 1/m (of ≈ 40), centreline within
+    0.1 µm, ideal wavelengths within 1e-5 nm."""
+    from models.fixtures import wake
+
+    asleep = SimInterrogator(StaticShape("mixed", "connect", timestep=1e-3), optics=OpticsConfig.ideal(), rate=10.0)
+    awake = SimInterrogator(StaticShape("mixed", "connect", timestep=1e-3), optics=OpticsConfig.ideal(), rate=10.0)
+    wake(awake.model)
+    for _ in range(31):
+        a, b = asleep.read(), awake.read()
+    assert a.timestamp == b.timestamp == pytest.approx(3.0)
+    assert (asleep.data.tree_asleep >= 0).all() and (awake.data.tree_asleep < 0).all()
+    np.testing.assert_allclose(a.truth.curvature, b.truth.curvature, rtol=0, atol=1e-4)
+    np.testing.assert_allclose(a.truth.positions, b.truth.positions, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(a.wavelengths, b.wavelengths, rtol=0, atol=1e-5)
+    # a rod on contacts creeps on after settling: it stays awake
+    tube = StaticShape("arc", "tube", settle_time=10.0)
+    model, data = tube.build()
+    tube.prepare(model, data)
+    assert not model.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+
+
+def test_calibration_pose_wakes_the_sleeping_rod():
+    """sim://calibration sleeps in each settled pose; set_pose wakes it, so the bend is reached (16 1/m)."""
+    from sim_interrogator.setups import CalibrationPoses
+
+    sim = SimInterrogator(CalibrationPoses(), optics=OpticsConfig.ideal(), rate=10.0)
+    sim.read(), sim.read()
+    assert (sim.data.tree_asleep >= 0).all()
+    np.testing.assert_allclose(sim.read().truth.curvature, 0.0, atol=1e-3)
+    sim.set_pose("bend")
+    k = np.hypot(*sim.read().truth.curvature.T)
+    np.testing.assert_allclose(k, 16.0, rtol=2e-3)
+    sim.read(), sim.read()
+    assert (sim.data.tree_asleep >= 0).all()
 
 
 def _twin_pair(cfg: OpticsConfig) -> tuple[SimInterrogator, SimInterrogator]:
@@ -320,12 +356,25 @@ def test_static_shapes_full_set_in_tubes():
 
 def test_twin_live_of_the_simulator_collects_mujocos_warnings_and_leaves_no_log(tmp_path):
     """Issue 23 A10: `twin live sim://…` printed MuJoCo's raw "Inertia matrix is too close to singular … Check
-    model." and left MUJOCO_LOG.TXT in the current folder. The sheath scene's start-up gives such warnings every
-    time: they must be counted and explained in the summary instead."""
+    model." and left MUJOCO_LOG.TXT in the current folder; such warnings must be counted and explained in the
+    summary instead. The sheath scenes gave them at every start-up while the rod was pinned to the moving hub; hung
+    from it by equalities (docs/simulation.md §4) they give none, so the pinned variant checks the counting, and
+    `twin live` is checked for silence and no log file."""
     import json
     import os
     import subprocess
     import sys
+
+    from sim_interrogator.sheath_setups import SheathCycle
+
+    class PinnedToHub(SheathCycle):
+        pin_to_hub = True
+
+    sim = SimInterrogator(PinnedToHub(segments=60), optics=OpticsConfig.ideal(), rate=100.0, truth=False)
+    for _ in range(5):
+        sim.read()
+    stats = sim.stats()
+    assert stats["warnings"] >= 1 and "expected at the flex rod's start-up" in stats["warnings_note"], stats
 
     argv = [sys.executable, "-m", "twin.cli", "live", "sim://sheath-cycle?segments=60", "--frames", "5", "--quiet"]
     env = {**os.environ, "MPLBACKEND": "Agg"}
@@ -335,7 +384,4 @@ def test_twin_live_of_the_simulator_collects_mujocos_warnings_and_leaves_no_log(
         assert run.returncode == 0, run.stderr
         assert "WARNING" not in run.stdout + run.stderr and "Check model" not in run.stdout + run.stderr
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists() and os.listdir(tmp_path) == []
-    assert re.search(r"source warnings: [1-9]\d* \(MuJoCo solver warnings, expected at the flex rod's start-up, "
-                     r"results unaffected \(docs/simulation.md §1\); the first: ", runs[0].stdout), runs[0].stdout
-    source = json.loads(runs[1].stdout)["source"]
-    assert source["warnings"] >= 1 and "expected at the flex rod's start-up" in source["warnings_note"]
+    assert json.loads(runs[1].stdout)["source"]["warnings"] == 0

@@ -66,11 +66,12 @@ from dataclasses import dataclass, field
 from typing import Protocol, TextIO
 
 import numpy as np
+from numba import njit
 
 from twin.frames import Frame, Shape
 from twin.io.errors import SourceFailed
 from twin.io.rate import RateMeter
-from twin.io.sequence import SequenceCounter
+from twin.io.sequence import SequenceCounter, lost_before
 from twin.io.source import Source, SourceClosed
 from twin.io.transport import Backoff
 from twin.reconstruct import Reconstructor
@@ -100,7 +101,69 @@ class FrameFlag(enum.IntFlag):
     SEQUENCE_GAP = 8  #: samples were lost just before this frame
 
 
-_MISSING, _PARTIAL, _UNUSABLE, _GAP = (np.uint8(f) for f in (1, 2, 4, 8))
+# the bits as plain ints: compiled code takes them as constants
+_MISSING, _PARTIAL, _UNUSABLE, _GAP = (int(f) for f in (FrameFlag.MISSING_PEAKS, FrameFlag.PARTIAL,
+                                                        FrameFlag.UNUSABLE, FrameFlag.SEQUENCE_GAP))
+
+
+@njit(cache=True, nogil=True)
+def _batch_books(strain, outside, valid, sequence, last, first):
+    """The books of one batch in one compiled pass (the numpy form cost ≈ 15 µs of array calls a batch, half a
+    microsecond a frame at ~28 frames a batch).
+
+    Parameters
+    ----------
+    strain : ndarray (n, n_gratings, n_cores)
+        NaN where a peak is missing or outside the window.
+    outside : ndarray of bool (n, n_gratings, n_cores)
+        Peaks present but outside the window.
+    valid : ndarray of bool (n, n_gratings)
+        Gratings solved.
+    sequence : ndarray of int64 (n,)
+    last, first
+        The sequence counter's reference and whether it has none (:func:`twin.io.sequence.lost_before`).
+
+    Returns
+    -------
+    flags : ndarray of uint8 (n,)
+        :class:`FrameFlag` bits.
+    n_outside, n_missing, n_partial, n_unusable, n_invalid, last_usable : int
+        Peaks outside the window; frames with a peak missing, some / no grating solved; gratings not solved;
+        index of the last frame with a grating solved (−1: none).
+    gaps, resets, last, lost_hi, lost_lo : int
+        For :meth:`twin.io.sequence.SequenceCounter.book`.
+    """
+    n, g, k = strain.shape
+    flags = np.zeros(n, np.uint8)
+    lost, gaps, resets, last, lost_hi, lost_lo = lost_before(sequence, last, first)
+    n_outside = n_missing = n_partial = n_unusable = n_invalid = 0
+    last_usable = -1
+    for i in range(n):
+        f = 0
+        for j in range(g):
+            for m in range(k):
+                n_outside += outside[i, j, m]
+                if f == 0 and np.isnan(strain[i, j, m]):
+                    f = _MISSING
+        if f:
+            n_missing += 1
+        solved = 0
+        for j in range(g):
+            solved += valid[i, j]
+        n_invalid += g - solved
+        if solved == 0:
+            f |= _UNUSABLE
+            n_unusable += 1
+        else:
+            last_usable = i
+            if solved < g:
+                f |= _PARTIAL
+                n_partial += 1
+        if lost[i] > 0:
+            f |= _GAP
+        flags[i] = f
+    return (flags, n_outside, n_missing, n_partial, n_unusable, n_invalid, last_usable,
+            gaps, resets, last, lost_hi, lost_lo)
 
 
 class Sink(Protocol):
@@ -391,48 +454,48 @@ class LiveLoop:
             When no frame has matched the fibre model yet and this batch does not either: a configuration
             error (wrong ``--fiber``), not a transient.
         """
-        if len(frames.batch_shape) != 1:
+        w = frames.wavelengths
+        shape = w.shape  # (n, n_gratings, n_cores): read once, not through the Frame's properties
+        if len(shape) != 3:
             raise ValueError(f"LiveLoop.process: expected a 1-D batch Frame, got batch shape {frames.batch_shape}")
-        n = len(frames)
-        if frames.wavelengths.shape[1:] != self._shape:
-            self._reject(n, frames.wavelengths.shape[1:])
+        n = shape[0]
+        if shape[1:] != self._shape:
+            self._reject(n, shape[1:])
             return self._empty, None, np.zeros(0, np.uint8)
         if n == 0:
             return frames, None, np.zeros(0, np.uint8)
         t0 = time.perf_counter()
         self._matched_any = True
         c = self.c
-        e, outside = self.rec.strain(frames.wavelengths)  # once: the window check and the reconstruction
-        n_outside = int(np.count_nonzero(outside))
-        flags = np.isnan(e.reshape(n, -1)).any(axis=1).astype(np.uint8)  # MISSING_PEAKS = 1
-        # counted before the sequence counter adds its own flag to the same array
-        n_missing = int(np.count_nonzero(flags))
-        self._count_sequence(frames.sequence, flags)
+        rec = self.rec
+        e, outside = rec.strain(w)  # once: the window check and the reconstruction
         try:
-            shapes = self.rec.from_strain(e)
+            shapes = rec.from_strain(e)
+            valid = shapes.valid
         except Exception as exc:  # the frames still reach the sinks (the recorder keeps them)
             if not c.reconstruct_errors:
                 self._say(f"reconstruction failed: {exc}")
             c.reconstruct_errors += 1
             shapes = None
-        g = self._shape[0]
+            valid = np.zeros((n, self._shape[0]), bool)  # no grating solved: every frame unusable
+        counter = self._sequence
+        (flags, n_outside, n_missing, n_partial, n_unusable, n_invalid, last_usable,
+         *books) = _batch_books(e, outside, valid, frames.sequence, counter.reference, counter.last is None)
+        counter.book(*books)
+        c.sequence_gaps = counter.sequence_gaps
+        c.lost_samples = counter.lost_samples
+        c.sequence_resets = counter.sequence_resets
         c.peaks_outside_window += n_outside
-        n_valid = np.zeros(n, np.int64) if shapes is None else shapes.valid.sum(axis=-1)
-        unusable = n_valid == 0
-        partial = (n_valid < g) & ~unusable
-        flags |= (partial * _PARTIAL) | (unusable * _UNUSABLE)
-        n_partial, n_unusable = int(partial.sum()), int(unusable.sum())
         c.frames += n
         c.frames_missing_peaks += n_missing
         c.frames_partial += n_partial
         c.frames_unusable += n_unusable
         c.frames_complete += n - n_partial - n_unusable
-        c.invalid_nodes += g * n - int(n_valid.sum())
+        c.invalid_nodes += n_invalid
         self._count_span(frames.timestamp)
-        if n_unusable < n:
+        if last_usable >= 0:
             self._last_valid = time.monotonic()
-            last = n - 1 if not unusable[-1] else int(np.flatnonzero(~unusable)[-1])
-            self._tip = shapes.positions[last, -1].copy()
+            self._tip = shapes.positions[last_usable, -1].copy()
         c.process_s += time.perf_counter() - t0
         return frames, shapes, flags
 
@@ -459,14 +522,6 @@ class LiveLoop:
                 f"frames have {bad[0]} gratings × {bad[1]} cores but the fibre model has {shape[0]} × "
                 f"{shape[1]}; give the sensor's fibre model (--fiber FILE)"
             )
-
-    def _count_sequence(self, seq, flags: np.ndarray) -> None:
-        """Count gaps and resets of the sequence numbers; flag the frames that follow a gap."""
-        counter = self._sequence
-        flags[counter.count_many(seq) > 0] |= _GAP  # one batch call (a call per frame cost ~10 µs each)
-        self.c.sequence_gaps = counter.sequence_gaps
-        self.c.lost_samples = counter.lost_samples
-        self.c.sequence_resets = counter.sequence_resets
 
     # ---------------------------------------------------------------- status
     def status(self, flags: np.ndarray | None = None) -> LiveStatus:

