@@ -175,43 +175,13 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
             for r in range(6):
                 for i in range(kk):
                     z[r, q, i] += xn[2 * r, i] * s0 + xn[2 * r + 1, i] * s1
-    for r in range(6):
-        for c in range(r, 6):
-            for q in range(n_par):
-                for i in range(kk):
-                    y[r, c, i] += z[r, q, i] * z[c, q, i]
-            if c > r:
-                for i in range(kk):
-                    y[c, r, i] = y[r, c, i]
     # p and t where C is formed
     for i in range(kk):
         idx = breaks[i] if i < n_b else half_points[2]  # (the padding repeats the middle point)
         for r in range(3):
             pt[0, r, i] = pos[idx, r]
             pt[1, r, i] = fr[idx, r, 2]
-    # A = (−[p]×, −I), A' = (−[t]×, 0): m0 = A Y, m1 = A' Y
-    p0, p1, p2 = pt[0, 0], pt[0, 1], pt[0, 2]
-    t0, t1, t2 = pt[1, 0], pt[1, 1], pt[1, 2]
-    for e in range(6):
-        for i in range(kk):
-            u0, u1, u2 = y[0, e, i], y[1, e, i], y[2, e, i]
-            m[0, 0, e, i] = p2[i] * u1 - p1[i] * u2 - y[3, e, i]
-            m[0, 1, e, i] = p0[i] * u2 - p2[i] * u0 - y[4, e, i]
-            m[0, 2, e, i] = p1[i] * u0 - p0[i] * u1 - y[5, e, i]
-            m[1, 0, e, i] = t2[i] * u1 - t1[i] * u2
-            m[1, 1, e, i] = t0[i] * u2 - t2[i] * u0
-            m[1, 2, e, i] = t1[i] * u0 - t0[i] * u1
-    # C = (A Y) Aᵀ, C' = (A' Y) Aᵀ + (A Y) A'ᵀ
-    for r in range(3):
-        for i in range(kk):
-            a0, a1, a2 = m[0, r, 0, i], m[0, r, 1, i], m[0, r, 2, i]
-            d0, d1, d2 = m[1, r, 0, i], m[1, r, 1, i], m[1, r, 2, i]
-            cb[0, r, 0, i] = p2[i] * a1 - p1[i] * a2 - m[0, r, 3, i]
-            cb[0, r, 1, i] = p0[i] * a2 - p2[i] * a0 - m[0, r, 4, i]
-            cb[0, r, 2, i] = p1[i] * a0 - p0[i] * a1 - m[0, r, 5, i]
-            cb[1, r, 0, i] = p2[i] * d1 - p1[i] * d2 - m[1, r, 3, i] + t2[i] * a1 - t1[i] * a2
-            cb[1, r, 1, i] = p0[i] * d2 - p2[i] * d0 - m[1, r, 4, i] + t0[i] * a2 - t2[i] * a0
-            cb[1, r, 2, i] = p1[i] * d0 - p0[i] * d1 - m[1, r, 5, i] + t1[i] * a0 - t0[i] * a1
+    _c_and_dc(y, z, pt, m, cb)  # Y += Z Zᵀ, then C = A Y Aᵀ and C' = A' Y Aᵀ + A Y A'ᵀ
     # per piece the four 3 × 3 coefficients of its points' weights (:func:`_hermite_weights`): C and C' at its
     # ends; on the first piece t⁴ (a + b t + c t²) through C(1), h C'(1) and C at the middle point, solved
     # with the precomputed inverse ``first`` (C ~ s⁴ from the base, an angle times an arm, s⁶ along the tangent,
@@ -239,6 +209,43 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
                 val += base_var * ((pp if r == c else 0.0) - pos[j, r] * pos[j, c])
                 out[j, r, c] = val
                 out[j, c, r] = val
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST)
+def _c_and_dc(y, z, pt, m, cb):  # pragma: no cover (compiled)
+    """C = A Y Aᵀ and C' = A' Y Aᵀ + A Y A'ᵀ into ``cb`` (2, 3, 3, K), element-wise along the last axis K of
+    every array: first Y (its upper triangle, (6, 6, K)) += Z Zᵀ (Z (6, n_sh, K)) and its lower triangle;
+    ``pt`` (2, 3, K) p and t; ``m`` (2, 3, 6, K) scratch for A Y and A' Y (A = (−[p]×, −I), A' = (−[t]×, 0))."""
+    kk, n_sh = y.shape[2], z.shape[1]
+    for r in range(6):
+        for c in range(r, 6):
+            for q in range(n_sh):
+                for i in range(kk):
+                    y[r, c, i] += z[r, q, i] * z[c, q, i]
+            if c > r:
+                for i in range(kk):
+                    y[c, r, i] = y[r, c, i]
+    p0, p1, p2 = pt[0, 0], pt[0, 1], pt[0, 2]
+    t0, t1, t2 = pt[1, 0], pt[1, 1], pt[1, 2]
+    for e in range(6):
+        for i in range(kk):
+            u0, u1, u2 = y[0, e, i], y[1, e, i], y[2, e, i]
+            m[0, 0, e, i] = p2[i] * u1 - p1[i] * u2 - y[3, e, i]
+            m[0, 1, e, i] = p0[i] * u2 - p2[i] * u0 - y[4, e, i]
+            m[0, 2, e, i] = p1[i] * u0 - p0[i] * u1 - y[5, e, i]
+            m[1, 0, e, i] = t2[i] * u1 - t1[i] * u2
+            m[1, 1, e, i] = t0[i] * u2 - t2[i] * u0
+            m[1, 2, e, i] = t1[i] * u0 - t0[i] * u1
+    for r in range(3):
+        for i in range(kk):
+            a0, a1, a2 = m[0, r, 0, i], m[0, r, 1, i], m[0, r, 2, i]
+            d0, d1, d2 = m[1, r, 0, i], m[1, r, 1, i], m[1, r, 2, i]
+            cb[0, r, 0, i] = p2[i] * a1 - p1[i] * a2 - m[0, r, 3, i]
+            cb[0, r, 1, i] = p0[i] * a2 - p2[i] * a0 - m[0, r, 4, i]
+            cb[0, r, 2, i] = p1[i] * a0 - p0[i] * a1 - m[0, r, 5, i]
+            cb[1, r, 0, i] = p2[i] * d1 - p1[i] * d2 - m[1, r, 3, i] + t2[i] * a1 - t1[i] * a2
+            cb[1, r, 1, i] = p0[i] * d2 - p2[i] * d0 - m[1, r, 4, i] + t0[i] * a2 - t2[i] * a0
+            cb[1, r, 2, i] = p1[i] * d0 - p0[i] * d1 - m[1, r, 5, i] + t1[i] * a0 - t0[i] * a1
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
@@ -570,36 +577,7 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, poin
             for r in range(6):
                 for i in range(kb):
                     z[r, q, i] += xn[2 * r, i] * s0[i] + xn[2 * r + 1, i] * s1[i]
-    for r in range(6):
-        for c in range(r, 6):
-            for q in range(n_sh):
-                for i in range(kb):
-                    y[r, c, i] += z[r, q, i] * z[c, q, i]
-            if c > r:
-                for i in range(kb):
-                    y[c, r, i] = y[r, c, i]
-    # A = (−[p]×, −I), A' = (−[t]×, 0): m0 = A Y, m1 = A' Y; C = (A Y) Aᵀ, C' = (A' Y) Aᵀ + (A Y) A'ᵀ
-    p0, p1, p2 = pt[0, 0], pt[0, 1], pt[0, 2]
-    t0, t1, t2 = pt[1, 0], pt[1, 1], pt[1, 2]
-    for e in range(6):
-        for i in range(kb):
-            u0, u1, u2 = y[0, e, i], y[1, e, i], y[2, e, i]
-            m[0, 0, e, i] = p2[i] * u1 - p1[i] * u2 - y[3, e, i]
-            m[0, 1, e, i] = p0[i] * u2 - p2[i] * u0 - y[4, e, i]
-            m[0, 2, e, i] = p1[i] * u0 - p0[i] * u1 - y[5, e, i]
-            m[1, 0, e, i] = t2[i] * u1 - t1[i] * u2
-            m[1, 1, e, i] = t0[i] * u2 - t2[i] * u0
-            m[1, 2, e, i] = t1[i] * u0 - t0[i] * u1
-    for r in range(3):
-        for i in range(kb):
-            a0, a1, a2 = m[0, r, 0, i], m[0, r, 1, i], m[0, r, 2, i]
-            d0, d1, d2 = m[1, r, 0, i], m[1, r, 1, i], m[1, r, 2, i]
-            cb[0, r, 0, i] = p2[i] * a1 - p1[i] * a2 - m[0, r, 3, i]
-            cb[0, r, 1, i] = p0[i] * a2 - p2[i] * a0 - m[0, r, 4, i]
-            cb[0, r, 2, i] = p1[i] * a0 - p0[i] * a1 - m[0, r, 5, i]
-            cb[1, r, 0, i] = p2[i] * d1 - p1[i] * d2 - m[1, r, 3, i] + t2[i] * a1 - t1[i] * a2
-            cb[1, r, 1, i] = p0[i] * d2 - p2[i] * d0 - m[1, r, 4, i] + t0[i] * a2 - t2[i] * a0
-            cb[1, r, 2, i] = p1[i] * d0 - p0[i] * d1 - m[1, r, 5, i] + t1[i] * a0 - t0[i] * a1
+    _c_and_dc(y, z, pt, m, cb)  # Y += Z Zᵀ, then C and C' at the breakpoints of every frame
     # every point from its piece's coefficients (as _frame), plus the base angle exactly; ``fw`` holds the
     # piece's coefficients (rows e·9 + r·3 + c), the point's position (36–38) and covariance (39–47) at constant
     # offsets, so that the loop over the frames is vectorised as in twin._kernels.exp_lanes
