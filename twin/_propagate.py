@@ -480,10 +480,27 @@ def _block_arrays(n_g, n_b, n_sh):  # pragma: no cover (compiled)
     one point's work (48 · LANES: its piece's coefficients 36, its position 3, its covariance 9)."""
     L = LANES
     kb = (n_b + 1) * L
-    return (np.empty((n_g, 3, kb)), np.empty((n_g, 2, n_sh, kb)), np.empty((3, 12, (n_b - 1) * L)),
-            np.empty((3, 12, L)), np.empty((12, kb)), np.empty((6, 6, kb)), np.empty((6, n_sh, kb)),
-            np.empty((2, 6, kb)), np.empty((2, 3, kb)), np.empty((2, 3, 6, kb)), np.empty((2, 3, 3, kb)),
-            np.empty(48 * L))
+    shapes = ((n_g, 3, kb), (n_g, 2, n_sh, kb), (3, 12, (n_b - 1) * L), (3, 12, L), (12, kb), (6, 6, kb),
+              (6, n_sh, kb), (2, 6, kb), (2, 3, kb), (2, 3, 6, kb), (2, 3, 3, kb))
+    n_fw = 48 * L
+    # one allocation (a single frame's call makes a small one that it does not use)
+    buf = np.empty((n_g * (3 + 2 * n_sh) + 120 + 6 * n_sh) * kb + 36 * (n_b - 1) * L + 36 * L + n_fw)
+    o0 = 0
+    o1 = o0 + 3 * n_g * kb
+    o2 = o1 + 2 * n_sh * n_g * kb
+    o3 = o2 + 36 * (n_b - 1) * L
+    o4 = o3 + 36 * L
+    o5 = o4 + 12 * kb
+    o6 = o5 + 36 * kb
+    o7 = o6 + 6 * n_sh * kb
+    o8 = o7 + 12 * kb
+    o9 = o8 + 6 * kb
+    o10 = o9 + 36 * kb
+    o11 = o10 + 18 * kb
+    return (buf[o0:o1].reshape(shapes[0]), buf[o1:o2].reshape(shapes[1]), buf[o2:o3].reshape(shapes[2]),
+            buf[o3:o4].reshape(shapes[3]), buf[o4:o5].reshape(shapes[4]), buf[o5:o6].reshape(shapes[5]),
+            buf[o6:o7].reshape(shapes[6]), buf[o7:o8].reshape(shapes[7]), buf[o8:o9].reshape(shapes[8]),
+            buf[o9:o10].reshape(shapes[9]), buf[o10:o11].reshape(shapes[10]), buf[o11:o11 + n_fw])
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
@@ -557,11 +574,15 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, poin
                 xr[i] = 0.0
             for i in range(n_int * L):
                 xr[L + i] = b0[i] * g0[i] + b1[i] * g1[i] + b2[i] * g2[i]
-            for i in range(2 * L, n_b * L):
-                xr[i] += xr[i - L]
             w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
             for i in range(L):
                 xr[n_b * L + i] = w0 * gh[0, rc, i] + w1 * gh[1, rc, i] + w2 * gh[2, rc, i]
+        # the running sum with the 12 rows side by side (one row's additions would wait on each other)
+        for j in range(2, n_b):
+            for rc in range(12):
+                xr = xn[rc]
+                for i in range(j * L, j * L + L):
+                    xr[i] += xr[i - L]
         v00, v01, v11 = vrep[n, 0], vrep[n, 1], vrep[n, 2]
         for r in range(6):
             for i in range(kb):
