@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from models import _rod_kernels
+
 
 @njit(cache=True, nogil=True)
 def _lumen_point(x_c, frames, cs0, l, offset, sigma, out_p, out_t):
@@ -97,4 +99,80 @@ def lumen_forces(x_c, frames, cs0, l, offset, x_f, v_f, sigma, free, prev_p, dt,
     for n in range(nf - 1, 0, -1):
         acc += along[n]
         tension[n - 1] = acc
+    return tip
+
+
+@njit(cache=True, nogil=True)
+def coupler_step(xc, cplastic, qpos, tw_edges, tw_qadr, theta, site_row, inv_lbar, cframes, cdarb, read_frames,
+                 cs0, l, offset, x_f, qvel, dof, axes, rp, axes_w, v_f, sigma, free, prev_p, dt, advance, v_l, drag,
+                 clearance, wall_stiffness, wall_damping, friction, slip_speed, visc_cap, lumen_end, p, force, normal,
+                 tension, weight, carrier_force, couple_k, moment, first, qfrc, glue_eq, glue_idx, eq_data, cath_rp):
+    """One step of :meth:`models.lumen_fiber.LumenCoupler.apply` over views of ``mjData`` bound once; returns the
+    tip force, N, or NaN having changed nothing while the catheter's ``plastic`` is still zero (``read_frames``:
+    the caller rebuilds its frames as MuJoCo restarts them and calls again with ``read_frames`` False).
+
+    Parameters
+    ----------
+    xc … cdarb : the catheter's :func:`models._rod_kernels.bound_frames_and_darboux` arguments (frames into
+        ``cframes``, (nc − 1, 3, 3)). read_frames : bool, read them (False: ``cframes`` already hold them).
+    cs0, l, offset, x_f, sigma, free, prev_p, dt, v_l, drag … tension : as :func:`lumen_forces`.
+    qvel : all of ``mjData.qvel``; dof : (nf, 3) the fibre's slide dofs; axes : (nf, 3, 3) their axes in the
+        parent frame; rp : (9,) the parent's ``xmat`` row; axes_w, v_f : (nf, 3, 3), (nf, 3) work arrays.
+    advance : bool, keep this step's lumen points as the previous ones (time has moved on).
+    weight : (3,) the vertex's weight, N (cancelled); carrier_force : (3,) vertex mass × the carrier's
+        acceleration, N (added).
+    couple_k : the glue couple's fibre edge (−1: none); moment : its couple T·e, N·m. first : catheter edge of
+        the fibre's first vertex.
+    qfrc : all of ``mjData.qfrc_applied`` (the fibre's dofs written). glue_eq, glue_idx : the glue's connect
+        equalities and their fibre vertices (empty, or ``offset`` 0: anchors left alone); eq_data : all of
+        ``mjModel.eq_data`` (neq, 11); cath_rp : (9,) ``xmat`` row of the catheter's parent.
+    """
+    if read_frames and not _rod_kernels.bound_frames_and_darboux(xc, cplastic, qpos, tw_edges, tw_qadr, theta,
+                                                                  site_row, inv_lbar, cframes, cdarb):
+        return np.nan
+    nf = x_f.shape[0]
+    for n in range(nf):  # joint axes in the world (axes @ R.T) and the vertices' velocities
+        for j in range(3):
+            for i in range(3):
+                axes_w[n, j, i] = axes[n, j, 0] * rp[3 * i] + axes[n, j, 1] * rp[3 * i + 1] \
+                    + axes[n, j, 2] * rp[3 * i + 2]
+        for i in range(3):
+            v_f[n, i] = qvel[dof[n, 0]] * axes_w[n, 0, i] + qvel[dof[n, 1]] * axes_w[n, 1, i] \
+                + qvel[dof[n, 2]] * axes_w[n, 2, i]
+    tip = lumen_forces(xc, cframes, cs0, l, offset, x_f, v_f, sigma, free, prev_p, dt, v_l, drag, clearance,
+                       wall_stiffness, wall_damping, friction, slip_speed, visc_cap, lumen_end, p, force, normal,
+                       tension)
+    if advance:
+        prev_p[:] = p
+    for n in range(nf):
+        for i in range(3):
+            force[n, i] = force[n, i] - weight[i] + carrier_force[i]
+    if couple_k >= 0:  # the lead's traction through the eccentric glue (LumenCoupler._glue_couple)
+        k = couple_k
+        e0, e1, e2 = x_f[k + 1, 0] - x_f[k, 0], x_f[k + 1, 1] - x_f[k, 1], x_f[k + 1, 2] - x_f[k, 2]
+        le = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        t0, t1, t2 = e0 / le, e1 / le, e2 / le
+        c = min(first + k, cframes.shape[0] - 1)
+        g0, g1, g2 = cframes[c, 0, 0], cframes[c, 1, 0], cframes[c, 2, 0]
+        gt = g0 * t0 + g1 * t1 + g2 * t2
+        n0, n1, n2 = g0 - gt * t0, g1 - gt * t1, g2 - gt * t2
+        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        a = moment / le
+        f0, f1, f2 = a * (n0 / nn), a * (n1 / nn), a * (n2 / nn)
+        force[k, 0] += f0
+        force[k, 1] += f1
+        force[k, 2] += f2
+        force[k + 1, 0] -= f0
+        force[k + 1, 1] -= f1
+        force[k + 1, 2] -= f2
+    for n in range(nf):
+        for j in range(3):
+            qfrc[dof[n, j]] = force[n, 0] * axes_w[n, j, 0] + force[n, 1] * axes_w[n, j, 1] \
+                + force[n, 2] * axes_w[n, j, 2]
+    if offset != 0.0:  # the glue's connect anchors follow the lumen's offset, in the catheter's parent frame
+        for q in range(glue_eq.size):
+            c = min(first + glue_idx[q], cframes.shape[0] - 1)
+            for i in range(3):
+                eq_data[glue_eq[q], 3 + i] = offset * cframes[c, 0, 0] * cath_rp[i] \
+                    + offset * cframes[c, 1, 0] * cath_rp[3 + i] + offset * cframes[c, 2, 0] * cath_rp[6 + i]
     return tip

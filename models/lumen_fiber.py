@@ -50,6 +50,7 @@ import numpy as np
 from models import _lumen_kernels
 from models.catheter import CatheterSpec, Pose, RodHandle, Scene, _fmt, set_rod_positions
 from models.rod_state import RodReader
+from twin._numba_entry import compiled_entry
 
 __all__ = ["PLACEMENT_RAMP", "TRACTION_RAMP", "FiberHandle", "FiberSpec", "LumenCoupler", "add_fiber", "place_fiber",
            "settle_fiber"]
@@ -343,8 +344,9 @@ class LumenCoupler:
         self.cath_reader = RodReader(model, cath.name)
         self.fiber_reader = RodReader(model, spec.name)
         nf = handle.s.size
-        self._cframes = np.empty((cath.n_segments, 3, 3))
-        self._cdarb = np.empty((cath.n_segments - 1, 3))
+        # the catheter read through views of ``data`` taken once (RodView): its frames are the coupler's
+        self._cview = self.cath_reader.bind(data)
+        self._cframes, self._cdarb = self._cview.frames, self._cview.darboux
         self._fframes = np.empty((nf - 1, 3, 3))
         self._fdarb = np.empty((nf - 2, 3))
         fid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_FLEX, spec.name)
@@ -388,6 +390,41 @@ class LumenCoupler:
         self.normal = np.zeros(nf)  # N, wall force per vertex (last step)
         self.tension = np.zeros(nf - 1)  # N, axial force per fibre edge from the wall and the end (last step)
         self.calls = 0
+        self._bind(model, data)
+
+    def _bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """Views of ``model``'s and ``data``'s arrays (MuJoCo keeps them where they are), the work arrays and the
+        compiled overload of :func:`models._lumen_kernels.coupler_step` for their types (twin/_numba_entry.py)."""
+        self._model, self._data = model, data
+        nf = self.sigma.size
+        self._x_f = data.flexvert_xpos[self.fiber_reader._va: self.fiber_reader._va + nf]
+        self._fplastic = data.plastic[self.fiber_reader._pa: self.fiber_reader._pa + 6]
+        self._dof = np.ascontiguousarray(self._dof, dtype=np.int64)
+        self._axes = np.ascontiguousarray(self._axes, dtype=np.float64)
+        self._axes_w = np.zeros((nf, 3, 3))
+        self._v_f = np.zeros((nf, 3))
+        self._carrier_force = np.zeros(3)
+        self._glue_eq = self._glue_eq.astype(np.int64)
+        self._glue_idx = self._glue_idx.astype(np.int64)
+        self._visc_cap = 0.5 * self.spec.vertex_mass / model.opt.timestep
+        spec, h, d = self.spec, self.handle, data
+        # the kernel's arguments that stay put, in three runs around those that change per call
+        self._args_frames = self._cview.kernel_arguments()
+        self._args_lumen = (self._cs0, self._l, spec.offset, self._x_f, d.qvel, self._dof, self._axes,
+                            d.xmat[self._parent], self._axes_w, self._v_f, self.sigma, self._free, self._prev_p)
+        self._args_forces = (self._v_lumen, spec.drag, spec.clearance, spec.wall_stiffness, spec.wall_damping,
+                             spec.friction, spec.slip_speed, self._visc_cap, h.lumen_end, self._p, self._force,
+                             self.normal, self.tension, self._weight, self._carrier_force,
+                             -1 if self._couple_k is None else self._couple_k)
+        self._args_glue = (h.first, d.qfrc_applied, self._glue_eq, self._glue_idx, model.eq_data,
+                           d.xmat[self._cath_parent])
+        self._kernel = compiled_entry(_lumen_kernels.coupler_step, *self._args_frames, True, *self._args_lumen, 0.0,
+                                      False, *self._args_forces, 0.0, *self._args_glue)
+
+    def _step(self, read_frames: bool, dt: float, advance: bool, moment: float) -> float:
+        """One call of the compiled step (:func:`models._lumen_kernels.coupler_step`); the tip force, N."""
+        return self._kernel(*self._args_frames, read_frames, *self._args_lumen, dt, advance, *self._args_forces,
+                            moment, *self._args_glue)
 
     # -- geometry --
     def lumen(self, x: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -420,70 +457,50 @@ class LumenCoupler:
 
     # -- the forces --
     def apply(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        """Write the lumen's forces on the fibre for the next step into ``data.qfrc_applied``."""
-        spec, h = self.spec, self.handle
+        """Write the lumen's forces on the fibre for the next step into ``data.qfrc_applied`` (the ``model`` and
+        ``data`` the coupler was made with)."""
+        if data is not self._data or model is not self._model:
+            raise ValueError("LumenCoupler.apply: called with another model or data than it was made with")
         self.calls += 1
-        x_c = self.cath_reader.compute(data, self._cframes, self._cdarb)
-        x_f = data.flexvert_xpos[self.fiber_reader._va: self.fiber_reader._va + self.fiber_reader._nv]
-        rp = data.xmat[self._parent].reshape(3, 3)
-        axes_w = self._axes @ rp.T  # (nf, 3, 3): joint axes in the world
-        v_f = np.einsum("nj,nji->ni", data.qvel[self._dof], axes_w)
-        # the lumen's coordinates, velocity (by differences over steps: the catheter is a quasi-static rod), wall,
-        # friction, end and the tension read-out, compiled (models/_lumen_kernels.py)
+        # the lumen's velocity is by differences over steps (the catheter is a quasi-static rod)
         tnow = float(data.time)
+        advance = self._prev_t is None or tnow > self._prev_t
         dt = tnow - self._prev_t if self._prev_t is not None and tnow > self._prev_t else 0.0
-        force = self._force
-        self.tip_force = float(_lumen_kernels.lumen_forces(
-            x_c, self._cframes, self._cs0, self._l, spec.offset, x_f, v_f, self.sigma, self._free, self._prev_p, dt,
-            self._v_lumen, spec.drag, spec.clearance, spec.wall_stiffness, spec.wall_damping, spec.friction,
-            spec.slip_speed, 0.5 * spec.vertex_mass / model.opt.timestep, h.lumen_end, self._p, force,
-            self.normal, self.tension))
-        if self._prev_t is None or tnow > self._prev_t:
-            self._prev_t = tnow
-            np.copyto(self._prev_p, self._p)
-        # the simulated mass's weight cancelled and, for a fibre hung from the world, the hub's acceleration
+        # the simulated mass's weight is cancelled and, for a fibre hung from the world, the hub's acceleration
         # carried along (d'Alembert): artefacts of the quasi-static mass, left out of the tension read-out
-        force -= self._weight
         if self.carrier_acceleration is not None:
-            force += spec.vertex_mass * self.carrier_acceleration(data)
-        if self._couple_k is not None:
-            self._glue_couple(data, x_f, force)
-        data.qfrc_applied[self._dof] = np.einsum("ni,nji->nj", force, axes_w)
-        # glue: the connect anchors follow the lumen's offset (the roll is held by joint equalities)
-        if self._glue_eq.size and spec.offset:
-            model.eq_data[self._glue_eq, 3:6] = (spec.offset * self._cframes[np.minimum(
-                h.first + self._glue_idx, self._cframes.shape[0] - 1), :, 0]) @ data.xmat[
-                    self._cath_parent].reshape(3, 3)
-        pa = self.fiber_reader._pa
-        if not self._roll_ready and (data.plastic[pa + 3] or data.plastic[pa + 4] or data.plastic[pa + 5]):
+            np.multiply(self.spec.vertex_mass, self.carrier_acceleration(data), out=self._carrier_force)
+        moment = self._couple_moment(data) if self._couple_k is not None else 0.0
+        # the catheter's frames, the lumen's coordinates, wall, friction, end, glue couple, the tension read-out,
+        # the generalised forces and the glue's anchors: one compiled call (models/_lumen_kernels.py)
+        tip = self._step(True, dt, advance, moment)
+        if tip != tip:  # the catheter's plastic is still zero: its frames as MuJoCo restarts them
+            self._cview.restart()
+            tip = self._step(False, dt, advance, moment)
+        self.tip_force = float(tip)
+        if advance:
+            self._prev_t = tnow
+        if not self._roll_ready and (self._fplastic[3] or self._fplastic[4] or self._fplastic[5]):
             self.calibrate_roll(data)  # MuJoCo has chosen the fibre's reference directors (after the first step)
             self._roll_ready = True
 
-    def _glue_couple(self, data: mujoco.MjData, x_f: np.ndarray, force: np.ndarray) -> None:
-        """The lead's traction T through the eccentric glue: a couple T·e on the fibre's first free edge, as a
-        force pair ±T·e/l across it (added to ``force``).
+    def _couple_moment(self, data: mujoco.MjData) -> float:
+        """The couple T·e of the lead's traction T through the eccentric glue, N·m (also :attr:`glue_moment`): it
+        acts on the fibre's first free edge as a force pair ±T·e/l across it (:func:`models._lumen_kernels.
+        coupler_step`).
 
         The glue sits on the catheter's d1 side of the fibre (an assumption: which side only turns the
         disturbance's direction). The glue pulls that side of the fibre's surface distally (T > 0) while the lead
         pulls the axis proximally, so the couple is e·T (d1 × t) = −e·T d2: it tilts the free edge toward −d1.
         The fibre's rotation at the glue's exit is held by its own bending across the last glued vertex; beyond,
         the lumen's wall and the fibre's stiffness decide how fast the moment dies out."""
-        k = self._couple_k
-        edge = x_f[k + 1] - x_f[k]
-        le = math.sqrt(float(edge @ edge))
-        t = edge / le
-        g = self._cframes[min(self.handle.first + k, self._cframes.shape[0] - 1), :, 0]
-        n = g - (g @ t) * t
-        n /= math.sqrt(float(n @ n))
         # ramped in over TRACTION_RAMP from the first step: quasi-static loading, no impulse on the heavy
         # (quasi-static scaled) fibre
         if self._t_first is None:
             self._t_first = float(data.time)
         ramp = min(1.0, (float(data.time) - self._t_first) / TRACTION_RAMP)
         self.glue_moment = ramp * float(self.traction(data)) * self.spec.glue_eccentricity
-        f = (self.glue_moment / le) * n
-        force[k] += f
-        force[k + 1] -= f
+        return self.glue_moment
 
     # -- observables --
     def slide(self) -> np.ndarray:

@@ -13,8 +13,9 @@ import pytest
 
 pytest.importorskip("mujoco")
 
+from models._lumen_kernels import lumen_forces
 from models.catheter import CatheterSpec, Scene
-from models.lumen_fiber import FiberSpec, add_fiber, glued_edges
+from models.lumen_fiber import TRACTION_RAMP, FiberSpec, LumenCoupler, add_fiber, glued_edges
 from sim_interrogator.fiber_setups import FIBER_BASE_LENGTH, FiberSheathCycle, FiberStatic
 from sim_interrogator.optics import Optics, OpticsConfig
 from sim_interrogator.sim import SimInterrogator
@@ -75,6 +76,100 @@ def test_lumen_kernel_on_a_straight_lumen():
     assert np.allclose(force[1:, 0], -k * 1e-4) and np.allclose(force[1:-1, 2], -fric)
     assert force[-1, 2] == pytest.approx(-fric - tip)
     assert np.allclose(tension, [-4 * fric - tip, -3 * fric - tip, -2 * fric - tip, -fric - tip])
+
+
+class _NumpyCoupler(LumenCoupler):
+    """The coupler's step as it was before it became one compiled call (numpy around the lumen kernel): the
+    reference the compiled step must equal."""
+
+    def apply(self, model, data):
+        spec, h = self.spec, self.handle
+        self.calls += 1
+        x_c = self.cath_reader.compute(data, self._cframes, self._cdarb)
+        x_f = data.flexvert_xpos[self.fiber_reader._va: self.fiber_reader._va + self.fiber_reader._nv]
+        axes_w = self._axes @ data.xmat[self._parent].reshape(3, 3).T
+        v_f = np.einsum("nj,nji->ni", data.qvel[self._dof], axes_w)
+        tnow = float(data.time)
+        dt = tnow - self._prev_t if self._prev_t is not None and tnow > self._prev_t else 0.0
+        force = self._force
+        self.tip_force = float(lumen_forces(
+            x_c, self._cframes, self._cs0, self._l, spec.offset, x_f, v_f, self.sigma, self._free, self._prev_p, dt,
+            self._v_lumen, spec.drag, spec.clearance, spec.wall_stiffness, spec.wall_damping, spec.friction,
+            spec.slip_speed, 0.5 * spec.vertex_mass / model.opt.timestep, h.lumen_end, self._p, force,
+            self.normal, self.tension))
+        if self._prev_t is None or tnow > self._prev_t:
+            self._prev_t = tnow
+            np.copyto(self._prev_p, self._p)
+        force -= self._weight
+        if self.carrier_acceleration is not None:
+            force += spec.vertex_mass * self.carrier_acceleration(data)
+        if self._couple_k is not None:
+            k = self._couple_k
+            edge = x_f[k + 1] - x_f[k]
+            le = np.sqrt(edge @ edge)
+            t = edge / le
+            g = self._cframes[min(h.first + k, self._cframes.shape[0] - 1), :, 0]
+            n = g - (g @ t) * t
+            n /= np.sqrt(n @ n)
+            if self._t_first is None:
+                self._t_first = tnow
+            ramp = min(1.0, (tnow - self._t_first) / TRACTION_RAMP)
+            self.glue_moment = ramp * float(self.traction(data)) * spec.glue_eccentricity
+            f = (self.glue_moment / le) * n
+            force[k] += f
+            force[k + 1] -= f
+        data.qfrc_applied[self._dof] = np.einsum("ni,nji->nj", force, axes_w)
+        if self._glue_eq.size and spec.offset:
+            model.eq_data[self._glue_eq, 3:6] = (spec.offset * self._cframes[np.minimum(
+                h.first + self._glue_idx, self._cframes.shape[0] - 1), :, 0]) @ data.xmat[
+                    self._cath_parent].reshape(3, 3)
+        if not self._roll_ready and any(data.plastic[self.fiber_reader._pa + 3: self.fiber_reader._pa + 6]):
+            self.calibrate_roll(data)
+            self._roll_ready = True
+
+
+@pytest.mark.parametrize("make", [
+    # the study's standard point (clearance 0.1 mm, μ 0.2, two fixations, the lead's couple), the glue spots
+    # with the lumen off the axis (the anchors follow it), and the sheath's fibre carried with the hub (d'Alembert)
+    lambda: FiberStatic("helix", clearance=1e-4),
+    lambda: FiberStatic("arc", clearance=1e-4, offset=3e-4),
+    lambda: FiberSheathCycle(cycles=1, segments=50, clearance=1e-4),
+], ids=["standard", "offset", "sheath"])
+def test_compiled_coupler_step_equals_the_numpy_step(make):
+    import mujoco
+
+    # two copies of one scene, one with the compiled coupler and one with the numpy step, stepped side by side
+    # from the start (the catheter's restarted frames on the first step, the roll's calibration after it)
+    setups = [make(), make()]
+    (model, data), (model_r, data_r) = (s.build() for s in setups)
+    c = setups[1].coupler
+    setups[1].coupler = ref = _NumpyCoupler(model_r, data_r, c.handle, c.carrier_acceleration, c.traction)
+    co = setups[0].coupler
+    contact = moment = 0
+    for _ in range(400):
+        setups[0].actuate(model, data, data.time)
+        setups[1].actuate(model_r, data_r, data_r.time)
+        scale = max(1e-9, float(np.abs(data_r.qfrc_applied).max()))
+        np.testing.assert_allclose(data.qfrc_applied, data_r.qfrc_applied, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(co.sigma, ref.sigma, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(co.normal, ref.normal, rtol=0, atol=1e-12 * max(1e-9, ref.normal.max()))
+        np.testing.assert_allclose(co.tension, ref.tension, rtol=0, atol=1e-12 * max(1e-9, abs(ref.tension).max()))
+        np.testing.assert_allclose(model.eq_data, model_r.eq_data, rtol=0, atol=1e-15)
+        assert co.tip_force == pytest.approx(ref.tip_force, rel=0, abs=1e-12)
+        assert co.glue_moment == ref.glue_moment and co.roll0 == ref.roll0
+        contact += int((co.normal > 0).sum())
+        moment = max(moment, abs(co.glue_moment))
+        mujoco.mj_step(model, data)
+        mujoco.mj_step(model_r, data_r)
+    np.testing.assert_allclose(data.qpos, data_r.qpos, rtol=0, atol=1e-12)
+    # what each case is there for did happen
+    assert co.calls == ref.calls == 400 and co.roll0 != 0.0
+    if co.spec.offset:
+        assert np.any(model.eq_data[co._glue_eq, 3:6])
+    if co.spec.clearance:
+        assert contact and moment > 0  # the wall (with its friction) and the lead's couple acted
+    if co.carrier_acceleration is not None:
+        assert np.any(co._carrier_force)
 
 
 def test_bad_fiber_specs_are_refused():
