@@ -597,7 +597,9 @@ def rotation_zeros(design: np.ndarray, roll: float, e: np.ndarray, orientation: 
     k_hat = CurvatureSolver(design).solve(e).curvature  # (P, G, 2), fibre frame
     # in the frame of each pose's bend direction: label k = κ e^{i(α − ψ)}, so divide by e^{i(α − ψ)}
     turn = np.exp(-1j * (roll - orientation))[:, None]
-    rel = np.abs(curvature)[:, None] - (k_hat[..., 0] + 1j * k_hat[..., 1]) * turn  # (P, G), along + i across
+    # signed κ: a pose bent the other way (κ < 0) has its label along −e^{i(α − ψ)}, the frame stays that of ψ;
+    # (P, G), along + i across
+    rel = np.asarray(curvature, float)[:, None] - (k_hat[..., 0] + 1j * k_hat[..., 1]) * turn
     ok = np.isfinite(rel)
     onehot = np.eye(n_groups)[group]  # (P, O)
     n = np.einsum("po,pg->og", onehot, ok.astype(float))

@@ -62,6 +62,8 @@ _TOPICS = (_WAVELENGTHS, _TRUTH, _VENDOR)
 _HEADER, _FOOTER, _CHANNEL, _MESSAGE, _CHUNK, _ATTACHMENT, _METADATA = 0x01, 0x02, 0x04, 0x05, 0x06, 0x09, 0x0C
 _READ = {_HEADER, _FOOTER, _CHANNEL, _MESSAGE, _CHUNK, _ATTACHMENT, _METADATA}  # others are stepped over
 _ATTACHMENTS = {"fiber.toml", "calibration.toml"}
+#: the metadata records this reader reads (any other is skipped unkept)
+_METADATA_NAMES = {"catheter_twin", "catheter_twin_truth"}
 
 
 def is_mcap(head: bytes) -> bool:
@@ -240,7 +242,8 @@ class McapRecording(ReaderBase):
                         attachments[a.name] = a.data
                 elif opcode == _METADATA:
                     m = self._parse(records.Metadata, body, at)
-                    meta[m.name] = m.metadata
+                    if m.name in _METADATA_NAMES:  # only ours are kept: memory stays bounded whatever else a file holds
+                        meta[m.name] = m.metadata
                 elif opcode == _FOOTER:
                     self._fh.seek(end)
                     self._closed_cleanly = self._fh.read(8) == MAGIC  # else cut in the closing magic: no frame lost
