@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import os
 import socket
 import threading
@@ -132,3 +133,31 @@ def wait_until(predicate: Callable[[], bool], timeout: float = 20.0, poll: float
 def singles(batch) -> list:
     """The single frames of what a source's ``read_batch`` returned (None: none)."""
     return [] if batch is None else list(batch)
+
+
+def request(port: int, path: str, host: str | None = None, origin: str | None = None, *, upgrade: bool = False,
+            rcvbuf: int | None = None, headers: tuple[str, ...] = ()) -> tuple[int, socket.socket]:
+    """Send one raw HTTP/1.1 GET to 127.0.0.1 (a websocket handshake with ``upgrade``; ``headers``: more header
+    lines); (status, the open socket)."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    if rcvbuf:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)  # before connecting: the window it offers
+    sock.settimeout(10.0)
+    sock.connect(("127.0.0.1", port))
+    lines = [f"GET {path} HTTP/1.1", f"Host: {f'127.0.0.1:{port}' if host is None else host}"]
+    if origin is not None:
+        lines.append(f"Origin: {origin}")
+    if upgrade:
+        lines += ["Upgrade: websocket", "Connection: Upgrade", "Sec-WebSocket-Version: 13",
+                  "Sec-WebSocket-Key: " + base64.b64encode(os.urandom(16)).decode()]
+    else:
+        lines.append("Connection: close")
+    lines += headers
+    sock.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
+    head = b""
+    while b"\r\n" not in head:
+        chunk = sock.recv(4096)
+        if not chunk:
+            break
+        head += chunk
+    return int(head.split(b" ", 2)[1]), sock

@@ -20,6 +20,7 @@ import time
 import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from io_helpers import request
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
@@ -142,20 +143,9 @@ def test_a_spec_client_decodes_shapes_at_20_hz_beside_a_stalled_client_and_a_thi
 
 def _upgrade_status(port: int, host: str, origin: str | None) -> int:
     """The HTTP status a raw WebSocket upgrade request with these ``Host`` and ``Origin`` headers gets."""
-    import socket
-
-    head = (f"GET / HTTP/1.1\r\nHost: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-            f"Sec-WebSocket-Key: {base64.b64encode(bytes(16)).decode()}\r\nSec-WebSocket-Version: 13\r\n"
-            f"Sec-WebSocket-Protocol: {SUBPROTOCOL}\r\n" + (f"Origin: {origin}\r\n" if origin else "") + "\r\n")
-    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
-        s.sendall(head.encode("latin-1"))
-        reply = b""
-        while b"\r\n" not in reply:
-            chunk = s.recv(4096)
-            if not chunk:
-                break
-            reply += chunk
-    return int(reply.split(b" ", 2)[1])
+    code, sock = request(port, "/", host, origin, upgrade=True, headers=(f"Sec-WebSocket-Protocol: {SUBPROTOCOL}",))
+    sock.close()
+    return code
 
 
 def test_foreign_host_or_origin_is_forbidden_foxglove_app_and_loopback_are_served():

@@ -8,15 +8,14 @@ waits are hang guards, never speed limits.
 from __future__ import annotations
 
 import asyncio
-import base64
 import json
 import os
-import socket
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from io_helpers import request
 
 from twin.viewer import commands as cmd
 from twin.viewer.client import SceneClient
@@ -37,32 +36,6 @@ def server():
     finally:
         proc.kill()
         proc.wait(timeout=30)
-
-
-def request(port: int, path: str, host: str | None = None, origin: str | None = None, *, upgrade: bool = False,
-            rcvbuf: int | None = None) -> tuple[int, socket.socket]:
-    """Send one raw HTTP/1.1 GET (a websocket handshake with ``upgrade``); (status, the open socket)."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    if rcvbuf:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)  # before connecting: the window it offers
-    sock.settimeout(10.0)
-    sock.connect(("127.0.0.1", port))
-    lines = [f"GET {path} HTTP/1.1", f"Host: {f'127.0.0.1:{port}' if host is None else host}"]
-    if origin is not None:
-        lines.append(f"Origin: {origin}")
-    if upgrade:
-        lines += ["Upgrade: websocket", "Connection: Upgrade", "Sec-WebSocket-Version: 13",
-                  "Sec-WebSocket-Key: " + base64.b64encode(os.urandom(16)).decode()]
-    else:
-        lines.append("Connection: close")
-    sock.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
-    head = b""
-    while b"\r\n" not in head:
-        chunk = sock.recv(4096)
-        if not chunk:
-            break
-        head += chunk
-    return int(head.split(b" ", 2)[1]), sock
 
 
 def status(port: int, path: str, host: str | None = None, origin: str | None = None, upgrade: bool = False) -> int:

@@ -118,6 +118,18 @@ class TruthErrors:
     tip_error_mm_mean: float
     tip_error_mm_max: float
 
+    def line(self) -> str:
+        """The one line every command prints for these errors."""
+        return (f"vs truth ({self.frames_compared} frames, {self.register}): distance to the true curve mean "
+                f"{self.mean_error_mm:.3f} mm, max {self.max_error_mm:.3f} mm; tip to the true tip mean "
+                f"{self.tip_error_mm_mean:.3f} mm, max {self.tip_error_mm_max:.3f} mm")
+
+
+def vendor_line(figures: dict) -> str:
+    """The one line every command prints for :meth:`VendorDistance.as_dict`'s figures."""
+    return (f"vs the interrogator's own shape ({figures['vendor_frames_compared']} frames, Kabsch): distance "
+            f"max {figures['vendor_distance_max_mm']:.3f} mm, mean {figures['vendor_distance_mean_mm']:.3f} mm")
+
 
 class _Slots:
     """The first eligible frame of each 1/``per_second`` s slot of the source's timestamps (module docstring)."""

@@ -53,7 +53,7 @@ from twin.fiber import FiberModel
 from twin.io.source import open_source, parse_url
 from twin.live import LiveLoop, LiveSummary, PrinterSink
 from twin.reconstruct import Reconstructor
-from twin.reference_errors import TruthError, VendorDistance, tube_figures
+from twin.reference_errors import TruthError, TruthErrors, VendorDistance, tube_figures, vendor_line
 
 #: one-line help (read by `twin --help` without importing this module)
 HELP = "reconstruct shapes live from an interrogator, the simulator or a recording (URL)"
@@ -291,16 +291,12 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
     if s.tip is not None:
         lines.append("  last tip (" + ", ".join(f"{1e3 * x:.2f}" for x in s.tip) + ") mm")
     if "truth" in out:
-        t = out["truth"]
-        lines.append(f"  vs truth ({t['frames_compared']} frames, {t['register']}): distance to the true curve mean "
-                     f"{t['mean_error_mm']:.3f} mm, max {t['max_error_mm']:.3f} mm; tip to the true tip mean "
-                     f"{t['tip_error_mm_mean']:.3f} mm, max {t['tip_error_mm_max']:.3f} mm")
+        lines.append("  " + TruthErrors(**out["truth"]).line())
     source = s.source
     if source.get("warnings"):  # e.g. the simulator's MuJoCo start-up notes, collected and explained by the source
         lines.append(f"  source warnings: {source['warnings']} ({source.get('warnings_note', 'see --json')})")
     if "vendor_distance_max_mm" in out:
-        lines.append(f"  vs the interrogator's own shape ({out['vendor_frames_compared']} frames, Kabsch): distance "
-                     f"max {out['vendor_distance_max_mm']:.3f} mm, mean {out['vendor_distance_mean_mm']:.3f} mm")
+        lines.append("  " + vendor_line(out))
     if "foxglove_frames" in out:
         lines.append(f"  Foxglove: {out['foxglove_frames']} updates, {out['foxglove_clients']} clients"
                      + (f", {out['foxglove_clients_refused']} refused (over the cap)" if out["foxglove_clients_refused"]

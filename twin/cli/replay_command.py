@@ -34,6 +34,7 @@ from twin import jsonout
 from twin.calibration import Calibration
 from twin.fiber import FiberModel
 from twin.metrics import REGISTRATIONS
+from twin.reference_errors import vendor_line
 from twin.replay_summary import ReplaySummary, summarize
 
 #: one-line help (read by `twin --help` without importing this module)
@@ -98,14 +99,9 @@ def format_summary(s: ReplaySummary) -> str:
         lines.append(f"  reconstruction throughput {s.reconstruct_frames_per_s:.0f} frames/s (frames ÷ wall time "
                      "spent reconstructing in this run, first-call compilation included; speed: twin bench)")
     if s.truth is not None:
-        t = s.truth
-        lines.append(f"  vs truth ({t.frames_compared} frames, {t.register}): distance to the true curve mean "
-                     f"{t.mean_error_mm:.3f} mm, max {t.max_error_mm:.3f} mm; tip to the true tip mean "
-                     f"{t.tip_error_mm_mean:.3f} mm, max {t.tip_error_mm_max:.3f} mm")
+        lines.append("  " + s.truth.line())
     if s.vendor:
-        v = s.vendor
-        lines.append(f"  vs the interrogator's own shape ({v['vendor_frames_compared']} frames, Kabsch): distance "
-                     f"max {v['vendor_distance_max_mm']:.3f} mm, mean {v['vendor_distance_mean_mm']:.3f} mm")
+        lines.append("  " + vendor_line(s.vendor))
     for d in s.damage:
         lines.append(f"  damage: {d}")
     return "\n".join(lines)
