@@ -583,6 +583,8 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, poin
                 xr = xn[rc]
                 for i in range(j * L, j * L + L):
                     xr[i] += xr[i - L]
+        # the Y and Z updates of _frame with V and the shared columns per lane (arrays here, scalars there): kept
+        # written out in both, since numba vectorises each loop only with its own operand kinds
         v00, v01, v11 = vrep[n, 0], vrep[n, 1], vrep[n, 2]
         for r in range(6):
             for i in range(kb):
