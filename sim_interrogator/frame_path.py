@@ -31,7 +31,7 @@ import mujoco
 import numpy as np
 from numba import njit
 
-from models._rod_kernels import bound_frames_and_darboux
+from models._rod_kernels import view_parts, view_read
 from models.rod_state import RodReader, RodView
 from sim_interrogator.optics import Optics, _apply_effects, _design_strain
 from twin._numba_entry import compiled_entry
@@ -49,62 +49,93 @@ def grating_average(reader: RodReader, optics: Optics) -> np.ndarray:
                                           optics.sample_weights))
 
 
+N_SCALARS = 9  # S_ε, the fibre's offset, noise, quantisation, slot, separation, the band's ends, the lost flag
+
+
 @njit(cache=True, nogil=True)
-def frame_wavelengths(x, plastic, qpos, twist_edges, twist_qadr, theta, site_row, inv_lbar, frames, darboux,
-                      have_frames, average_t, roll, axial_value, temp_value, axial, temp, curvature, strain, design,
-                      s_t, lam0, lam0_nominal, drift, drift_step, normals, z_offset, order, scalars, lost_flag, w,
-                      status):
+def _constants(const, n_v, n_g, n_c):
+    """The parts of :class:`FramePath`'s constants: the scalars, the grating average transposed (n_v, n_g), the
+    design matrix (n_g, n_c, 3), S_T (n_c,), λ0 and the nominal λ0 (n_g, n_c)."""
+    a = N_SCALARS
+    b = a + n_v * n_g
+    c = b + 3 * n_g * n_c
+    d = c + n_c
+    e = d + n_g * n_c
+    return (const[:a], const[a:b].reshape((n_v, n_g)), const[b:c].reshape((n_g, n_c, 3)), const[c:d],
+            const[d:e].reshape((n_g, n_c)), const[e : e + n_g * n_c].reshape((n_g, n_c)))
+
+
+@njit(cache=True, nogil=True)
+def _work(work, n_g, n_c):
+    """The parts of :class:`FramePath`'s work buffer: the rod read the average is of (1,), axial strain and
+    temperature change (1, n_g), the average's κ1 and κ2 (n_g,), (k_x, k_y) (1, n_g, 2), the strain (1, n_g, n_c)."""
+    a = 1 + 2 * n_g
+    b = a + 2 * n_g
+    c = b + 2 * n_g
+    return (work[:1], work[1 : 1 + n_g].reshape((1, n_g)), work[1 + n_g : a].reshape((1, n_g)), work[a : a + n_g],
+            work[a + n_g : b], work[b:c].reshape((1, n_g, 2)), work[c : c + n_g * n_c].reshape((1, n_g, n_c)))
+
+
+@njit(cache=True, nogil=True)
+def frame_wavelengths(x, plastic, qpos, site_row, tree_asleep, rod_index, rod_buffer, const, work, order, drift,
+                      have_frames, roll, axial_value, temp_value, drift_step, normals, z_offset, w, status):
     """Rod state → curvature at the gratings → wavelengths, in one call (see the module docstring).
 
-    The first ten arguments are those of :func:`models._rod_kernels.bound_frames_and_darboux` (views of
-    ``mjData`` and the buffers ``frames`` (n_edges, 3, 3), ``darboux`` (n_interior, 3) it fills); with
-    ``have_frames`` the buffers are taken as they are. Returns False, computing nothing, when the rod has no
-    frames yet (``plastic`` still zero: the caller fills the buffers and calls again with ``have_frames``).
+    The first seven arguments are those of :func:`models._rod_kernels.view_read` (views of ``mjData`` and the
+    rod view's index and buffer); with ``have_frames`` the view's buffers are taken as they are. Returns False,
+    computing nothing, when the rod has no frames yet (``plastic`` still zero: the caller fills the buffers and
+    calls again with ``have_frames``). The grating average is redone only when the view's buffers were filled
+    afresh (a rod read kept asleep keeps its average, bit for bit).
 
-    ``average_t`` is :func:`grating_average` transposed, (n_interior, n_gratings); ``roll`` rad; ``axial``,
-    ``temp`` (1, n_gratings) the axial strain and temperature change at the gratings, set to ``axial_value``,
-    ``temp_value`` unless these are NaN; ``curvature`` (1, n_gratings, 2) receives (k_x, k_y) at the gratings,
-    1/m; ``strain`` (1, n_gratings, n_cores) the optical strain; ``w`` and ``status`` (n_gratings, n_cores) the
-    wavelengths (nm, NaN where lost) and their status. ``normals[z_offset:]`` holds the frame's
-    2 · n_gratings · n_cores normal draws (:meth:`~sim_interrogator.optics.Optics.random_draw`'s ``z``, read only
-    with drift or noise); ``scalars`` holds S_ε, the fibre's offset, noise, quantisation, slot, separation and the
-    band's ends (:class:`FramePath`); the remaining arguments are those of
-    :func:`~sim_interrogator.optics._design_strain` and :func:`~sim_interrogator.optics._apply_effects`.
+    ``const`` packs the constants (:func:`_constants`: the scalars S_ε, the fibre's offset, noise, quantisation,
+    slot, separation, the band's ends and the lost flag; :func:`grating_average` transposed, (n_interior,
+    n_gratings); the design matrix, S_T, λ0 and the nominal λ0 of :func:`~sim_interrogator.optics._design_strain`
+    and :func:`~sim_interrogator.optics._apply_effects`), ``work`` the buffers (:func:`_work`): the axial strain
+    and temperature change at the gratings are set to ``axial_value``, ``temp_value`` unless these are NaN (the
+    caller filled them), (k_x, k_y) at the gratings (1/m) and the optical strain are left there. ``order`` and
+    ``drift`` are the optics' (:meth:`~sim_interrogator.optics.Optics.effect_arguments`); ``roll`` rad;
+    ``w`` and ``status`` (n_gratings, n_cores) receive the wavelengths (nm, NaN where lost) and their status.
+    ``normals[z_offset:]`` holds the frame's 2 · n_gratings · n_cores normal draws
+    (:meth:`~sim_interrogator.optics.Optics.random_draw`'s ``z``, read only with drift or noise).
     """
+    n_g, n_c = w.shape
+    ne = plastic.size // 6
+    n_v = ne - 1
+    scalars, average_t, design, s_t, lam0, lam0_nominal = _constants(const, n_v, n_g, n_c)
+    averaged, axial, temp, k1, k2, curvature, strain = _work(work, n_g, n_c)
     if axial_value == axial_value:  # a number for every grating (NaN: ``axial`` holds them already)
         axial[0, :] = axial_value
     if temp_value == temp_value:
         temp[0, :] = temp_value
-    if not have_frames and not bound_frames_and_darboux(x, plastic, qpos, twist_edges, twist_qadr, theta, site_row,
-                                                        inv_lbar, frames, darboux):
+    if not have_frames and view_read(x, plastic, qpos, site_row, tree_asleep, rod_index, rod_buffer) < 0:
         return False
-    # (κ1, κ2) averaged over each grating: average_t is the matrix transposed, (n_interior, n_gratings), so that
-    # the gratings' sums advance side by side (each still adds its terms in vertex order) instead of one
-    # dependent chain after another
-    n_v, n_g = average_t.shape
+    darboux = view_parts(rod_buffer, ne)[5]
+    read = rod_buffer[1]  # the view's count of fresh reads: the average is of the read it names
+    if averaged[0] != read:
+        # (κ1, κ2) averaged over each grating: average_t is the matrix transposed, (n_interior, n_gratings), so
+        # that the gratings' sums advance side by side in two contiguous rows (each still adds its terms in
+        # vertex order) instead of one dependent chain after another
+        k1[:] = 0.0
+        k2[:] = 0.0
+        for v in range(n_v):
+            d1, d2 = darboux[v, 0], darboux[v, 1]
+            for g in range(n_g):
+                a = average_t[v, g]
+                k1[g] += a * d1
+                k2[g] += a * d2
+        averaged[0] = read
+    roll_c, roll_s = (np.cos(roll), np.sin(roll)) if roll != 0.0 else (1.0, 0.0)
     k = curvature[0]
-    k[:] = 0.0
-    for v in range(n_v):
-        d1, d2 = darboux[v, 0], darboux[v, 1]
-        for g in range(n_g):
-            a = average_t[v, g]
-            k[g, 0] += a * d1
-            k[g, 1] += a * d2
-    roll_c, roll_s = np.cos(roll), np.sin(roll)
     for g in range(n_g):
-        k1, k2 = k[g, 0], k[g, 1]
-        r1 = roll_c * k1 + roll_s * k2  # (κ1, κ2) in the frame rolled by r about d3 (r = 0: unchanged)
-        r2 = roll_c * k2 - roll_s * k1
+        r1 = roll_c * k1[g] + roll_s * k2[g]  # (κ1, κ2) in the frame rolled by r about d3 (r = 0: unchanged)
+        r2 = roll_c * k2[g] - roll_s * k1[g]
         k[g, 0] = r2  # (k_x, k_y) = (κ2, −κ1)
         k[g, 1] = -r1
-    s_eps, offset, noise, quant, slot, separation, band_lo, band_hi = (scalars[0], scalars[1], scalars[2],
-                                                                       scalars[3], scalars[4], scalars[5],
-                                                                       scalars[6], scalars[7])
-    _design_strain(curvature, axial, temp, design, s_eps, s_t, offset, strain)
-    n_c = w.shape[1]
+    _design_strain(curvature, axial, temp, design, scalars[0], s_t, scalars[1], strain)
     z = normals[z_offset : z_offset + 2 * n_g * n_c].reshape((2, n_g, n_c))
-    _apply_effects(strain, lam0, lam0_nominal, drift, drift_step, z, noise, quant, slot, separation, band_lo,
-                   band_hi, order, lost_flag, w.reshape((1, n_g, n_c)), status.reshape((1, n_g, n_c)))
+    _apply_effects(strain, lam0, lam0_nominal, drift, drift_step, z, scalars[2], scalars[3], scalars[4], scalars[5],
+                   scalars[6], scalars[7], order, int(scalars[8]), w.reshape((1, n_g, n_c)),
+                   status.reshape((1, n_g, n_c)))
     return True
 
 
@@ -135,29 +166,26 @@ class FramePath:
         reader = rod.reader
         n_g, n_c = optics.nominal.n_gratings, optics.nominal.n_cores
         self.average = grating_average(reader, optics)
-        self._average_t = np.ascontiguousarray(self.average.T)
         self.frames, self.darboux = rod.frames, rod.darboux
-        self._axial = np.zeros((1, n_g))
-        self._temp = np.zeros((1, n_g))
+        (design, s_eps, s_t, offset, lam0, lam0_nominal, drift, noise, quant, slot, separation, band_lo, band_hi,
+         order, lost_flag) = optics.effect_arguments()
+        scalars = [s_eps, offset, noise, quant, slot, separation, band_lo, band_hi, lost_flag]
+        self._const = np.concatenate([np.array(scalars, dtype=np.float64), self.average.T.ravel(), design.ravel(),
+                                      s_t.ravel(), lam0.ravel(), lam0_nominal.ravel()])
+        self._work = np.zeros(1 + 6 * n_g + n_g * n_c)
+        self._work[0] = -1.0  # no average yet
+        _, self._axial, self._temp, *_ = _work(self._work, n_g, n_c)
         self.temperature = self._temp[0]
-        self._curvature = np.empty((1, n_g, 2))
-        self._strain = np.empty((1, n_g, n_c))
         self._shape = (n_g, n_c)
         self._n_z = 2 * n_g * n_c  # the normals of a frame: the drift's steps and the noise
         self._no_draw = np.zeros(self._n_z)
         self._draws = bool(optics.config.noise)
-        (design, s_eps, s_t, offset, lam0, lam0_nominal, drift, noise, quant, slot, separation, band_lo, band_hi,
-         order, lost_flag) = optics.effect_arguments()
-        self._scalars = np.array([s_eps, offset, noise, quant, slot, separation, band_lo, band_hi])
-        self._rod_args = rod.kernel_arguments()
-        self._design, self._s_t, self._lam0, self._lam0_nominal = design, s_t, lam0, lam0_nominal
-        self._drift, self._order, self._lost_flag = drift, order, lost_flag
+        # the arguments every call passes as they are (the views, constants and buffers)
+        self._fixed = (*rod.read_arguments(), self._const, self._work, np.ascontiguousarray(order, np.int64), drift)
         # the compiled function itself, past numba's dispatcher (twin/_numba_entry.py): the arguments' types
         # below are those of every call
-        self._kernel = compiled_entry(
-            frame_wavelengths, *self._rod_args, False, self._average_t, 0.0, 0.0, 0.0, self._axial, self._temp,
-            self._curvature, self._strain, design, s_t, lam0, lam0_nominal, drift, 0.0, self._no_draw, 0, order,
-            self._scalars, lost_flag, np.empty(self._shape), np.zeros(self._shape, np.uint8))
+        self._kernel = compiled_entry(frame_wavelengths, *self._fixed, False, 0.0, 0.0, 0.0, 0.0, self._no_draw, 0,
+                                      np.empty(self._shape), np.zeros(self._shape, np.uint8))
 
     def __call__(self, data: mujoco.MjData, axial, delta_t, t: float, roll: float = 0.0
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -188,10 +216,8 @@ class FramePath:
             normals, offset = self._no_draw, 0
         w = np.empty(self._shape)
         status = np.zeros(self._shape, np.uint8)
-        args = (*self._rod_args, False, self._average_t, roll, axial_value, temp_value, self._axial, self._temp,
-                self._curvature, self._strain, self._design, self._s_t, self._lam0, self._lam0_nominal, self._drift,
-                step, normals, offset, self._order, self._scalars, self._lost_flag, w, status)
-        if not self._kernel(*args):
+        roll = float(roll)
+        if not self._kernel(*self._fixed, False, roll, axial_value, temp_value, step, normals, offset, w, status):
             self.rod.restart()
-            self._kernel(*args[:10], True, *args[11:])
+            self._kernel(*self._fixed, True, roll, axial_value, temp_value, step, normals, offset, w, status)
         return w, status
