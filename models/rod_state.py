@@ -445,20 +445,21 @@ class RodView:
             bodies.append(model.site_bodyid[[r._site]])
         trees = np.unique(model.body_treeid[np.concatenate(bodies)])
         trees = trees[trees >= 0]  # −1: a static body (the world), never moves
-        self._index = np.concatenate([[r._tw_edges.size], r._tw_edges, r._tw_qadr, trees]).astype(np.int64)
+        index = np.concatenate([[r._tw_edges.size], r._tw_edges, r._tw_qadr, trees])
         ne = r._ne
         self._buffer = np.zeros(_rod_kernels.READ_HEADER + (ne - 1) + ne + 3 * (ne + 1) + 7 * ne + 9 + 9 * ne
-                                + 3 * (ne - 1))
-        self._header, inv_lbar, self.theta, _, self.frames, self.darboux = _rod_kernels.view_parts(self._buffer, ne)
+                                + 3 * (ne - 1) + index.size)
+        self._header, inv_lbar, self.theta, _, self.frames, self.darboux, index_part = _rod_kernels.view_parts(
+            self._buffer, ne)
         inv_lbar[:] = r._inv_lbar  # the clamped edge's θ stays 0
+        index_part[:] = index  # integers far below 2⁵³: exact as floats
         # past numba's dispatcher (twin/_numba_entry.py): these arguments keep their types
         self._kernel = compiled_entry(_rod_kernels.view_read, *self.read_arguments())
 
     def read_arguments(self) -> tuple:
         """The arguments of :func:`models._rod_kernels.view_read`, for callers that fuse the rod read into a
         compiled call of their own (:mod:`sim_interrogator.frame_path`)."""
-        return (self.positions, self.plastic, self.qpos, self.site_row, self.tree_asleep, self._index,
-                self._buffer)
+        return self.positions, self.plastic, self.qpos, self.site_row, self.tree_asleep, self._buffer
 
     def kernel_arguments(self) -> tuple:
         """The arguments of :func:`models._rod_kernels.bound_frames_and_darboux` (the exact read, into this view's

@@ -52,47 +52,51 @@ def grating_average(reader: RodReader, optics: Optics) -> np.ndarray:
 N_SCALARS = 9  # S_ε, the fibre's offset, noise, quantisation, slot, separation, the band's ends, the lost flag
 
 
+def _size(n_v: int, n_g: int, n_c: int) -> int:
+    """The length of :class:`FramePath`'s buffer (:func:`_parts`)."""
+    return N_SCALARS + n_v * n_g + 6 * n_g * n_c + n_c + 1 + 6 * n_g
+
+
 @njit(cache=True, nogil=True)
-def _constants(const, n_v, n_g, n_c):
-    """The parts of :class:`FramePath`'s constants: the scalars, the grating average transposed (n_v, n_g), the
-    design matrix (n_g, n_c, 3), S_T (n_c,), λ0 and the nominal λ0 (n_g, n_c)."""
+def _parts(buffer, n_v, n_g, n_c):
+    """The parts of :class:`FramePath`'s buffer. Constants: the scalars, the grating average transposed (n_v,
+    n_g), the design matrix (n_g, n_c, 3), S_T (n_c,), λ0 and the nominal λ0 (n_g, n_c). Work: the rod read the
+    average is of (1,), axial strain and temperature change (1, n_g), the average's κ1 and κ2 (n_g,), (k_x, k_y)
+    (1, n_g, 2), the strain (1, n_g, n_c)."""
+    m = n_g * n_c
     a = N_SCALARS
     b = a + n_v * n_g
-    c = b + 3 * n_g * n_c
+    c = b + 3 * m
     d = c + n_c
-    e = d + n_g * n_c
-    return (const[:a], const[a:b].reshape((n_v, n_g)), const[b:c].reshape((n_g, n_c, 3)), const[c:d],
-            const[d:e].reshape((n_g, n_c)), const[e : e + n_g * n_c].reshape((n_g, n_c)))
+    e = d + m
+    f = e + m
+    g = f + 1
+    return (buffer[:a], buffer[a:b].reshape((n_v, n_g)), buffer[b:c].reshape((n_g, n_c, 3)), buffer[c:d],
+            buffer[d:e].reshape((n_g, n_c)), buffer[e:f].reshape((n_g, n_c)), buffer[f:g],
+            buffer[g : g + n_g].reshape((1, n_g)), buffer[g + n_g : g + 2 * n_g].reshape((1, n_g)),
+            buffer[g + 2 * n_g : g + 3 * n_g], buffer[g + 3 * n_g : g + 4 * n_g],
+            buffer[g + 4 * n_g : g + 6 * n_g].reshape((1, n_g, 2)),
+            buffer[g + 6 * n_g : g + 6 * n_g + m].reshape((1, n_g, n_c)))
 
 
 @njit(cache=True, nogil=True)
-def _work(work, n_g, n_c):
-    """The parts of :class:`FramePath`'s work buffer: the rod read the average is of (1,), axial strain and
-    temperature change (1, n_g), the average's κ1 and κ2 (n_g,), (k_x, k_y) (1, n_g, 2), the strain (1, n_g, n_c)."""
-    a = 1 + 2 * n_g
-    b = a + 2 * n_g
-    c = b + 2 * n_g
-    return (work[:1], work[1 : 1 + n_g].reshape((1, n_g)), work[1 + n_g : a].reshape((1, n_g)), work[a : a + n_g],
-            work[a + n_g : b], work[b:c].reshape((1, n_g, 2)), work[c : c + n_g * n_c].reshape((1, n_g, n_c)))
-
-
-@njit(cache=True, nogil=True)
-def frame_wavelengths(x, plastic, qpos, site_row, tree_asleep, rod_index, rod_buffer, const, work, order, drift,
-                      have_frames, roll, axial_value, temp_value, drift_step, normals, z_offset, w, status):
+def frame_wavelengths(x, plastic, qpos, site_row, tree_asleep, rod_buffer, buffer, order, drift, have_frames, roll,
+                      axial_value, temp_value, drift_step, normals, z_offset, w, status):
     """Rod state → curvature at the gratings → wavelengths, in one call (see the module docstring).
 
-    The first seven arguments are those of :func:`models._rod_kernels.view_read` (views of ``mjData`` and the
-    rod view's index and buffer); with ``have_frames`` the view's buffers are taken as they are. Returns False,
+    The first six arguments are those of :func:`models._rod_kernels.view_read` (views of ``mjData`` and the
+    rod view's buffer); with ``have_frames`` the view's buffers are taken as they are. Returns False,
     computing nothing, when the rod has no frames yet (``plastic`` still zero: the caller fills the buffers and
     calls again with ``have_frames``). The grating average is redone only when the view's buffers were filled
     afresh (a rod read kept asleep keeps its average, bit for bit).
 
-    ``const`` packs the constants (:func:`_constants`: the scalars S_ε, the fibre's offset, noise, quantisation,
-    slot, separation, the band's ends and the lost flag; :func:`grating_average` transposed, (n_interior,
+    ``buffer`` packs the constants and the work buffers (:func:`_parts`; one array, so that a call unpacks one
+    array and not eleven, ≈ 70 ns each): the scalars S_ε, the fibre's offset, noise, quantisation, slot,
+    separation, the band's ends and the lost flag; :func:`grating_average` transposed, (n_interior,
     n_gratings); the design matrix, S_T, λ0 and the nominal λ0 of :func:`~sim_interrogator.optics._design_strain`
-    and :func:`~sim_interrogator.optics._apply_effects`), ``work`` the buffers (:func:`_work`): the axial strain
-    and temperature change at the gratings are set to ``axial_value``, ``temp_value`` unless these are NaN (the
-    caller filled them), (k_x, k_y) at the gratings (1/m) and the optical strain are left there. ``order`` and
+    and :func:`~sim_interrogator.optics._apply_effects`. The axial strain and temperature change at the gratings
+    are set there to ``axial_value``, ``temp_value`` unless these are NaN (the caller filled them); (k_x, k_y) at
+    the gratings (1/m) and the optical strain are left there. ``order`` and
     ``drift`` are the optics' (:meth:`~sim_interrogator.optics.Optics.effect_arguments`); ``roll`` rad;
     ``w`` and ``status`` (n_gratings, n_cores) receive the wavelengths (nm, NaN where lost) and their status.
     ``normals[z_offset:]`` holds the frame's 2 · n_gratings · n_cores normal draws
@@ -101,13 +105,13 @@ def frame_wavelengths(x, plastic, qpos, site_row, tree_asleep, rod_index, rod_bu
     n_g, n_c = w.shape
     ne = plastic.size // 6
     n_v = ne - 1
-    scalars, average_t, design, s_t, lam0, lam0_nominal = _constants(const, n_v, n_g, n_c)
-    averaged, axial, temp, k1, k2, curvature, strain = _work(work, n_g, n_c)
+    (scalars, average_t, design, s_t, lam0, lam0_nominal, averaged, axial, temp, k1, k2, curvature,
+     strain) = _parts(buffer, n_v, n_g, n_c)
     if axial_value == axial_value:  # a number for every grating (NaN: ``axial`` holds them already)
         axial[0, :] = axial_value
     if temp_value == temp_value:
         temp[0, :] = temp_value
-    if not have_frames and view_read(x, plastic, qpos, site_row, tree_asleep, rod_index, rod_buffer) < 0:
+    if not have_frames and view_read(x, plastic, qpos, site_row, tree_asleep, rod_buffer) < 0:
         return False
     darboux = view_parts(rod_buffer, ne)[5]
     read = rod_buffer[1]  # the view's count of fresh reads: the average is of the read it names
@@ -169,19 +173,21 @@ class FramePath:
         self.frames, self.darboux = rod.frames, rod.darboux
         (design, s_eps, s_t, offset, lam0, lam0_nominal, drift, noise, quant, slot, separation, band_lo, band_hi,
          order, lost_flag) = optics.effect_arguments()
-        scalars = [s_eps, offset, noise, quant, slot, separation, band_lo, band_hi, lost_flag]
-        self._const = np.concatenate([np.array(scalars, dtype=np.float64), self.average.T.ravel(), design.ravel(),
-                                      s_t.ravel(), lam0.ravel(), lam0_nominal.ravel()])
-        self._work = np.zeros(1 + 6 * n_g + n_g * n_c)
-        self._work[0] = -1.0  # no average yet
-        _, self._axial, self._temp, *_ = _work(self._work, n_g, n_c)
+        n_v = self.average.shape[1]
+        self._buffer = np.zeros(_size(n_v, n_g, n_c))
+        (scalars, average_t, design_part, s_t_part, lam0_part, nominal_part, averaged, self._axial, self._temp,
+         *_) = _parts(self._buffer, n_v, n_g, n_c)
+        scalars[:] = s_eps, offset, noise, quant, slot, separation, band_lo, band_hi, lost_flag
+        average_t[:], design_part[:], s_t_part[:] = self.average.T, design, s_t
+        lam0_part[:], nominal_part[:] = lam0, lam0_nominal
+        averaged[0] = -1.0  # no average yet
         self.temperature = self._temp[0]
         self._shape = (n_g, n_c)
         self._n_z = 2 * n_g * n_c  # the normals of a frame: the drift's steps and the noise
         self._no_draw = np.zeros(self._n_z)
         self._draws = bool(optics.config.noise)
         # the arguments every call passes as they are (the views, constants and buffers)
-        self._fixed = (*rod.read_arguments(), self._const, self._work, np.ascontiguousarray(order, np.int64), drift)
+        self._fixed = (*rod.read_arguments(), self._buffer, np.ascontiguousarray(order, np.int64), drift)
         # the compiled function itself, past numba's dispatcher (twin/_numba_entry.py): the arguments' types
         # below are those of every call
         self._kernel = compiled_entry(frame_wavelengths, *self._fixed, False, 0.0, 0.0, 0.0, 0.0, self._no_draw, 0,
