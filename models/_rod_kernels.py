@@ -57,24 +57,20 @@ def _sin_cos_small(d):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _log_series(q00, q01, q02, q10, q11, q12, q20, q21, q22):
-    """:func:`twin.so3.log_entries` by the series of atan(t)/t at t = tan(φ/2) where t² ≤ ``_TAN_HALF_SQ_MAX``
-    (the module docstring), the exact function elsewhere."""
-    w0 = q21 - q12
-    w1 = q02 - q20
-    w2 = q10 - q01
-    tr = q00 + q11 + q22
-    h = 1.0 / (tr + 1.0)
-    x = (w0 * w0 + w1 * w1 + w2 * w2) * (h * h)
-    if tr > 1.0 and x <= _TAN_HALF_SQ_MAX:  # false for NaN: the exact function decides
-        f = 2.0 * h * (1.0 - x * (_A3 - x * (_A5 - x * (_A7 - x * (_A9 - x * (_A11 - x * (_A13 - x * (
-            _A15 - x * (_A17 - x * _A19)))))))))
-        return w0 * f, w1 * f, w2 * f
-    return log_entries(q00, q01, q02, q10, q11, q12, q20, q21, q22)
+def _transported(plastic, e, tx, ty, tz):
+    """MuJoCo's reference director of edge e (``plastic``: (t_old, u_old) per edge) parallel-transported from
+    t_old to the tangent t: u + 2 (a·u) t − ((a + t)·u) (a + t) / (1 + a·t) with a = t_old."""
+    ax, ay, az = plastic[6 * e], plastic[6 * e + 1], plastic[6 * e + 2]
+    ux, uy, uz = plastic[6 * e + 3], plastic[6 * e + 4], plastic[6 * e + 5]
+    wx, wy, wz = ax + tx, ay + ty, az + tz
+    c_at = ax * tx + ay * ty + az * tz
+    au = ax * ux + ay * uy + az * uz
+    wu = (wx * ux + wy * uy + wz * uz) / (1.0 + c_at)
+    return ux + 2.0 * au * tx - wu * wx, uy + 2.0 * au * ty - wu * wy, uz + 2.0 * au * tz - wu * wz
 
 
 @njit(cache=True, nogil=True)
-def frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux, series=False):
+def frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux):
     """Material frames per edge and discrete Darboux vectors per interior vertex.
 
     Parameters
@@ -87,54 +83,24 @@ def frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux, ser
     inv_lbar : (ne − 1,) 1 / mean rest length of the two edges at each interior vertex.
     frames : (ne, 3, 3) out: columns d1, d2, d3.
     darboux : (ne − 1, 3) out: log(R_{i−1}ᵀ R_i) / l̄_i.
-    series : bool
-        Take the small angles by their series (the module docstring: equal to the exact formulas to rounding).
     """
     ne = theta.size
     roll = 0.0
-    # the series' split of θ_e + roll into (θ_e − θ_ref) + (roll + θ_ref), θ_ref the θ_e's midrange
-    lo = hi = theta[0]
-    if series:
-        for e in range(1, ne):
-            lo = min(lo, theta[e])
-            hi = max(hi, theta[e])
-    ref = 0.5 * (lo + hi)
-    c_ref = s_ref = 0.0
     for e in range(ne):
         tx = x[e + 1, 0] - x[e, 0]
         ty = x[e + 1, 1] - x[e, 1]
         tz = x[e + 1, 2] - x[e, 2]
         n = np.sqrt(tx * tx + ty * ty + tz * tz)
-        if series:  # one division, not three: the divider is what a read waits for once the angles are series
-            n = 1.0 / n
-            tx *= n
-            ty *= n
-            tz *= n
-        else:
-            tx /= n
-            ty /= n
-            tz /= n
-        ax, ay, az = plastic[6 * e], plastic[6 * e + 1], plastic[6 * e + 2]
-        ux, uy, uz = plastic[6 * e + 3], plastic[6 * e + 4], plastic[6 * e + 5]
-        # parallel transport from t_old to t: u + 2 (a·u) t − ((a + t)·u) (a + t) / (1 + a·t)
-        wx, wy, wz = ax + tx, ay + ty, az + tz
-        c_at = ax * tx + ay * ty + az * tz
-        au = ax * ux + ay * uy + az * uz
-        wu = (wx * ux + wy * uy + wz * uz) / (1.0 + c_at)
-        ux, uy, uz = ux + 2.0 * au * tx - wu * wx, uy + 2.0 * au * ty - wu * wy, uz + 2.0 * au * tz - wu * wz
+        tx /= n
+        ty /= n
+        tz /= n
+        ux, uy, uz = _transported(plastic, e, tx, ty, tz)
         vx, vy, vz = ty * uz - tz * uy, tz * ux - tx * uz, tx * uy - ty * ux
         if e == 0 and (site_x[0] != 0.0 or site_x[1] != 0.0 or site_x[2] != 0.0):
             roll = np.arctan2(site_x[0] * vx + site_x[1] * vy + site_x[2] * vz,
                               site_x[0] * ux + site_x[1] * uy + site_x[2] * uz) - theta[0]
-        if series and e == 0:
-            c_ref, s_ref = np.cos(roll + ref), np.sin(roll + ref)
-        d = theta[e] - ref
-        if series and abs(d) <= _SIN_COS_MAX:
-            sd, cd = _sin_cos_small(d)
-            c, s = c_ref * cd - s_ref * sd, s_ref * cd + c_ref * sd
-        else:
-            th = theta[e] + roll
-            c, s = np.cos(th), np.sin(th)
+        th = theta[e] + roll
+        c, s = np.cos(th), np.sin(th)
         frames[e, 0, 0] = c * ux + s * vx
         frames[e, 1, 0] = c * uy + s * vy
         frames[e, 2, 0] = c * uz + s * vz
@@ -146,16 +112,96 @@ def frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux, ser
         frames[e, 2, 2] = tz
     for i in range(ne - 1):
         # Q = R_{i}ᵀ R_{i+1}; only its antisymmetric part and trace are needed (scalars: no allocation per vertex)
-        q00, q01, q02 = _qdot(frames, i, 0, 0), _qdot(frames, i, 0, 1), _qdot(frames, i, 0, 2)
-        q10, q11, q12 = _qdot(frames, i, 1, 0), _qdot(frames, i, 1, 1), _qdot(frames, i, 1, 2)
-        q20, q21, q22 = _qdot(frames, i, 2, 0), _qdot(frames, i, 2, 1), _qdot(frames, i, 2, 2)
-        if series:
-            w0, w1, w2 = _log_series(q00, q01, q02, q10, q11, q12, q20, q21, q22)
-        else:
-            w0, w1, w2 = log_entries(q00, q01, q02, q10, q11, q12, q20, q21, q22)
+        w0, w1, w2 = log_entries(_qdot(frames, i, 0, 0), _qdot(frames, i, 0, 1), _qdot(frames, i, 0, 2),
+                                 _qdot(frames, i, 1, 0), _qdot(frames, i, 1, 1), _qdot(frames, i, 1, 2),
+                                 _qdot(frames, i, 2, 0), _qdot(frames, i, 2, 1), _qdot(frames, i, 2, 2))
         darboux[i, 0] = w0 * inv_lbar[i]
         darboux[i, 1] = w1 * inv_lbar[i]
         darboux[i, 2] = w2 * inv_lbar[i]
+
+
+SCRATCH_ROWS = 14  # the rows (n_edges,) of series_frames_and_darboux's scratch
+
+
+@njit(cache=True, nogil=True)
+def series_frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux, scratch):
+    """:func:`frames_and_darboux` with the small angles by their series (the module docstring), equal to it to
+    rounding, for reads at the sensor rate.
+
+    The work is laid out in rows of ``scratch`` (``SCRATCH_ROWS``, n_edges), one per coordinate, so that the
+    series, the frames' columns and the rotations between neighbouring frames run on vector registers, several
+    edges at a time; an edge or vertex outside the series' bounds is then redone by the exact functions. Only
+    the tangents and MuJoCo's reference frames are read edge by edge (their entries are interleaved in
+    ``mjData``).
+    """
+    ne = theta.size
+    t_x, t_y, t_z, u_x, u_y, u_z = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
+    a_x, a_y, a_z, b_x, b_y, b_z = scratch[6], scratch[7], scratch[8], scratch[9], scratch[10], scratch[11]
+    cos_t, sin_t = scratch[12], scratch[13]
+    for e in range(ne):
+        tx = x[e + 1, 0] - x[e, 0]
+        ty = x[e + 1, 1] - x[e, 1]
+        tz = x[e + 1, 2] - x[e, 2]
+        n = 1.0 / np.sqrt(tx * tx + ty * ty + tz * tz)  # one division, not three
+        tx, ty, tz = tx * n, ty * n, tz * n
+        t_x[e], t_y[e], t_z[e] = tx, ty, tz
+        u_x[e], u_y[e], u_z[e] = _transported(plastic, e, tx, ty, tz)
+    roll = 0.0
+    if site_x[0] != 0.0 or site_x[1] != 0.0 or site_x[2] != 0.0:
+        vx = t_y[0] * u_z[0] - t_z[0] * u_y[0]
+        vy = t_z[0] * u_x[0] - t_x[0] * u_z[0]
+        vz = t_x[0] * u_y[0] - t_y[0] * u_x[0]
+        roll = np.arctan2(site_x[0] * vx + site_x[1] * vy + site_x[2] * vz,
+                          site_x[0] * u_x[0] + site_x[1] * u_y[0] + site_x[2] * u_z[0]) - theta[0]
+    # θ_e + roll = (θ_e − θ_ref) + (roll + θ_ref): θ_ref between the twisted edges' ends, the first angle small
+    # for a rod whose twist spans less than 1 rad (any other edge is redone below)
+    ref = 0.5 * (theta[min(1, ne - 1)] + theta[ne - 1])
+    c_ref, s_ref = np.cos(roll + ref), np.sin(roll + ref)
+    for e in range(ne):  # on vector registers: no branch, no call
+        sd, cd = _sin_cos_small(theta[e] - ref)
+        cos_t[e] = c_ref * cd - s_ref * sd
+        sin_t[e] = s_ref * cd + c_ref * sd
+    for e in range(ne):
+        if not abs(theta[e] - ref) <= _SIN_COS_MAX:
+            th = theta[e] + roll
+            cos_t[e], sin_t[e] = np.cos(th), np.sin(th)
+    for e in range(ne):  # d1 = c u + s v, d2 = c v − s u with v = t × u
+        tx, ty, tz, ux, uy, uz, c, s = t_x[e], t_y[e], t_z[e], u_x[e], u_y[e], u_z[e], cos_t[e], sin_t[e]
+        vx, vy, vz = ty * uz - tz * uy, tz * ux - tx * uz, tx * uy - ty * ux
+        a_x[e], a_y[e], a_z[e] = c * ux + s * vx, c * uy + s * vy, c * uz + s * vz
+        b_x[e], b_y[e], b_z[e] = c * vx - s * ux, c * vy - s * uy, c * vz - s * uz
+    for e in range(ne):
+        frames[e, 0, 0], frames[e, 1, 0], frames[e, 2, 0] = a_x[e], a_y[e], a_z[e]
+        frames[e, 0, 1], frames[e, 1, 1], frames[e, 2, 1] = b_x[e], b_y[e], b_z[e]
+        frames[e, 0, 2], frames[e, 1, 2], frames[e, 2, 2] = t_x[e], t_y[e], t_z[e]
+    # Q = R_iᵀ R_{i+1} from the rows at i and i + 1: its antisymmetric part w and trace, then the series; the rows
+    # of u and of cos θ are free again and take w and the vertices the series must not serve
+    w_0, w_1, w_2, exact = u_x, u_y, u_z, cos_t
+    for i in range(ne - 1):  # on vector registers
+        j = i + 1
+        q00 = a_x[i] * a_x[j] + a_y[i] * a_y[j] + a_z[i] * a_z[j]
+        q11 = b_x[i] * b_x[j] + b_y[i] * b_y[j] + b_z[i] * b_z[j]
+        q22 = t_x[i] * t_x[j] + t_y[i] * t_y[j] + t_z[i] * t_z[j]
+        w0 = (t_x[i] * b_x[j] + t_y[i] * b_y[j] + t_z[i] * b_z[j]) - (b_x[i] * t_x[j] + b_y[i] * t_y[j]
+                                                                       + b_z[i] * t_z[j])
+        w1 = (a_x[i] * t_x[j] + a_y[i] * t_y[j] + a_z[i] * t_z[j]) - (t_x[i] * a_x[j] + t_y[i] * a_y[j]
+                                                                       + t_z[i] * a_z[j])
+        w2 = (b_x[i] * a_x[j] + b_y[i] * a_y[j] + b_z[i] * a_z[j]) - (a_x[i] * b_x[j] + a_y[i] * b_y[j]
+                                                                       + a_z[i] * b_z[j])
+        tr = q00 + q11 + q22
+        h = 1.0 / (tr + 1.0)
+        y = (w0 * w0 + w1 * w1 + w2 * w2) * (h * h)
+        f = 2.0 * h * (1.0 - y * (_A3 - y * (_A5 - y * (_A7 - y * (_A9 - y * (_A11 - y * (_A13 - y * (
+            _A15 - y * (_A17 - y * _A19)))))))))
+        exact[i] = 0.0 if (tr > 1.0 and y <= _TAN_HALF_SQ_MAX) else 1.0  # false for NaN too
+        w_0[i], w_1[i], w_2[i] = w0 * f * inv_lbar[i], w1 * f * inv_lbar[i], w2 * f * inv_lbar[i]
+    for i in range(ne - 1):
+        if exact[i] != 0.0:
+            w0, w1, w2 = log_entries(_qdot(frames, i, 0, 0), _qdot(frames, i, 0, 1), _qdot(frames, i, 0, 2),
+                                     _qdot(frames, i, 1, 0), _qdot(frames, i, 1, 1), _qdot(frames, i, 1, 2),
+                                     _qdot(frames, i, 2, 0), _qdot(frames, i, 2, 1), _qdot(frames, i, 2, 2))
+            w_0[i], w_1[i], w_2[i] = w0 * inv_lbar[i], w1 * inv_lbar[i], w2 * inv_lbar[i]
+        darboux[i, 0], darboux[i, 1], darboux[i, 2] = w_0[i], w_1[i], w_2[i]
 
 
 @njit(cache=True, nogil=True)
@@ -225,16 +271,18 @@ READ_HEADER = 2  # a view buffer's leading entries: [the saved inputs are valid 
 def view_parts(buffer, ne):
     """The parts of a :class:`models.rod_state.RodView` buffer for a rod of ``ne`` edges: the header, 1/l̄
     (ne − 1,), θ (ne,), the inputs of the last read (3 (ne + 1) + 6 ne + ne + 9,), frames (ne, 3, 3), Darboux
-    vectors (ne − 1, 3) and the index (the rest: the number of twist joints n_tw, the edges they turn (n_tw,),
-    their ``qpos`` addresses (n_tw,) and the kinematic trees of the rod's bodies, as floats)."""
+    vectors (ne − 1, 3), the read's scratch (``SCRATCH_ROWS``, ne) and the index (the rest: the number of twist
+    joints n_tw, the edges they turn (n_tw,), their ``qpos`` addresses (n_tw,) and the kinematic trees of the
+    rod's bodies, as floats)."""
     a = READ_HEADER
     b = a + ne - 1
     c = b + ne
     d = c + 3 * (ne + 1) + 7 * ne + 9
     f = d + 9 * ne
     g = f + 3 * (ne - 1)
+    h = g + SCRATCH_ROWS * ne
     return (buffer[:a], buffer[a:b], buffer[b:c], buffer[c:d], buffer[d:f].reshape((ne, 3, 3)),
-            buffer[f:g].reshape((ne - 1, 3)), buffer[g:])
+            buffer[f:g].reshape((ne - 1, 3)), buffer[g:h].reshape((SCRATCH_ROWS, ne)), buffer[h:])
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -255,7 +303,7 @@ def _kept(values, saved, o, store):
 
 @njit(cache=True, nogil=True)
 def view_read(x, plastic, qpos, site_row, tree_asleep, buffer):
-    """The rod read of a :class:`models.rod_state.RodView`: :func:`frames_and_darboux` with the series, straight
+    """The rod read of a :class:`models.rod_state.RodView`: :func:`series_frames_and_darboux`, straight
     from views of ``mjData``, into the view's ``buffer`` (:func:`view_parts`).
 
     ``qpos`` is all of ``mjData.qpos`` and ``tree_asleep`` all of ``mjData.tree_asleep``; ``site_row`` is the base
@@ -271,7 +319,7 @@ def view_read(x, plastic, qpos, site_row, tree_asleep, buffer):
     MuJoCo restarts them).
     """
     ne = plastic.size // 6
-    header, inv_lbar, theta, saved, frames, darboux, index = view_parts(buffer, ne)
+    header, inv_lbar, theta, saved, frames, darboux, scratch, index = view_parts(buffer, ne)
     if plastic[3] == 0.0 and plastic[4] == 0.0 and plastic[5] == 0.0:
         header[0] = 0.0
         return -1
@@ -291,7 +339,7 @@ def view_read(x, plastic, qpos, site_row, tree_asleep, buffer):
         _, same_s = _kept(site_row, saved, o, False)
         if same and same_p and same_t and same_s:
             return 1
-    frames_and_darboux(x, plastic, theta, site_row[::3], inv_lbar, frames, darboux, True)
+    series_frames_and_darboux(x, plastic, theta, site_row[::3], inv_lbar, frames, darboux, scratch)
     header[1] += 1.0
     header[0] = 0.0
     if asleep:  # keep the inputs for the next read (only asleep: the copy would cost an awake rod every read)

@@ -448,8 +448,8 @@ class RodView:
         index = np.concatenate([[r._tw_edges.size], r._tw_edges, r._tw_qadr, trees])
         ne = r._ne
         self._buffer = np.zeros(_rod_kernels.READ_HEADER + (ne - 1) + ne + 3 * (ne + 1) + 7 * ne + 9 + 9 * ne
-                                + 3 * (ne - 1) + index.size)
-        self._header, inv_lbar, self.theta, _, self.frames, self.darboux, index_part = _rod_kernels.view_parts(
+                                + 3 * (ne - 1) + _rod_kernels.SCRATCH_ROWS * ne + index.size)
+        self._header, inv_lbar, self.theta, _, self.frames, self.darboux, _, index_part = _rod_kernels.view_parts(
             self._buffer, ne)
         inv_lbar[:] = r._inv_lbar  # the clamped edge's θ stays 0
         index_part[:] = index  # integers far below 2⁵³: exact as floats
