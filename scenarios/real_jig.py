@@ -61,8 +61,8 @@ FACTOR = 1.5
 KEYS = ("rms_strain_residual", "loro_kappa_error_1_per_m", "loro_direction_error_deg")
 #: The modelled effects and the parameters that turn each off (docs/jig.md, "Error budget").
 EFFECTS: dict[str, dict] = {
-    "reference bent in the jig's frame": {"reference_bias": (0.0, 0.0)},
-    "reference scatter between sessions": {"reference_curvature": 0.0},
+    "jig's zero (grooves short of their label)": {"reference_bias": (0.0, 0.0)},
+    "each rotation's zero (scatter between seatings)": {"reference_curvature": 0.0},
     "roll error when re-seated": {"orientation_error_deg": 0.0},
     "twist when pressed in": {"seat_twist_deg": 0.0},
     "stiffness vs groove (conformity)": {"conformity_std": 0.0},
