@@ -92,7 +92,8 @@ class NuisanceFit:
         Fitted error covariances in strain (rank C − 1, common mode excluded): per pose, per groove (shared by its
         trials), and the scatter of the rotations' zeros.
     reference : ndarray, shape (O, G, 2)
-        Each rotation's zero as the curvature of its reference pose in the jig's frame, 1/m: along the grooves'
+        Each rotation's zero as the curvature of its reference pose in the jig's frame (equivalently, how much less
+        its bent grooves bend the sensor than labelled), 1/m: along the grooves'
         bend direction and across it (90° counter-clockwise). Its mean over the rotations is a property of the
         jig (bent grooves that hold the sensor less bent than labelled), its scatter that of the reseating.
     reference_std : ndarray, shape (G, 2)
