@@ -123,7 +123,9 @@ def frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux):
 SCRATCH_ROWS = 14  # the rows (n_edges,) of series_frames_and_darboux's scratch
 
 
-@njit(cache=True, nogil=True)
+# numpy's error model: a division by zero gives inf or NaN instead of raising, which lets LLVM run the loops on
+# vector registers (a NaN vertex is then redone by the exact function and stays NaN)
+@njit(cache=True, nogil=True, error_model="numpy")
 def series_frames_and_darboux(x, plastic, theta, site_x, inv_lbar, frames, darboux, scratch):
     """:func:`frames_and_darboux` with the small angles by their series (the module docstring), equal to it to
     rounding, for reads at the sensor rate.
