@@ -33,12 +33,12 @@ import math
 
 import mujoco
 import numpy as np
-from numba import njit
+from numba import carray, njit
 
 from models._rod_kernels import view_parts, view_read
 from models.rod_state import RodReader, RodView
 from sim_interrogator.optics import Optics, _apply_effects, _design_strain
-from twin._numba_entry import compiled_entry
+from twin._numba_entry import addresses, compiled_entry, float64_at, int32_at, int64_at
 
 __all__ = ["FramePath", "frame_wavelengths", "grating_average"]
 
@@ -84,29 +84,40 @@ def _parts(buffer, n_v, n_g, n_c):
 
 
 @njit(cache=True, nogil=True)
-def frame_wavelengths(x, plastic, qpos, site_row, tree_asleep, rod_buffer, buffer, order, drift, have_frames, roll,
-                      axial_value, temp_value, drift_step, normals, z_offset, w, status):
+def frame_wavelengths(fixed, have_frames, roll, axial_value, temp_value, drift_step, normals, z_offset, w,
+                      status):
     """Rod state → curvature at the gratings → wavelengths, in one call (see the module docstring).
 
-    The first six arguments are those of :func:`models._rod_kernels.view_read` (views of ``mjData`` and the
-    rod view's buffer); with ``have_frames`` the view's buffers are taken as they are. Returns False,
-    computing nothing, when the rod has no frames yet (``plastic`` still zero: the caller fills the buffers and
-    calls again with ``have_frames``). The grating average is redone only when the view's buffers were filled
-    afresh (a rod read kept asleep keeps its average, bit for bit).
+    ``fixed`` holds the addresses and sizes (:func:`twin._numba_entry.addresses`) of the arrays every call reads
+    as they are, viewed again here (one array to unpack instead of nine): those of
+    :func:`models._rod_kernels.view_read` (views of ``mjData`` and the rod view's buffer), ``buffer``, ``order``
+    and ``drift``. With ``have_frames`` the view's buffers are taken as they are. Returns False, computing
+    nothing, when the rod has no frames yet (``plastic`` still zero: the caller fills the buffers and calls again
+    with ``have_frames``). The grating average is redone only when the view's buffers were filled afresh (a rod
+    read kept asleep keeps its average, bit for bit).
 
-    ``buffer`` packs the constants and the work buffers (:func:`_parts`; one array, so that a call unpacks one
-    array and not eleven, ≈ 70 ns each): the scalars S_ε, the fibre's offset, noise, quantisation, slot,
-    separation, the band's ends and the lost flag; :func:`grating_average` transposed, (n_interior,
-    n_gratings); the design matrix, S_T, λ0 and the nominal λ0 of :func:`~sim_interrogator.optics._design_strain`
-    and :func:`~sim_interrogator.optics._apply_effects`. The axial strain and temperature change at the gratings
-    are set there to ``axial_value``, ``temp_value`` unless these are NaN (the caller filled them); (k_x, k_y) at
-    the gratings (1/m) and the optical strain are left there. ``order`` and
-    ``drift`` are the optics' (:meth:`~sim_interrogator.optics.Optics.effect_arguments`); ``roll`` rad;
-    ``w`` and ``status`` (n_gratings, n_cores) receive the wavelengths (nm, NaN where lost) and their status.
-    ``normals[z_offset:]`` holds the frame's 2 · n_gratings · n_cores normal draws
+    ``buffer`` packs the constants and the work buffers (:func:`_parts`): the scalars S_ε, the fibre's offset,
+    noise, quantisation, slot, separation, the band's ends and the lost flag; :func:`grating_average` transposed,
+    (n_interior, n_gratings); the design matrix, S_T, λ0 and the nominal λ0 of
+    :func:`~sim_interrogator.optics._design_strain` and :func:`~sim_interrogator.optics._apply_effects`. The
+    axial strain and temperature change at the gratings are set there to ``axial_value``, ``temp_value`` unless
+    these are NaN (the caller filled them); (k_x, k_y) at the gratings (1/m) and the optical strain are left
+    there. ``order`` and ``drift`` are the optics' (:meth:`~sim_interrogator.optics.Optics.effect_arguments`);
+    ``roll`` rad; ``w`` and ``status`` (n_gratings, n_cores) receive the wavelengths (nm, NaN where lost) and
+    their status. ``normals[z_offset:]`` holds the frame's 2 · n_gratings · n_cores normal draws
     (:meth:`~sim_interrogator.optics.Optics.random_draw`'s ``z``, read only with drift or noise).
     """
     n_g, n_c = w.shape
+    sizes = fixed[9:]
+    x = carray(float64_at(fixed[0]), (sizes[0] // 3, 3))
+    plastic = carray(float64_at(fixed[1]), sizes[1])
+    qpos = carray(float64_at(fixed[2]), sizes[2])
+    site_row = carray(float64_at(fixed[3]), sizes[3])
+    tree_asleep = carray(int32_at(fixed[4]), sizes[4])
+    rod_buffer = carray(float64_at(fixed[5]), sizes[5])
+    buffer = carray(float64_at(fixed[6]), sizes[6])
+    order = carray(int64_at(fixed[7]), (n_g, n_c))
+    drift = carray(float64_at(fixed[8]), (n_g, n_c))
     ne = plastic.size // 6
     n_v = ne - 1
     (scalars, average_t, design, s_t, lam0, lam0_nominal, averaged, axial, temp, k1, k2, curvature,
@@ -190,11 +201,15 @@ class FramePath:
         self._n_z = 2 * n_g * n_c  # the normals of a frame: the drift's steps and the noise
         self._no_draw = np.zeros(self._n_z)
         self._draws = bool(optics.config.noise)
-        # the arguments every call passes as they are (the views, constants and buffers)
-        self._fixed = (*rod.read_arguments(), self._buffer, np.ascontiguousarray(order, np.int64), drift)
+        # the arrays every call reads as they are (the views, constants and buffers), passed by address: they stay
+        # where they are while this path lives (mjData's arrays, buffers allocated once; held here)
+        self._held = (*rod.read_arguments(), self._buffer, np.ascontiguousarray(order, np.int64), drift)
+        if self._held[8] is not drift or self._held[4].dtype != np.int32 or self._held[7].shape != self._shape:
+            raise ValueError("FramePath: the optics' drift state, MuJoCo's tree_asleep or the order is not as expected")
+        self._fixed = addresses(*self._held)
         # the compiled function itself, past numba's dispatcher (twin/_numba_entry.py): the arguments' types
         # below are those of every call
-        self._kernel = compiled_entry(frame_wavelengths, *self._fixed, False, 0.0, 0.0, 0.0, 0.0, self._no_draw, 0,
+        self._kernel = compiled_entry(frame_wavelengths, self._fixed, False, 0.0, 0.0, 0.0, 0.0, self._no_draw, 0,
                                       np.empty(self._shape), np.zeros(self._shape, np.uint8))
 
     def __call__(self, data: mujoco.MjData, axial, delta_t, t: float, roll: float = 0.0
@@ -227,7 +242,7 @@ class FramePath:
         w = np.empty(self._shape)
         status = np.zeros(self._shape, np.uint8)
         roll = float(roll)
-        if not self._kernel(*self._fixed, False, roll, axial_value, temp_value, step, normals, offset, w, status):
+        if not self._kernel(self._fixed, False, roll, axial_value, temp_value, step, normals, offset, w, status):
             self.rod.restart()
-            self._kernel(*self._fixed, True, roll, axial_value, temp_value, step, normals, offset, w, status)
+            self._kernel(self._fixed, True, roll, axial_value, temp_value, step, normals, offset, w, status)
         return w, status
