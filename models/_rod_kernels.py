@@ -4,16 +4,18 @@ The numpy formulation in :mod:`models.rod_state` documents the method; these ker
 one pass without temporaries (≈ 2 µs instead of ≈ 50 µs for 100 segments).
 
 At the sensor rate (:class:`models.rod_state.RodView`) the read takes the small angles by their Taylor series
-instead of the library's sine, cosine and arctangent, which were most of its cost (``series=True`` of
-:func:`frames_and_darboux`, below). Each series is used only inside a bound where its truncation error is below
+instead of the library's sine, cosine and arctangent, which were most of its cost
+(:func:`series_frames_and_darboux`). Each series is used only inside a bound where its truncation error is below
 1e-17 relative (far below the rounding of a double); outside it the exact functions take over, edge by edge or
-vertex by vertex. The result differs from the exact formulas by rounding alone: frame entries within 1e-15 and
-Darboux vectors within ≈ 1e-15/l̄ (≈ 1e-13 1/m at 2 mm segments; tests/test_rod_state.py holds it to 1e-12).
+vertex by vertex. The result differs from the exact read (:func:`frames_and_darboux`, which one-off reads and
+the lumen coupler's physics keep) by rounding alone: frame entries within 2e-15 and Darboux vectors within
+≈ 1e-15/l̄ (≈ 1e-13 1/m at 2 mm segments; tests/test_rod_read.py holds them to 2e-15 and 1e-12 1/m).
 
 * The twist angle of edge e enters as cos and sin of θ_e + roll. Written (θ_e − θ_ref) + (roll + θ_ref), with
-  θ_ref the midrange of the θ_e, the second angle is one exact cosine and sine per read and the first is
-  small wherever the rod's twist angles span less than 1 rad: for |δ| ≤ 0.5 the series of sin δ to δ¹⁵ and of
-  cos δ to δ¹⁴ leave at most δ¹⁷/17! ≤ 2.1e-20 and δ¹⁶/16! ≤ 7.3e-19.
+  θ_ref halfway between the twist angles of the first twisted edge and the last, the second angle is one exact
+  cosine and sine per read and the first is small wherever the rod's twist spans less than 1 rad: for
+  |δ| ≤ 0.5 the series of sin δ to δ¹⁵ and of cos δ to δ¹⁴ leave at most δ¹⁷/17! ≤ 2.1e-20 and
+  δ¹⁶/16! ≤ 7.3e-19.
 * The logarithm of the rotation Q between neighbouring frames: with w = vee(Q − Qᵀ) = 2 sin φ n̂ and
   tr Q = 1 + 2 cos φ, t = tan(φ/2) = |w|/(tr Q + 1), and log Q = w · φ/|w| = w · 2h · atan(t)/t with
   h = 1/(tr Q + 1). The series atan(t)/t = Σ (−t²)ᵏ/(2k + 1) to k = 9 is used for t² ≤ 0.0225 (φ ≤ 0.298
