@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["DEC", "EMPTY", "INT", "ROLE_ANY", "ROLE_FIXED", "ROLE_INT", "ROLE_LABEL", "ROLE_NUMBER", "SLOW", "TEXT",
-           "TIME_SLOW", "channels", "match_layout", "parse_layout", "scan", "spans"]
+           "TIME_SLOW", "channels", "hunt", "match_layout", "parse_layout", "scan", "spans"]
 
 INT = 0  #: optional sign and 1–15 digits: value exact
 DEC = 1  #: decimal number on the exact fast path
@@ -613,6 +613,47 @@ def spans(buf: np.ndarray, p: int, min_payload: int, max_payload: int) -> tuple[
         Offset of each record's prefix and end of its payload; they stop at the first bad or incomplete one.
     """
     return _spans(buf, int(p), int(min_payload), int(max_payload))
+
+
+@njit(cache=True)
+def _hunt(buf, p, min_payload, max_payload, checked):
+    n = buf.size
+    p0 = p
+    while p < n:
+        if buf[p] == 0:
+            if n - p < 4:
+                return p
+            length = (np.int64(buf[p + 1]) << 16) | (np.int64(buf[p + 2]) << 8) | np.int64(buf[p + 3])
+            if min_payload <= length <= max_payload:
+                hi = min(p + 4 + length - 1, n)  # the last payload byte may be the LF
+                i = p + 4 + (checked if p == p0 else 0)
+                while i < hi and buf[i] != 0 and buf[i] != 10:
+                    i += 1
+                if i == hi:
+                    return p
+        p += 1
+    return n
+
+
+def hunt(buf: np.ndarray, p: int, min_payload: int, max_payload: int, checked: int = 0) -> int:
+    """Where a resynchronising stream decoder looks next: the first offset from ``p`` on holding a NUL that could
+    start a record — a 4-byte prefix in ``[min_payload, max_payload]`` whose payload bytes received so far hold no
+    NUL and no LF before its last byte — or a NUL in the last 3 bytes (its prefix is not complete yet); ``buf.size``
+    when there is none. Every offset skipped is one the decoder's own checks would reject one at a time (a flood of
+    NUL bytes would cost a Python step each); the candidate returned is still decided by them.
+
+    Parameters
+    ----------
+    buf : ndarray of uint8
+    p : int
+        Offset to start from.
+    min_payload, max_payload : int
+        Accepted payload lengths, bytes (``max_payload`` below 16 MiB: the prefix's first byte is NUL).
+    checked : int
+        Payload bytes of a candidate at ``p`` already found clean (a decoder waiting for the rest of one does not
+        scan what it has scanned).
+    """
+    return int(_hunt(buf, int(p), int(min_payload), int(max_payload), int(checked)))
 
 
 @njit(cache=True)
