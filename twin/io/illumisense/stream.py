@@ -367,8 +367,10 @@ class StreamDecoder:
                 # straight to the next candidate the checks below could accept (compiled: a flood of NUL bytes
                 # or of bad prefixes would otherwise cost a Python step a byte)
                 view = np.frombuffer(buf, np.uint8)
-                q = _scan.hunt(view, p, MIN_PAYLOAD, self.max_payload, self._scanned if p == self._pos else 0)
+                q = _scan.hunt(view, p, MIN_PAYLOAD, self.max_payload, self._scanned)
                 del view  # a live view would forbid resizing the bytearray
+                if q != p:  # the candidate waited for (if any) is rejected: what was scanned of it is not ours
+                    self._scanned = 0
                 self.bytes_discarded += q - p
                 self._pos = p = q
             if len(buf) - p < 4:
