@@ -103,3 +103,72 @@ def test_a_calibrations_spin_rate_must_be_a_number(tmp_path, value):
     path.write_text(f"spin_rate = {value}\n")
     with pytest.raises(ValueError, match=r"c\.toml: spin_rate: expected a number"):
         Calibration.load(path)
+
+
+# ------------------------------------------------------------------------------------------ ILLumiSense text logs
+
+
+def _peak(fn) -> tuple[object, int]:
+    """``fn()``'s result (or the exception it raised) and the peak of Python's allocations while it ran, bytes."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        try:
+            out = fn()
+        except Exception as exc:  # handed back to the test, which checks its kind
+            out = exc
+        return out, tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+
+
+@pytest.mark.timeout(120)  # hang guard: every line of junk was walked in Python (≈ 0.2 ms a line)
+def test_a_log_of_random_bytes_is_refused_in_one_line_in_bounded_memory(tmp_path):
+    import numpy as np
+
+    from twin.io.illumisense.log import read_log
+
+    path = tmp_path / "junk.txt"
+    size = 8 << 20
+    junk = np.random.default_rng(3).integers(0, 256, size).astype(np.uint8).tobytes()
+    path.write_bytes(junk[:4096])
+    with pytest.raises(ValueError):  # the compiled passes loaded before measuring
+        read_log(path)
+    path.write_bytes(b"Date\tTime\tSample\tChannels\r\n" + junk)
+    out, peak = _peak(lambda: read_log(path))
+    assert isinstance(out, ValueError) and str(out).startswith(str(path)) and "\n" not in str(out), out
+    # the file itself, the lines' bounds and one block of lines; 21× the file before lines were decoded in blocks
+    assert peak < 3 * size + (16 << 20), f"peak {peak / 2**20:.0f} MiB for a {size >> 20} MiB file"
+
+
+def test_a_log_longer_than_a_block_keeps_every_intact_record_once_and_names_each_bad_line(tmp_path):
+    """40,000 records across ten blocks of lines, a junk line, a cut record and a blank line in each block:
+    every intact record read once, in order; every bad line reported by its number."""
+    import numpy as np
+
+    from twin.frames import Frame
+    from twin.io.illumisense import codec
+    from twin.io.illumisense.log import _BLOCK_LINES, read_log
+
+    n = 40_000
+    rng = np.random.default_rng(4)
+    lam = 1550.0 + rng.normal(0, 0.1, (n, 2, 1))
+    one = [codec.encode_payload(Frame(lam[0], 1.7e9, 0))]
+    lines = [b"Date\tTime\tSample\tChannels\r\n"]
+    bad = []
+    for i in range(n):
+        if i % (_BLOCK_LINES - 7) == 100:
+            bad.append(len(lines) + 1)
+            lines.append(b"\x00junk\tline\r\n")
+            bad.append(len(lines) + 1)
+            lines.append(one[0][:25] + b"\n")  # a record cut short
+            lines.append(b"  \t\r\n")  # blank: not a record, not an error
+        lines.append(codec.encode_payload(Frame(lam[i], 1.7e9 + 0.01 * i, i)))
+    path = tmp_path / "long.txt"
+    path.write_bytes(b"".join(lines))
+    log = read_log(path)
+    assert np.array_equal(log.sequences, np.arange(n))
+    np.testing.assert_allclose(log.wavelengths, lam, atol=5e-5, rtol=0)
+    assert [int(e.split(":")[0].split()[1]) for e in log.errors] == bad
