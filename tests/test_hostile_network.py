@@ -1,0 +1,59 @@
+"""Hostile local clients of the network endpoints that hold a place: the Foxglove gate's ``max_clients``.
+Real servers and sockets on 127.0.0.1, bounded in count and time; waits are hang guards, never speed limits."""
+
+from __future__ import annotations
+
+import select
+import socket
+import threading
+import time
+
+import pytest
+from conftest import require_module
+from io_helpers import request, wait_until
+
+SUBPROTOCOL = "foxglove.websocket.v1"
+
+
+def trickle(port: int, dropped: threading.Event, stop: threading.Event) -> None:
+    """Send the start of an HTTP request a byte every 0.1 s, never its end, until the server closes (or 60 s)."""
+    head = b"GET / HTTP/1.1\r\nHost: 127.0.0.1:%d\r\nX-Pad: " % port + b"a" * 1000
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+        deadline = time.monotonic() + 60
+        for byte in head:
+            if stop.is_set() or time.monotonic() > deadline:
+                return
+            try:
+                s.sendall(bytes([byte]))
+                if select.select([s], [], [], 0.1)[0] and not s.recv(4096):
+                    break  # closed by the server
+            except OSError:
+                break
+        dropped.set()
+
+
+@pytest.mark.timeout(120)
+def test_foxglove_clients_trickling_their_request_are_dropped_at_the_deadline_and_free_their_places():
+    """Each read had a 5 s timeout but the handshake none: two clients sending a byte every 0.1 s held both
+    places for as long as they liked (a 16 KiB head: hours) and the real client got 503."""
+    require_module("foxglove", "foxglove-sdk (the ros extra)")
+    from twin.foxglove import FoxgloveServer
+
+    with FoxgloveServer(port=0, max_clients=2, handshake_timeout=1.0) as server:
+        port = server.address[1]
+        stop = threading.Event()
+        drops = [threading.Event() for _ in range(2)]
+        threads = [threading.Thread(target=trickle, args=(port, d, stop), daemon=True) for d in drops]
+        for t in threads:
+            t.start()
+        try:
+            assert wait_until(lambda: all(d.is_set() for d in drops), timeout=60), "tricklers still held"
+            assert wait_until(lambda: server.clients == 0, timeout=20)
+            code, sock = request(port, "/", f"127.0.0.1:{port}", None, upgrade=True,
+                                 headers=(f"Sec-WebSocket-Protocol: {SUBPROTOCOL}",))
+            sock.close()
+            assert code == 101 and server.clients_refused == 0
+        finally:
+            stop.set()
+            for t in threads:
+                t.join(timeout=10)
