@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_illumisense_parse import decode, learned, rec, same_result
 
 from twin.frames import Frame, VendorSensor
 from twin.io.illumisense import codec
@@ -184,3 +185,39 @@ def test_twin_live_through_a_server_that_floods_stalls_and_drops_keeps_every_int
     # count a reset, a loss a gap)
     assert (out["lost_samples"], out["sequence_gaps"], out["sequence_resets"]) == (0, 0, 0), out
     assert books["bytes_discarded"] >= len(flood), books
+
+
+# --------------------------------------------------------------- the one-pass reader against the general path
+
+#: tokens a hostile or broken sender may put in any field: signs alone, numbers off the exact fast path, 16+ and
+#: 400 digits, beyond int64, special values, non-ASCII digits, labels, calendar and clock edge cases
+HOSTILE_TOKENS = [
+    b"", b"+", b"-", b"0", b"-0", b"+0", b"00", b"1.", b".1", b"1e5", b"1E-5", b"nan", b"-inf", b"Infinity", b"NaN",
+    b"1234567890123456", b"123456789012345", b"12345678901234.5", b"1.0000000000000000001", b"\xd9\xa3", b"1_0",
+    b" 1", b"1 ", b"0x1", b"\x0b1", b"9" * 400, b"---", b"1.2.3", b"1e", b"1e+", b"e5", b"-1530.5", b"+1530.5",
+    b"0001530.5", b"9223372036854775807", b"9223372036854775808", b"-9223372036854775809", b"1e400", b"1e-400",
+    b"2", b"3", b"Curvature [1/cm]", b"Curvature angle [rad]", b"Shape x [cm]", b"Shape x [mm]", b"x", b"\xff",
+    b"2024/02/30", b"2024-13-01", b"2024/02/29", b"2023/02/29", b"0000/01/01", b"23:59:60.5", b"23:59:61",
+    b"24:00:00", b"12:34:56.", b"12:34:56.1234567890123456", b"12:34:56.1234567890123", b"12:34:5", b"12:34:56 ",
+    b"+1:34:56", b"12:34:56.-1", b"12:34:56e0", b"\t", b"1\t2",
+]
+
+
+@settings(max_examples=300, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(st.integers(0, 10**6), st.sampled_from(HOSTILE_TOKENS)), min_size=1, max_size=3),
+       st.sampled_from([b"\r\n", b"\n", b"", b"\r", b"\t\r\n"]), st.booleans())
+def test_one_pass_reader_and_general_path_agree_on_hostile_tokens(edits, end, sensor):
+    """``scan.parse_layout`` reads exactly what the tokenizer reads, bit for bit, or leaves the record to it:
+    whole tokens replaced by hostile ones in any field (date, time, sample, counts, status, values, labels)."""
+    toks = rec(5, sensor=sensor).rstrip(b"\r\n").split(b"\t")
+    for at, tok in edits:
+        toks[at % len(toks)] = tok
+    payloads = [rec(1, sensor=sensor), b"\t".join(toks) + end, rec(2, sensor=sensor)]
+    layouts = learned(rec(0, sensor=sensor))
+    assert layouts[0].roles is not None
+    fast = decode(payloads, [*layouts])
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(codec._Layout, "roles", property(lambda self: None))  # the tokenizer's path alone
+        slow = decode(payloads, [*layouts])
+    for a, b in zip(fast, slow, strict=True):
+        same_result(a, b)
