@@ -1,4 +1,5 @@
-"""Hostile local clients of the network endpoints that hold a place: the Foxglove gate's ``max_clients``.
+"""Hostile local clients of the network endpoints that hold a place (the Foxglove gate's ``max_clients``) and hostile
+source URLs.
 Real servers and sockets on 127.0.0.1, bounded in count and time; waits are hang guards, never speed limits."""
 
 from __future__ import annotations
@@ -57,3 +58,15 @@ def test_foxglove_clients_trickling_their_request_are_dropped_at_the_deadline_an
             stop.set()
             for t in threads:
                 t.join(timeout=10)
+
+
+@pytest.mark.parametrize("url", ["replay://r.h5?speed=1&speed=2", "illumisense://127.0.0.1:1?start_wait=0&start_wait=9",
+                                 "synthetic://?frames=3&rate=5&frames=4000"])
+def test_an_option_given_twice_in_a_url_is_one_line_naming_it(url):
+    """``speed=1&speed=2`` played at 2× without a word (the last one won)."""
+    from twin.io.source import open_source
+
+    with pytest.raises(ValueError) as info:
+        open_source(url)
+    msg = str(info.value)
+    assert "\n" not in msg and url in msg and "given more than once" in msg, msg
