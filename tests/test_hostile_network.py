@@ -70,3 +70,17 @@ def test_an_option_given_twice_in_a_url_is_one_line_naming_it(url):
         open_source(url)
     msg = str(info.value)
     assert "\n" not in msg and url in msg and "given more than once" in msg, msg
+
+
+def test_twin_live_whose_interrogator_stays_away_past_retry_for_fails_in_one_line(capsys):
+    """Giving up after ``retry_for`` ended as "source ended", status 0, with no word of why."""
+    from twin.cli import main
+
+    with socket.create_server(("127.0.0.1", 0)) as s:
+        port = s.getsockname()[1]  # closed again: nothing listens there
+    url = f"illumisense://127.0.0.1:{port}?wait=1&retry_for=0.3"
+    code = main(["live", url, "--frames", "5", "--quiet"])
+    err = [line for line in capsys.readouterr().err.splitlines() if "no connection" in line]
+    assert code == 1 and len(err) == 1, (code, err)
+    assert err[0].endswith(f"source failed: {url}: no connection for 0.3 s (cannot connect to 127.0.0.1:{port}: "
+                           "connection refused)"), err
