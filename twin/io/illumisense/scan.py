@@ -20,6 +20,10 @@ A record is ASCII text: fields separated by TAB. Converting ~300 decimal fields 
 :func:`parse_layout` is the stream's common case in one pass: records of a layout already known are read
 straight into the token values and the Frame arrays (:func:`channels`), each field checked against what its
 place in the layout requires, without the tokenizer's arrays; what it does not read goes through :func:`scan`.
+
+The framing passes live here too, so that no byte of a hostile input costs a Python step: :func:`spans` (the
+records of a stream in sync), :func:`hunt` (the next possible record after an error) and :func:`lines` (the
+lines of a text log).
 """
 
 from __future__ import annotations

@@ -7,9 +7,9 @@ under 16 MiB starts with a NUL byte. After an error the decoder hunts: it skips 
 start a record (one compiled pass, :func:`~twin.io.illumisense.scan.hunt`, so a flood of NUL bytes costs no Python
 step a byte), reads a candidate length, rejects it at once when it is out of bounds or when the bytes already
 received for it hold a NUL or an early LF, and accepts it only when the payload decodes. In sync, a record still
-waiting for the rest of its payload is checked the same way as its bytes arrive, so a corrupted prefix that is
-still in bounds does not make the decoder wait for bytes the later prefixes prove wrong. Every loss of sync counts
-once in :attr:`StreamDecoder.framing_errors`; skipped bytes in ``bytes_discarded``. The channel layout is learned from a
+waiting for the rest of its payload is checked the same way as its bytes arrive, so a corrupted prefix that is still
+in bounds does not make the decoder wait for bytes the later prefixes prove wrong. Every loss of sync counts once in
+:attr:`StreamDecoder.framing_errors`; skipped bytes in ``bytes_discarded``. The channel layout is learned from a
 consensus (:class:`LayoutConsensus`), not from the first record alone: records of another layout are counted in
 ``odd_records`` and dropped, and a new layout that persists is re-learned.
 """
