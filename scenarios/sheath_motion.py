@@ -205,7 +205,8 @@ class Result:
             "sharp_frames": int(self.sharp.sum()),
             "rod_curvature_at_lost_1_m": float(self.rod_curvature[lost].max()) if lost.any() else None,
             "max_bore_offset_mm": float(np.nanmax(self.bore) * 1e3) if np.isfinite(self.bore).any() else None,
-            **{k: self.uncertainty[k] for k in ("coverage_95", "mean_sigma_mm") if k in self.uncertainty},
+            **{k: self.uncertainty[k] for k in ("coverage_95", "coverage_95_by_quarter", "mean_sigma_mm")
+               if k in self.uncertainty},
         }
 
     def to_dict(self) -> dict:
@@ -302,8 +303,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
         curvature[mode] = shape.curvature[pick]
         curvature[f"{mode}_valid"] = shape.valid[pick]
     # the 95 % tube of every frame against the catheter, placed with the tracked base (no registration)
-    truth = coverage.truth_in_base(ser.truth_s, ser.truth_positions, ser.base_frames, ser.base_positions,
-                                   shapes["default"].s)
+    truth = coverage.truth_at_base(ser.truth_s, ser.truth_positions, ser.base_frames, shapes["default"].s)
     tube = coverage.run_coverage(sim.fiber, sim.optics.config, used.calibration, shapes["default"], ser.wavelengths,
                                  truth, progress, twist=coverage.SHEATH_TWIST)
     result = Result(params, sim.describe(), t, max_e, mean_e, tip_e, sheath_e, analysed, ser.lost_peaks, lost_g,

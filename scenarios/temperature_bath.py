@@ -223,7 +223,8 @@ class Result:
                "paper_pipeline_tip_variation_mm": tip_stats(r.tips["paper"])["variation"] * 1e3,
                "paper_literal_tip_variation_mm": tip_stats(r.tips["paper-literal"])["variation"] * 1e3,
                "temperature_change_k": float(r.bath_celsius[0] - r.bath_celsius[-1])}
-        out.update({k: r.uncertainty[k] for k in ("coverage_95", "mean_sigma_mm") if k in r.uncertainty})
+        out.update({k: r.uncertainty[k] for k in ("coverage_95", "coverage_95_by_quarter", "mean_sigma_mm")
+                    if k in r.uncertainty})
         out["predicted_mismatch_effect_mm"] = predicted_effect(r) * 1e3
         out["expected_mismatch_effect_mm"] = expected_effect(r) * 1e3
         effect = self.mismatch_effect(r)
@@ -331,9 +332,8 @@ def run_bath(params: Params, mismatch: float, fiber: FiberModel,
     truth = Truth(s=series.truth_s, positions=series.truth_positions[0], curvature=series.truth_curvature[0],
                   fixture=series.fixture)
     # the 95 % tube of each window against the rod at the window's middle frame, in the (fixed) base frame
-    tube = coverage.run_coverage(fiber, cfg, cal, shp["default"], w, coverage.truth_in_base(
-        series.truth_s, series.truth_positions[mid], series.base_frames[mid], series.base_positions[mid],
-        shp["default"].s), say, averaged=n_avg)
+    tube = coverage.run_coverage(fiber, cfg, cal, shp["default"], w, coverage.truth_at_base(
+        series.truth_s, series.truth_positions[mid], series.base_frames[mid], shp["default"].s), say, averaged=n_avg)
     return BathRun(mismatch=mismatch, s_t_deviation=s_t / nominal_s_t - 1.0, t=t,
                    bath_celsius=temp.mean(axis=1) + params.room_celsius, tips=tips, true_tip=true_tip,
                    shape_error=errors, curvature=curv, true_curvature=series.truth_curvature[0],

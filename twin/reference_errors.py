@@ -328,7 +328,7 @@ class TubeFigures:
         sel = self._slots.take(shapes.all_valid, frames.timestamp)
         if not sel.size:
             return
-        from twin.uncertainty import inside, truth_in_base
+        from twin.uncertainty import inside, truth_at_base
 
         out = self.uncertainty.propagate(shapes[sel], frames.wavelengths[sel])
         distal = out.s > 0  # the base point is exact by construction
@@ -343,12 +343,11 @@ class TubeFigures:
         have = np.flatnonzero(np.broadcast_to(truth.all_present, (len(frames),))[sel])
         if not have.size:
             return
-        i0 = int(np.argmin(np.abs(truth.s)))
-        if abs(truth.s[i0]) > 1e-9 or truth.s[-1] < out.s[-1] - 1e-9:
-            self.note = "coverage skipped: the truth does not cover the reconstruction from its base"
+        if abs(truth.s[0]) > 1e-9 or truth.s[-1] < out.s[-1] - 1e-9 or truth.s.size < 8:
+            self.note = "coverage skipped: the truth does not cover the reconstruction from its base in 8 samples"
             return
         rows = sel[have]
-        t = truth_in_base(truth.s, truth.positions[rows], truth.frames[rows, i0], truth.positions[rows, i0], out.s)
+        t = truth_at_base(truth.s, truth.positions[rows], truth.frames[rows, 0], out.s)
         self._inside.append(inside(out[have], t, self.level)[:, distal].sum(axis=-1))
         self._truth_points += int(distal.sum()) * have.size
 
