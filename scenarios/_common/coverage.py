@@ -33,11 +33,11 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
 from scenarios._common.calibration import _LAB_SEED, LAB_SHAPES, cache_dir, paper_fixture
-from twin import shapes as library
 from sim_interrogator.optics import OpticsConfig
 from sim_interrogator.setups import StaticShape
 from sim_interrogator.sim import SimInterrogator
 from twin import Calibration, FiberModel, Reconstructor, Shape, curve
+from twin import shapes as library
 from twin.frames import Truth
 from twin.uncertainty import (
     TWIN_INTERPOLATION,
