@@ -504,45 +504,54 @@ def truth_in_base(truth_s: np.ndarray, positions: np.ndarray, base_frames: np.nd
     return CubicSpline(truth_s, local, axis=-2)(s)
 
 
-#: Samples of a true centreline after its first that :func:`truth_at_base` passes a polynomial through (degree 7)
-#: to find the pose at s = 0: on centrelines of the library's curvatures (≤ 85 1/m, gradients to 3000 1/m²)
-#: sampled every 1.95 mm it places the whole centreline within 0.3 µm, where degree 5 erred by up to 8 µm
-#: (tests/test_coverage_terms.py).
-_BASE_SAMPLES = 8
+#: Vertices that :func:`truth_at_base` passes a polynomial through (degree 5) for the pose at s = 0, which lies
+#: inside its first interval: on centrelines of the library's curvatures sampled as the rod's truth it places the
+#: centreline within 0.5 µm (tests/test_coverage_terms.py; the cubic spline's own tangent there, next to its end,
+#: erred by up to 2.4 µm, a degree-7 polynomial extrapolated from the vertices after s = 0 by up to 9 mm in a
+#: sheath, where the rod bends hard near its base).
+_NEAR = 6
 
 
 def truth_at_base(truth_s: np.ndarray, positions: np.ndarray, frames0: np.ndarray, s: np.ndarray) -> np.ndarray:
     """The true centreline at arc lengths ``s`` (n,) m in its own pose at s = 0, (..., n, 3) m: the truth as the
     tube is checked against it, from samples ``positions`` (..., m, 3) world at ``truth_s`` (m,) m (``truth_s[0]``
-    = 0) and the sampled material frame at s = 0 ``frames0`` (..., 3, 3), which gives the roll.
+    = 0, the others evenly spaced) and the sampled material frame at s = 0 ``frames0`` (..., 3, 3), which gives
+    the roll.
 
-    A sampled truth's end samples are not points of the smooth centreline: the twin's rod is a polyline of
-    vertices 1.95 mm apart, and its samples at s = 0 and at the sensed length are interpolated between vertices —
-    the point linearly, on the chord, off the centreline by κ h² a(1 − a)/2 (a the sample's place between the
-    vertices, h their spacing: 5 µm at 25 1/m), the frame at the constant rate of one vertex, its tangent off
-    the centreline's by κ' h² (1/6 − a²/2) (1 mrad at κ' = 1700 1/m², the library's wave) — an error of the base
-    pose that a reconstruction started there cannot make, and one that the tube, which starts at zero width, is
-    narrowest to hold (docs/math.md §8.4). So the end samples are left out: the pose at s = 0 is the point and
-    tangent at 0 of the polynomial through the next :data:`_BASE_SAMPLES` samples, the frame ``frames0`` turned
-    onto that tangent by the smallest rotation, and the centreline is the cubic spline through that point and
-    the inner samples, leaving s = 0 along the tangent (a linear interpolant would cut the vertices' corners by
-    h²κ/8, up to 0.03 mm). No registration: the tube is checked as it is used, from the base."""
+    The twin's rod is a polyline of vertices h = 1.95 mm apart, and its truth (models/rod_state.RodTruth) samples
+    it at s = 0 between two vertices: the point linearly, on the chord — off the centreline by κ h² a(1 − a)/2,
+    a the sample's place between the vertices (5 µm at 25 1/m) — and the frame at the constant rate of one vertex,
+    its tangent off the centreline's by κ' h² (1/6 − a²/2) (1 mrad at κ' = 1700 1/m², the library's wave). That
+    is an error of the base pose which no reconstruction started there can make and which the tube, of zero width
+    at the base, is narrowest to hold (docs/math.md §8.4). So the vertex before s = 0 is recovered from the chord
+    point and the vertex after it (at a = 1 − s₁/h, with h the samples' spacing; a = 0 where the first sample is
+    a vertex, as for a truth sampled evenly from 0), the centreline is the cubic spline through the vertices
+    (a linear interpolant would cut their corners by h²κ/8, up to 0.03 mm) — interpolated at s = 0, never
+    extrapolated, which a rod bent hard near its base in a sheath does not allow — and the base pose is the point
+    and tangent at 0 of the polynomial through the first :data:`_NEAR` vertices, with ``frames0`` turned onto
+    that tangent by the smallest rotation. No registration: the
+    tube is checked as it is used, from the base."""
     from scipy.interpolate import CubicSpline
 
     ts = np.asarray(truth_s, dtype=np.float64)
     p = np.asarray(positions, dtype=np.float64)
     r0 = np.asarray(frames0, dtype=np.float64)
-    if ts.size < _BASE_SAMPLES + 2 or abs(ts[0]) > 1e-9:
-        raise ValueError(f"truth_at_base: needs at least {_BASE_SAMPLES + 2} samples from s = 0, got {ts.size} "
-                         f"from s = {ts[0] if ts.size else float('nan')} m")
-    near = ts[1:1 + _BASE_SAMPLES]
-    vander = np.vander(near / near[-1], _BASE_SAMPLES, increasing=True)
-    coef = np.einsum("ij,...jk->...ik", np.linalg.inv(vander), p[..., 1:1 + _BASE_SAMPLES, :])
-    p0, d0 = coef[..., 0, :], coef[..., 1, :] / near[-1]
+    if ts.size < _NEAR + 1 or abs(ts[0]) > 1e-9:
+        raise ValueError(f"truth_at_base: needs at least {_NEAR + 1} samples from s = 0, got {ts.size} from "
+                         f"s = {ts[0] if ts.size else float('nan')} m")
+    h = ts[2] - ts[1]
+    a = 1.0 - ts[1] / h
+    if not 0.0 <= a < 1.0:
+        raise ValueError(f"truth_at_base: the first samples at {ts[1]} and {ts[2]} m are not evenly spaced from 0")
+    before = (p[..., 0, :] - a * p[..., 1, :]) / (1.0 - a)  # the vertex at −a h (the sample itself when a = 0)
+    knots = np.concatenate([[-a * h], ts[1:-1]])
+    vertices = np.concatenate([before[..., None, :], p[..., 1:-1, :]], axis=-2)
+    line = CubicSpline(knots, vertices, axis=-2)
+    # the pose from the polynomial through the first _NEAR vertices, s = 0 inside its first interval
+    x = knots[:_NEAR] / h
+    coef = np.einsum("ij,...jk->...ik", np.linalg.inv(np.vander(x, _NEAR, increasing=True)), vertices[..., :_NEAR, :])
+    p0, d0 = coef[..., 0, :], coef[..., 1, :] / h
     t0 = d0 / np.linalg.norm(d0, axis=-1, keepdims=True)
-    knots = np.concatenate([[0.0], ts[1:-1]])
-    line = CubicSpline(knots, np.concatenate([p0[..., None, :], p[..., 1:-1, :]], axis=-2), axis=-2,
-                       bc_type=((1, d0), "not-a-knot"))
     # the smallest rotation taking the sampled tangent d3 onto t0 (two reflections), applied to each axis
     d3 = r0[..., :, 2]
     w = d3 + t0
