@@ -248,10 +248,11 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
 
 def tube_coverage(params: Params, fiber: FiberModel, settled: list, per_shape: list, say) -> dict:
     """The default pipeline's 95 % tube against the rod, per shape and overall. The model error of each fold
-    (the shapes sharing a calibration, or every other shape when one calibration serves all) is fitted on the
-    other fold's shapes with the other fold's calibration — identified on this fold's fixtures, so not on the
-    shapes it is fitted on, where its parameters' error would be absorbed; a single fold uses the lab's fit
-    (:mod:`scenarios._common.coverage`)."""
+    (the shapes sharing a calibration, or every other shape when one calibration serves all) is fitted with the
+    fold's own calibration on the other fold's shapes — those it was identified on (against their fixtures'
+    geometry; the model error against their rods): the only shapes left, and a tube describes the calibration it
+    is used with, whose error another fold's calibration does not share (docs/math.md §8.4); a single fold uses
+    the lab's fit (:mod:`scenarios._common.coverage`)."""
     groups: dict[int, list[int]] = {}
     for j, cal in enumerate(per_shape):
         groups.setdefault(id(cal), []).append(j)
@@ -263,8 +264,7 @@ def tube_coverage(params: Params, fiber: FiberModel, settled: list, per_shape: l
         others = [j for j in range(len(settled)) if j not in idx]
         if others:
             names = ", ".join(settled[j][0] for j in others)
-            me = coverage.fit_on_frames(fiber, per_shape[others[0]], [settled[j][3] for j in others],
-                                        f"fitted on the rods of {names} with their own calibration")
+            me = coverage.fit_on_frames(fiber, cal, [settled[j][3] for j in others], f"fitted on the rods of {names}")
         else:
             me = coverage.lab_model_error(fiber, optics_config(params.optics), cal, progress=say)
         models.append({"reported": [settled[j][0] for j in idx], **me.to_dict()})

@@ -42,6 +42,7 @@ from twin import shapes as library
 from twin.frames import Truth
 from twin.uncertainty import (
     TWIN_INTERPOLATION,
+    TWIN_SHEATH_TWIST,
     ModelError,
     Uncertainty,
     coverage,
@@ -69,13 +70,11 @@ MODEL_ERROR_FIXTURE = "connect"
 _CACHE_VERSION = 8  # 8: the truth in its smooth pose at s = 0 (truth_at_base), fitted off the calibration's shapes
 _MODEL_ERROR_SEEDS = 100  # noise seeds of the model error's shapes: the lab session's + 100 + i (its own: + 1 + i)
 
-#: 1σ of the constant twist rate the twin's catheter takes in its sheath, rad/m (the fibre does not measure it):
-#: the RMS over frames of the least-squares τ in ψ(s) = τ s fitted to the rod's true twist angle on a sheath run
-#: other than the one scored (:func:`sheath_terms`: hub from 40 mm, 150 mm in, friction 0.2, seed 1, no return;
-#: 344 frames; sheath-motion's scored run has 1.45 rad/m, pushed further with more friction). In the fixtures
-#: the rod twists ten times less (the lab's grooves and tubes 0.08 rad/m, connect constraints none), so the
-#: fixtures' own value is used there (:func:`fit_on_frames`).
-SHEATH_TWIST = 0.820
+#: 1σ of the constant twist rate the twin's catheter takes in its sheath, rad/m
+#: (:data:`~twin.uncertainty.TWIN_SHEATH_TWIST`, derived by :func:`sheath_terms`). In the fixtures the rod twists
+#: ten times less (the lab's grooves and tubes 0.08 rad/m, connect constraints none), so the fixtures' own value
+#: is used there (:func:`fit_on_frames`).
+SHEATH_TWIST = TWIN_SHEATH_TWIST
 #: The sheath run :func:`sheath_terms` derives from (keyword arguments of sim_interrogator's SheathPath).
 SHEATH_FIT_RUN = {"start": 0.04, "travel": 0.15, "friction": 0.2, "return_trip": False, "seed": 1}
 
