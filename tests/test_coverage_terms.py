@@ -115,3 +115,19 @@ def test_the_truth_in_its_own_base_pose_undoes_the_rods_sampling():
                                       rel=0.01)
     naive = truth_in_base(ts, pos, frame0, pos[0], s)
     assert np.max(np.linalg.norm(naive - exact, axis=-1)) > 200 * np.max(np.linalg.norm(got - exact, axis=-1))
+
+
+def test_the_truth_in_its_own_base_pose_needs_samples_evenly_spaced_from_the_base():
+    """truth_at_base recovers the vertex before s = 0 from the spacing of the next samples: a truth whose first gap
+    is longer than the next (no vertex spacing to place it by) or with fewer than seven samples is a clear error
+    (the live loop's TubeFigures reports it as a note)."""
+    from twin.uncertainty import truth_at_base
+
+    s = np.linspace(0.0, 0.17, 30)
+    pos = np.stack([np.zeros_like(s), np.zeros_like(s), s], axis=-1)
+    uneven = np.concatenate([[0.0], s[2:]])
+    with pytest.raises(ValueError, match="not evenly spaced"):
+        truth_at_base(uneven, pos[1:], np.eye(3), s)
+    with pytest.raises(ValueError, match="at least 7 samples"):
+        truth_at_base(s[:5], pos[:5], np.eye(3), s)
+    np.testing.assert_allclose(truth_at_base(s, pos, np.eye(3), s), pos, atol=1e-15)  # straight: itself

@@ -343,11 +343,16 @@ class TubeFigures:
         have = np.flatnonzero(np.broadcast_to(truth.all_present, (len(frames),))[sel])
         if not have.size:
             return
-        if abs(truth.s[0]) > 1e-9 or truth.s[-1] < out.s[-1] - 1e-9 or truth.s.size < 8:
-            self.note = "coverage skipped: the truth does not cover the reconstruction from its base in 8 samples"
+        i0 = int(np.argmin(np.abs(truth.s)))
+        if abs(truth.s[i0]) > 1e-9 or truth.s[-1] < out.s[-1] - 1e-9:
+            self.note = "coverage skipped: the truth does not cover the reconstruction from its base"
             return
         rows = sel[have]
-        t = truth_at_base(truth.s, truth.positions[rows], truth.frames[rows, 0], out.s)
+        try:
+            t = truth_at_base(truth.s[i0:], truth.positions[rows, i0:], truth.frames[rows, i0], out.s)
+        except ValueError as e:  # too few samples, or not evenly spaced from the base: no pose at s = 0 from them
+            self.note = f"coverage skipped: {e}"
+            return
         self._inside.append(inside(out[have], t, self.level)[:, distal].sum(axis=-1))
         self._truth_points += int(distal.sum()) * have.size
 

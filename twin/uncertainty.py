@@ -197,7 +197,7 @@ TWIN_MODEL_ERROR = ModelError(interpolation=TWIN_INTERPOLATION, parameter_scale=
 #: other than the one scored (scenarios/_common/coverage.py ``sheath_terms``: hub from 40 mm, 150 mm in,
 #: friction 0.2, seed 1, no return; 344 frames; sheath-motion's scored run has 1.45 rad/m, pushed further with
 #: more friction). Not in :data:`TWIN_MODEL_ERROR`: on the static library shapes it would widen the tube from
-#: 0.044 to 0.95 mm mean 1σ, 22 times its errors (99.9 % inside; docs/math.md §8.4).
+#: 0.045 to 0.95 mm mean 1σ, 21 times as wide as needed (99.97 % inside; docs/math.md §8.4).
 TWIN_SHEATH_TWIST = 0.820
 
 
