@@ -21,9 +21,10 @@ literal transcription (calibration ``lab`` unless ``--calibration`` says otherwi
   experimenter with the sheath's CAD model measures; it adds the clearance (≤ 0.17 mm) and corner cutting.
 
 The default pipeline's 95 % confidence tube (:mod:`twin.uncertainty`) is checked against the catheter, placed
-with the tracked base and no registration (:mod:`scenarios._common.coverage`; the model error fitted on the lab's
-identification shapes): ``coverage_95`` is the fraction of the catheter's points (s > 0, every frame) inside it,
-``mean_sigma_mm`` its mean 1σ lateral radius.
+in its own pose at s = 0 and no registration (:mod:`scenarios._common.coverage`; the model error fitted with the
+lab calibration on shapes it was not identified on, the sheath's twist added): ``coverage_95`` is the fraction of
+the catheter's points (s > 0, every frame) inside it, ``coverage_95_by_quarter`` the same per quarter of the
+length, ``mean_sigma_mm`` its mean 1σ lateral radius.
 
 Lost peaks are counted per frame and marked in the error plot. Frames are classed by the sharpest bend of the
 sheath under the sensed region: ``sharp`` (≥ 100 1/m: an 8 mm bend) and ``gentle`` (< 50 1/m).
@@ -302,7 +303,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     for mode, shape in shapes.items():
         curvature[mode] = shape.curvature[pick]
         curvature[f"{mode}_valid"] = shape.valid[pick]
-    # the 95 % tube of every frame against the catheter, placed with the tracked base (no registration)
+    # the 95 % tube of every frame against the catheter, in its own pose at s = 0 (no registration)
     truth = coverage.truth_at_base(ser.truth_s, ser.truth_positions, ser.base_frames, shapes["default"].s)
     tube = coverage.run_coverage(sim.fiber, sim.optics.config, used.calibration, shapes["default"], ser.wavelengths,
                                  truth, progress, twist=coverage.SHEATH_TWIST)

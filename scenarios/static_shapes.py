@@ -14,9 +14,10 @@ compared
 Summary (``--json``: ``summary``): over all shapes and repetitions, default mode, against the rod:
 ``max_error_mm`` is the largest per-frame max distance, ``mean_error_mm`` the mean of the per-frame mean
 distances; ``paper_…`` the same for the paper's pipeline. ``coverage_95`` is the fraction of the rod's points
-(s > 0, every frame) inside the default pipeline's 95 % confidence tube, the truth placed with the base pose and
-no registration, and ``mean_sigma_mm`` the tube's mean 1σ lateral radius (:mod:`scenarios._common.coverage`;
-the model error fitted on the other fold's shapes, as the calibration is).
+(s > 0, every frame) inside the default pipeline's 95 % confidence tube, the truth placed in its own pose at
+s = 0 and no registration, ``coverage_95_by_quarter`` the same per quarter of the length, and ``mean_sigma_mm``
+the tube's mean 1σ lateral radius (:mod:`scenarios._common.coverage`; the model error fitted on the other fold's
+shapes, as the calibration is).
 
 Calibration (``--calibration``, :mod:`scenarios._common.calibration`): ``lab`` (default) as a lab makes it — the
 two-step calibration in the twin, then [Δθ, g] identified against the fixtures' geometry on shapes *other* than

@@ -26,7 +26,8 @@ no registration is needed or done):
 * ``shape_error_max_mm`` — the largest shape error against the rod over the run (Kabsch, the algorithm's error);
 * ``coverage_95``, ``mean_sigma_mm`` — the default pipeline's 95 % confidence tube against the rod (no
   registration; the white noise shrunk by the window's averaging; :mod:`scenarios._common.coverage`): the
-  fraction of the rod's points (s > 0, every window) inside it and its mean 1σ lateral radius.
+  fraction of the rod's points (s > 0, every window) inside it (``coverage_95_by_quarter``: per quarter of the
+  length) and its mean 1σ lateral radius.
 
 Calibration: ``true`` (default) reconstructs with the twin's true fibre parameters (as-built λ0 at the reference
 temperature, intrinsic twist, Δθ, g); ``lambda0`` with the as-built λ0 only (nominal Δθ, g, no twist);

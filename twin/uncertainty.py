@@ -543,8 +543,8 @@ def truth_at_base(truth_s: np.ndarray, positions: np.ndarray, frames0: np.ndarra
     (a linear interpolant would cut their corners by h²κ/8, up to 0.03 mm) — interpolated at s = 0, never
     extrapolated, which a rod bent hard near its base in a sheath does not allow — and the base pose is the point
     and tangent at 0 of the polynomial through the first :data:`_NEAR` vertices, with ``frames0`` turned onto
-    that tangent by the smallest rotation. No registration: the
-    tube is checked as it is used, from the base."""
+    that tangent by the smallest rotation. The last sample, a chord point too, is left out likewise (the spline's
+    last piece reaches it). No registration: the tube is checked as it is used, from the base."""
     from scipy.interpolate import CubicSpline
 
     ts = np.asarray(truth_s, dtype=np.float64)

@@ -273,8 +273,8 @@ def run_coverage(fiber: FiberModel, optics: OpticsConfig, cal: Calibration | Non
                  truth: np.ndarray, progress: Say | None = None, averaged: int = 1,
                  twist: float | None = None) -> dict:
     """The 95 % tube of the default pipeline's ``shape`` (a batch, reconstructed with ``cal``) against ``truth``
-    (base frame, at the shape's arc lengths): :func:`summary` with the model error fitted on the lab's
-    identification shapes (:func:`lab_model_error`), which it names, and, as a diagnostic, the model error this
+    (base frame, at the shape's arc lengths): :func:`summary` with the model error fitted with ``cal`` on shapes
+    it was not identified on (:func:`lab_model_error`), which it names, and, as a diagnostic, the model error this
     run itself would have needed. ``averaged``: frames averaged into each of
     ``wavelengths`` (the white noise shrinks by its square root). ``twist``: the 1σ of the catheter's unmeasured
     twist rate where it is held otherwise than in the fixtures (rad/m; in a sheath :data:`SHEATH_TWIST`);
