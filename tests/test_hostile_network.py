@@ -84,3 +84,30 @@ def test_twin_live_whose_interrogator_stays_away_past_retry_for_fails_in_one_lin
     assert code == 1 and len(err) == 1, (code, err)
     assert err[0].endswith(f"source failed: {url}: no connection for 0.3 s (cannot connect to 127.0.0.1:{port}: "
                            "connection refused)"), err
+
+
+def test_an_interrogator_sending_another_grating_count_is_one_line_naming_its_url(capsys):
+    """17 gratings where the fibre model has 18: one line, which named neither the URL nor the source."""
+    import numpy as np
+    from io_helpers import ScriptedServer
+
+    from twin.cli import main
+    from twin.frames import Frame
+    from twin.io.illumisense import codec
+
+    lam = (1510.0 + 5.0 * np.arange(17))[:, None] + np.zeros(4)
+    recs = b"".join(codec.encode_record(Frame(lam, 1.7e9 + 0.01 * i, i)) for i in range(20))
+
+    def script(conn: socket.socket) -> None:
+        conn.sendall(recs)
+        conn.recv(1)  # until the client closes
+
+    server = ScriptedServer([script] * 3)
+    try:
+        url = f"illumisense://127.0.0.1:{server.port}"
+        code = main(["live", url, "--duration", "60", "--quiet"])
+    finally:
+        server.close()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err[-1] == (f"twin live: error: {url}: frames have 17 gratings × 4 cores but the fibre "
+                                     "model has 18 × 4; give the sensor's fibre model (--fiber FILE)"), err
