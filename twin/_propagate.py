@@ -18,6 +18,8 @@ gratings as one row of ``bases`` (:func:`pattern_weights`): numba checks every a
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -48,9 +50,35 @@ def pack(quad: dict, grating_s: np.ndarray, lam0: np.ndarray, window: float | No
     header[:12] = (n_g, n_c, n_p, n_b, n_par, np.inf if window is None else window, curvature, relative,
                    interpolation, base_var, ck_table.shape[1], quad["h"][0])
     header[12:14] = (twist, order)
+    start, weights = _stencils(np.asarray(grating_s, dtype=np.float64), order)
     parts = (header, grating_s, lam0, ck_table, sens_table, par_sd, quad["breaks"], quad["points"],
-             quad["interval"], _hermite_weights(quad), quad["first"], quad["half_points"])
+             quad["interval"], _hermite_weights(quad), quad["first"], quad["half_points"], start, weights)
     return np.concatenate([np.asarray(a, dtype=np.float64).ravel() for a in parts])
+
+
+def _stencils(s: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """The interpolation term of a frame with every grating valid as one weighted sum per grating: the first
+    grating of grating n's stencil (n_g,) and the weights (n_g, order + 1) such that
+    Σ_q weights[n, q] k[start_n + q] is :func:`_interpolation_frame`'s |k⁽ᵖ⁾_n| √(½ Σ H^(2p+2)) / (w_n √2)
+    before the norm — the p-th divided difference written out (Σ_q k_q / Π_{r≠q} (s_q − s_r)), times p! and
+    the grating's constant factor. All zero with fewer than p + 1 gratings."""
+    n = s.size
+    start = np.zeros(n)
+    weights = np.zeros((n, order + 1))
+    if n < order + 1:
+        return start, weights
+    e = 2 * order + 2
+    for j in range(n):  # once per setup: a handful of gratings
+        a = min(max(j - order // 2, 0), n - order - 1)
+        nodes = s[a:a + order + 1]
+        diff = nodes[:, None] - nodes[None, :]
+        np.fill_diagonal(diff, 1.0)
+        hm = s[j] - s[j - 1] if j > 0 else 0.0
+        hp = s[j + 1] - s[j] if j < n - 1 else 0.0
+        factor = math.factorial(order) * np.sqrt(0.5 * (hm**e + hp**e)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
+        start[j] = a
+        weights[j] = factor / diff.prod(axis=1)
+    return start, weights
 
 
 def _hermite_weights(quad: dict) -> np.ndarray:
@@ -90,6 +118,19 @@ def _unpack(const):  # pragma: no cover (compiled)
     o += 9
     half_points = const[o:o + 3].astype(np.int64)
     return grating_s, lam0, ck_table, sens_table, par_sd, breaks, points, interval, hw, first, half_points
+
+
+@njit(cache=True, nogil=True)
+def _unpack_stencils(const):  # pragma: no cover (compiled)
+    """The intact pattern's interpolation stencils of :func:`pack` (:func:`_stencils`): start (n_g,) int64,
+    weights (n_g, order + 1)."""
+    n_g, n_c, n_p, n_b, n_par = int(const[0]), int(const[1]), int(const[2]), int(const[3]), int(const[4])
+    n_codes, order = int(const[10]), int(const[13])
+    o = _HEADER + n_g + n_g * n_c + n_g * n_codes * 4 * (1 + n_par) + n_par + n_b + (n_b - 1) * 3 + n_p \
+        + 4 * n_p + 9 + 3
+    start = const[o:o + n_g].astype(np.int64)
+    o += n_g
+    return start, const[o:o + n_g * (order + 1)].reshape((n_g, order + 1))
 
 
 def pattern_weights(quad: dict, basis: np.ndarray) -> np.ndarray:
@@ -329,15 +370,9 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     nb_ = breaks.size if lanes else 1
     arrs = _block_arrays(n_g, nb_, n_sh)
     vrep, sprep = arrs[0], arrs[1]
-    wbrep = np.empty((3, n_g, (nb_ - 1) * LANES))
+    wb = bases[0][:3 * n_g * (nb_ - 1)].reshape((3, n_g, nb_ - 1))
     wh = bases[0][3 * n_g * (nb_ - 1):].reshape((3, n_g)) if lanes else bases[0][:0].reshape((3, 0))
-    if lanes:
-        wb = bases[0][:3 * n_g * (nb_ - 1)].reshape((3, n_g, nb_ - 1))
-        for e in range(3):
-            for n in range(n_g):
-                for j in range(nb_ - 1):
-                    for ll in range(LANES):
-                        wbrep[e, n, j * LANES + ll] = wb[e, n, j]
+    st_start, st_weights = _unpack_stencils(const)
     fidx = np.empty(LANES, np.int64)
     n_l = 0
     left_out = 0
@@ -349,7 +384,15 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
             n_valid += valid[f, n]
         # the model error: white + relative·|k|, and the interpolation part, added in variance
         if interp != 0.0:
-            _interpolation_frame(kf, valid[f], grating_s, order, idx, tab, sig)
+            if n_valid == n_g:  # the intact pattern: precomputed stencils (no divisions, no powers)
+                for n in range(n_g):
+                    a, d0, d1 = st_start[n], 0.0, 0.0
+                    for q in range(order + 1):
+                        d0 += st_weights[n, q] * kf[a + q, 0]
+                        d1 += st_weights[n, q] * kf[a + q, 1]
+                    sig[n] = np.sqrt(d0 * d0 + d1 * d1)
+            else:
+                _interpolation_frame(kf, valid[f], grating_s, order, idx, tab, sig)
         for n in range(n_g):
             wsig = white + relative * np.sqrt(kf[n, 0] ** 2 + kf[n, 1] ** 2)
             isig = interp * sig[n] if interp != 0.0 else 0.0
@@ -389,16 +432,16 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
             continue
         if lanes:
             for n in range(n_g):
-                vrep[n, 0, n_l] = v[n, 0, 0]
-                vrep[n, 1, n_l] = v[n, 0, 1]
-                vrep[n, 2, n_l] = v[n, 1, 1]
+                vrep[n, n_l] = v[n, 0, 0]
+                vrep[n, LANES + n_l] = v[n, 0, 1]
+                vrep[n, 2 * LANES + n_l] = v[n, 1, 1]
                 for i in range(2):
                     for q in range(n_sh):
-                        sprep[n, i, q, n_l] = sp[n, i, q]
+                        sprep[n, (q * 2 + i) * LANES + n_l] = sp[n, i, q]
             fidx[n_l] = f
             n_l += 1
             if n_l == LANES:
-                _lanes_block(arrs, pos, frames, fidx, n_l, base_var, const[11], wbrep, wh, breaks, points,
+                _lanes_block(arrs, pos, frames, fidx, n_l, base_var, const[11], wb, wh, breaks, points,
                              interval, hw, first, half_points, cov_out)
                 n_l = 0
             continue
@@ -408,12 +451,12 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     for ll in range(n_l):  # the last fewer than LANES: their v and S from the lanes
         f = fidx[ll]
         for n in range(n_g):
-            v[n, 0, 0] = vrep[n, 0, ll]
-            v[n, 0, 1] = v[n, 1, 0] = vrep[n, 1, ll]
-            v[n, 1, 1] = vrep[n, 2, ll]
+            v[n, 0, 0] = vrep[n, ll]
+            v[n, 0, 1] = v[n, 1, 0] = vrep[n, LANES + ll]
+            v[n, 1, 1] = vrep[n, 2 * LANES + ll]
             for i in range(2):
                 for q in range(n_sh):
-                    sp[n, i, q] = sprep[n, i, q, ll]
+                    sp[n, i, q] = sprep[n, (q * 2 + i) * LANES + ll]
         _frame(pos[f], frames[f], v, sp, valid[f], base_var, const[11], bases[0], breaks, points, interval, hw,
                first, half_points, work, cov_out[f])
     return left_out
@@ -468,43 +511,38 @@ def interpolation_kernel(k, valid, s, order, out):  # pragma: no cover (compiled
 
 
 #: the complete frames :func:`propagate` carries side by side
-LANES = 8
+LANES = 16
 
 
 @njit(cache=True, nogil=True)
 def _block_arrays(n_g, n_b, n_sh):  # pragma: no cover (compiled)
-    """The scratch arrays of :func:`_lanes_block`, along K = (n_b + 1) · LANES (breakpoint-major, frame-minor):
-    per-grating covariance (n_g, 3, K: v00, v01, v11) and shared columns (n_g, 2, n_sh, K), whose first LANES
-    entries :func:`propagate` fills; the integrand (3, 12, (n_b − 1) · LANES) and (3, 12, LANES); X_n (12, K);
-    Y (6, 6, K); Z (6, n_sh, K); X_n V_n (2, 6, K); p, t (2, 3, K); A Y, A' Y (2, 3, 6, K); C, C' (2, 3, 3, K);
-    one point's work (48 · LANES: its piece's coefficients 36, its position 3, its covariance 9)."""
+    """The scratch arrays of :func:`_lanes_block`, LANES frames side by side in the last axis (index
+    row · LANES + frame): per-grating covariance (n_g, 3 · LANES: v00, v01, v11) and shared columns
+    (n_g, 2 · n_sh · LANES), which :func:`propagate` fills; the integrand per piece and rule point
+    (n_b − 1, 3, 12 · LANES) and to the first piece's middle point (3, 12 · LANES); the running X_n
+    (n_g, 12 · LANES); X_n at the first piece's middle point (12 · LANES); per breakpoint Y's upper triangle
+    (n_b + 1, 21 · LANES) and Z (n_b + 1, 6 · n_sh · LANES); then along K = (n_b + 1) · LANES
+    (breakpoint-major, frame-minor) Y (6, 6, K), Z (6, n_sh, K), p and t (2, 3, K), A Y and A' Y (2, 3, 6, K),
+    C and C' (2, 3, 3, K); one point's work (48 · LANES: its piece's coefficients 36, its position 3, its
+    covariance 9)."""
     L = LANES
     kb = (n_b + 1) * L
-    shapes = ((n_g, 3, kb), (n_g, 2, n_sh, kb), (3, 12, (n_b - 1) * L), (3, 12, L), (12, kb), (6, 6, kb),
-              (6, n_sh, kb), (2, 6, kb), (2, 3, kb), (2, 3, 6, kb), (2, 3, 3, kb))
-    n_fw = 48 * L
+    sizes = (3 * n_g * L, 2 * n_g * n_sh * L, 36 * (n_b - 1) * L, 36 * L, 12 * n_g * L, 12 * L,
+             21 * kb, 6 * n_sh * kb, 36 * kb, 6 * n_sh * kb, 6 * kb, 36 * kb, 18 * kb, 48 * L)
     # one allocation (a single frame's call makes a small one that it does not use)
-    buf = np.empty((n_g * (3 + 2 * n_sh) + 120 + 6 * n_sh) * kb + 36 * (n_b - 1) * L + 36 * L + n_fw)
-    o0 = 0
-    o1 = o0 + 3 * n_g * kb
-    o2 = o1 + 2 * n_sh * n_g * kb
-    o3 = o2 + 36 * (n_b - 1) * L
-    o4 = o3 + 36 * L
-    o5 = o4 + 12 * kb
-    o6 = o5 + 36 * kb
-    o7 = o6 + 6 * n_sh * kb
-    o8 = o7 + 12 * kb
-    o9 = o8 + 6 * kb
-    o10 = o9 + 36 * kb
-    o11 = o10 + 18 * kb
-    return (buf[o0:o1].reshape(shapes[0]), buf[o1:o2].reshape(shapes[1]), buf[o2:o3].reshape(shapes[2]),
-            buf[o3:o4].reshape(shapes[3]), buf[o4:o5].reshape(shapes[4]), buf[o5:o6].reshape(shapes[5]),
-            buf[o6:o7].reshape(shapes[6]), buf[o7:o8].reshape(shapes[7]), buf[o8:o9].reshape(shapes[8]),
-            buf[o9:o10].reshape(shapes[9]), buf[o10:o11].reshape(shapes[10]), buf[o11:o11 + n_fw])
+    buf = np.empty(sum(sizes))
+    o = np.cumsum(np.array((0,) + sizes))
+    return (buf[o[0]:o[1]].reshape((n_g, 3 * L)), buf[o[1]:o[2]].reshape((n_g, 2 * n_sh * L)),
+            buf[o[2]:o[3]].reshape((n_b - 1, 3, 12 * L)), buf[o[3]:o[4]].reshape((3, 12 * L)),
+            buf[o[4]:o[5]].reshape((n_g, 12 * L)), buf[o[5]:o[6]],
+            buf[o[6]:o[7]].reshape((n_b + 1, 21 * L)), buf[o[7]:o[8]].reshape((n_b + 1, 6 * n_sh * L)),
+            buf[o[8]:o[9]].reshape((6, 6, kb)), buf[o[9]:o[10]].reshape((6, n_sh, kb)),
+            buf[o[10]:o[11]].reshape((2, 3, kb)), buf[o[11]:o[12]].reshape((2, 3, 6, kb)),
+            buf[o[12]:o[13]].reshape((2, 3, 3, kb)), buf[o[13]:o[14]])
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
-def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, points, interval, hw, first,
+def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points, interval, hw, first,
                  half_points, out):  # pragma: no cover (compiled)
     """:func:`_frame` for up to LANES complete frames at once (every grating valid, the intact pattern): the
     frames ``fidx[:n_l]`` of ``pos``, ``fr`` and ``out``, their per-grating covariance and shared columns in
@@ -513,24 +551,12 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, poin
     registers); ``wbrep`` (3, n_g, (n_b − 1) · LANES) the pattern's piece weights repeated per frame, ``wh``
     (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s. Lanes beyond
     ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never written out."""
-    vrep, sprep, g, gh, xn, y, z, xv, pt, m, cb, fw = arrs
+    vrep, sprep, g, gh, xn, xm, yb, zb, y, z, pt, m, cb, fw = arrs
     L = LANES
-    n_g, n_sh = vrep.shape[0], sprep.shape[2]
+    n_g = vrep.shape[0]
     n_b = breaks.size
     n_int = n_b - 1
-    kb = (n_b + 1) * L
     n_p = pos.shape[1]
-    # the per-frame constants repeated along the breakpoints (a dependence at distance LANES: vectorised)
-    for n in range(n_g):
-        for a in range(3):
-            row = vrep[n, a]
-            for i in range(L, kb):
-                row[i] = row[i - L]
-        for a in range(2):
-            for q in range(n_sh):
-                row = sprep[n, a, q]
-                for i in range(L, kb):
-                    row[i] = row[i - L]
     # gather: the integrand (R E, (R E) × p) at the rule's points, p and t at the breakpoints
     for ll in range(n_l):
         f = fidx[ll]
@@ -538,68 +564,69 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, poin
             if pi < 3 * n_int:
                 j, e = pi // 3, pi % 3
                 i = points[j, e]
-                dst = g[e]
-                col = j * L + ll
+                dst = g[j, e]
             else:
                 e = pi - 3 * n_int
                 i = half_points[e]
                 dst = gh[e]
-                col = ll
             p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
             for c in range(2):
                 if c == 0:
                     a0, a1, a2 = fr[f, i, 0, 1], fr[f, i, 1, 1], fr[f, i, 2, 1]
                 else:
                     a0, a1, a2 = -fr[f, i, 0, 0], -fr[f, i, 1, 0], -fr[f, i, 2, 0]
-                dst[c, col] = a0
-                dst[2 + c, col] = a1
-                dst[4 + c, col] = a2
-                dst[6 + c, col] = a1 * p2 - a2 * p1
-                dst[8 + c, col] = a2 * p0 - a0 * p2
-                dst[10 + c, col] = a0 * p1 - a1 * p0
+                dst[c * L + ll] = a0
+                dst[(2 + c) * L + ll] = a1
+                dst[(4 + c) * L + ll] = a2
+                dst[(6 + c) * L + ll] = a1 * p2 - a2 * p1
+                dst[(8 + c) * L + ll] = a2 * p0 - a0 * p2
+                dst[(10 + c) * L + ll] = a0 * p1 - a1 * p0
         for i in range(n_b + 1):
             idx = breaks[i] if i < n_b else half_points[2]
             for r in range(3):
                 pt[0, r, i * L + ll] = pos[f, idx, r]
                 pt[1, r, i * L + ll] = fr[f, idx, r, 2]
-    y[:] = 0.0
-    z[:] = 0.0
-    for n in range(n_g):
-        # X_n: each piece's increment, the running sum over the pieces, the first piece's middle point
-        for rc in range(12):
-            xr = xn[rc]
-            g0, g1, g2 = g[0, rc], g[1, rc], g[2, rc]
-            b0, b1, b2 = wbrep[0, n], wbrep[1, n], wbrep[2, n]
-            for i in range(L):
-                xr[i] = 0.0
-            for i in range(n_int * L):
-                xr[L + i] = b0[i] * g0[i] + b1[i] * g1[i] + b2[i] * g2[i]
-            w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
-            for i in range(L):
-                xr[n_b * L + i] = w0 * gh[0, rc, i] + w1 * gh[1, rc, i] + w2 * gh[2, rc, i]
-        # the running sum with the 12 rows side by side (one row's additions would wait on each other)
-        for j in range(2, n_b):
-            for rc in range(12):
-                xr = xn[rc]
-                for i in range(j * L, j * L + L):
-                    xr[i] += xr[i - L]
-        # the Y and Z updates of _frame with V and the shared columns per lane (arrays here, scalars there): kept
-        # written out in both, since numba vectorises each loop only with its own operand kinds
-        v00, v01, v11 = vrep[n, 0], vrep[n, 1], vrep[n, 2]
-        for r in range(6):
-            for i in range(kb):
-                a0, a1 = xn[2 * r, i], xn[2 * r + 1, i]
-                xv[0, r, i] = a0 * v00[i] + a1 * v01[i]
-                xv[1, r, i] = a0 * v01[i] + a1 * v11[i]
-        for r in range(6):
-            for c in range(r, 6):
-                for i in range(kb):
-                    y[r, c, i] += xv[0, r, i] * xn[2 * c, i] + xv[1, r, i] * xn[2 * c + 1, i]
+    # breakpoint by breakpoint, grating by grating: X_n(b) = X_n(b − 1) + the piece's rule (in place), then at
+    # once Y(b) += X_n V_n X_nᵀ (upper triangle) and Z(b) += X_n S_n; every operand is a row of LANES frames at
+    # a constant offset of a small array, so that each update is a handful of vector instructions on data in
+    # the first-level cache (no pass over every breakpoint per grating)
+    n_sh = zb.shape[1] // (6 * L)
+    xn[:] = 0.0
+    yb[0] = 0.0
+    zb[0] = 0.0
+    for b in range(1, n_b + 1):
+        if b < n_b:  # the running integrals at breakpoint b: piece b − 1's rule added
+            g0, g1, g2 = g[b - 1, 0], g[b - 1, 1], g[b - 1, 2]
+            for n in range(n_g):
+                w0, w1, w2 = wb[0, n, b - 1], wb[1, n, b - 1], wb[2, n, b - 1]
+                xr = xn[n]
+                for i in range(12 * L):
+                    xr[i] += w0 * g0[i] + w1 * g1[i] + w2 * g2[i]
+        ybb, zbb = yb[b], zb[b]
+        ybb[:] = 0.0
+        zbb[:] = 0.0
+        for n in range(n_g):
+            if b < n_b:
+                xr = xn[n]
+            else:  # the first piece's middle point, from the base by its own rule
+                xr = xm
+                w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
+                for i in range(12 * L):
+                    xr[i] = w0 * gh[0, i] + w1 * gh[1, i] + w2 * gh[2, i]
+            _accumulate(xr, vrep[n], sprep[n], ybb, zbb, n_sh)
+    # into the layout of _c_and_dc
+    t = 0
+    for r in range(6):
+        for c in range(r, 6):
+            for b in range(n_b + 1):
+                for ll in range(L):
+                    y[r, c, b * L + ll] = yb[b, t * L + ll]
+            t += 1
+    for r in range(6):
         for q in range(n_sh):
-            s0, s1 = sprep[n, 0, q], sprep[n, 1, q]
-            for r in range(6):
-                for i in range(kb):
-                    z[r, q, i] += xn[2 * r, i] * s0[i] + xn[2 * r + 1, i] * s1[i]
+            for b in range(n_b + 1):
+                for ll in range(L):
+                    z[r, q, b * L + ll] = zb[b, (q * 6 + r) * L + ll]
     _c_and_dc(y, z, pt, m, cb)  # Y += Z Zᵀ, then C and C' at the breakpoints of every frame
     # every point from its piece's coefficients (as _frame), plus the base angle exactly; ``fw`` holds the
     # piece's coefficients (rows e·9 + r·3 + c), the point's position (36–38) and covariance (39–47) at constant
@@ -639,6 +666,69 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, poin
                     val = fw[(39 + r * 3 + c) * L + ll]
                     out[f, j, r, c] = val
                     out[f, j, c, r] = val
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _accumulate(x, v, s, yb, zb, n_sh):  # pragma: no cover (compiled)
+    """Y += X V Xᵀ (upper triangle, row-major) and Z += X S for one grating and LANES frames, every array 1-D
+    with rows of LANES frames: ``x`` (12 rows) X_n, row r·2 + c; ``v`` (3 rows) V_n (v00, v01, v11); ``s``
+    (2 · n_sh rows) the shared columns, row q·2 + c; ``yb`` (21 rows); ``zb`` (6 · n_sh rows), row
+    q·6 + r. Written out at constant offsets: one vector instruction per row."""
+    L = LANES
+    for ll in range(L):
+        x0 = x[0 * L + ll]
+        x1 = x[1 * L + ll]
+        x2 = x[2 * L + ll]
+        x3 = x[3 * L + ll]
+        x4 = x[4 * L + ll]
+        x5 = x[5 * L + ll]
+        x6 = x[6 * L + ll]
+        x7 = x[7 * L + ll]
+        x8 = x[8 * L + ll]
+        x9 = x[9 * L + ll]
+        x10 = x[10 * L + ll]
+        x11 = x[11 * L + ll]
+        v0, v1, v2 = v[ll], v[L + ll], v[2 * L + ll]
+        u00 = x0 * v0 + x1 * v1
+        u01 = x0 * v1 + x1 * v2
+        u10 = x2 * v0 + x3 * v1
+        u11 = x2 * v1 + x3 * v2
+        u20 = x4 * v0 + x5 * v1
+        u21 = x4 * v1 + x5 * v2
+        u30 = x6 * v0 + x7 * v1
+        u31 = x6 * v1 + x7 * v2
+        u40 = x8 * v0 + x9 * v1
+        u41 = x8 * v1 + x9 * v2
+        u50 = x10 * v0 + x11 * v1
+        u51 = x10 * v1 + x11 * v2
+        yb[0 * L + ll] += u00 * x0 + u01 * x1
+        yb[1 * L + ll] += u00 * x2 + u01 * x3
+        yb[2 * L + ll] += u00 * x4 + u01 * x5
+        yb[3 * L + ll] += u00 * x6 + u01 * x7
+        yb[4 * L + ll] += u00 * x8 + u01 * x9
+        yb[5 * L + ll] += u00 * x10 + u01 * x11
+        yb[6 * L + ll] += u10 * x2 + u11 * x3
+        yb[7 * L + ll] += u10 * x4 + u11 * x5
+        yb[8 * L + ll] += u10 * x6 + u11 * x7
+        yb[9 * L + ll] += u10 * x8 + u11 * x9
+        yb[10 * L + ll] += u10 * x10 + u11 * x11
+        yb[11 * L + ll] += u20 * x4 + u21 * x5
+        yb[12 * L + ll] += u20 * x6 + u21 * x7
+        yb[13 * L + ll] += u20 * x8 + u21 * x9
+        yb[14 * L + ll] += u20 * x10 + u21 * x11
+        yb[15 * L + ll] += u30 * x6 + u31 * x7
+        yb[16 * L + ll] += u30 * x8 + u31 * x9
+        yb[17 * L + ll] += u30 * x10 + u31 * x11
+        yb[18 * L + ll] += u40 * x8 + u41 * x9
+        yb[19 * L + ll] += u40 * x10 + u41 * x11
+        yb[20 * L + ll] += u50 * x10 + u51 * x11
+    for q in range(n_sh):  # one column at a time, so that the offsets within it are constants
+        sq = s[2 * q * L:2 * (q + 1) * L]
+        zq = zb[6 * q * L:6 * (q + 1) * L]
+        for ll in range(L):
+            s0, s1 = sq[ll], sq[L + ll]
+            for r in range(6):
+                zq[r * L + ll] += x[2 * r * L + ll] * s0 + x[(2 * r + 1) * L + ll] * s1
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
