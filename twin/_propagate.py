@@ -5,13 +5,16 @@ Per frame it evaluates, at the interpolant's breakpoints (the base, the gratings
 piece's middle point, the running integrals X_n = (Φ_n, Ψ_n) (6 × 2 per grating: the integrals of B_n R E and
 B_n (R E) × p) by the 3-point rule on each piece, then Y = Σ_n X_n V_n X_nᵀ + Z Zᵀ (6 × 6), C = A Y Aᵀ and
 C' = A' Y Aᵀ + A Y A'ᵀ, and fills C in between by cubic Hermite interpolation (t⁴(a + b t + c t²) on the first
-piece). Every array it loops over keeps the breakpoints along its last axis, so the work per grating is a
-handful of element-wise loops over ~20 breakpoints that the compiler turns into vector instructions: no
-reduction across lanes, nothing allocated per frame.
+piece). One frame (:func:`_frame`) keeps the breakpoints along the last axis of every array, so the work per
+grating is a handful of element-wise loops over ~20 breakpoints that the compiler turns into vector
+instructions; a batch's complete frames go LANES at a time (:func:`_lanes_block`) with the frames along the
+last axis, breakpoint by breakpoint. No reduction across lanes, nothing allocated per frame.
 
 :func:`propagate` also forms the per-grating covariance itself (the noise of the inversion for the frame's peak
 pattern, looked up in a table of every pattern; the model error's white and interpolation parts; the
-calibration parameters' columns ∂k/∂p σ_p), so that one call does all of :meth:`Uncertainty.propagate`.
+calibration parameters' columns ∂k/∂p σ_p), so that one call does all of :meth:`Uncertainty.propagate`; for a
+frame with every grating valid the interpolation term's divided differences are one precomputed weighted sum per
+grating (:func:`_stencils`).
 Constants travel as one flat array made by :func:`pack`, the interpolation weights of each pattern of valid
 gratings as one row of ``bases`` (:func:`pattern_weights`): numba checks every array argument on every call.
 """
@@ -510,7 +513,8 @@ def interpolation_kernel(k, valid, s, order, out):  # pragma: no cover (compiled
 
 
 
-#: the complete frames :func:`propagate` carries side by side
+#: the complete frames :func:`propagate` carries side by side: 16, two vectors of eight, so that the loops over them
+#: are long enough for the compiler's loop vectoriser (it leaves loops of fewer than 16 iterations scalar)
 LANES = 16
 
 
@@ -530,8 +534,10 @@ def _block_arrays(n_g, n_b, n_sh):  # pragma: no cover (compiled)
     sizes = (3 * n_g * L, 2 * n_g * n_sh * L, 36 * (n_b - 1) * L, 36 * L, 12 * n_g * L, 12 * L,
              21 * kb, 6 * n_sh * kb, 36 * kb, 6 * n_sh * kb, 6 * kb, 36 * kb, 18 * kb, 48 * L)
     # one allocation (a single frame's call makes a small one that it does not use)
-    buf = np.empty(sum(sizes))
-    o = np.cumsum(np.array((0,) + sizes))
+    o = np.zeros(len(sizes) + 1, np.int64)
+    for i in range(len(sizes)):
+        o[i + 1] = o[i] + sizes[i]
+    buf = np.empty(o[-1])
     return (buf[o[0]:o[1]].reshape((n_g, 3 * L)), buf[o[1]:o[2]].reshape((n_g, 2 * n_sh * L)),
             buf[o[2]:o[3]].reshape((n_b - 1, 3, 12 * L)), buf[o[3]:o[4]].reshape((3, 12 * L)),
             buf[o[4]:o[5]].reshape((n_g, 12 * L)), buf[o[5]:o[6]],
@@ -546,11 +552,14 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
                  half_points, out):  # pragma: no cover (compiled)
     """:func:`_frame` for up to LANES complete frames at once (every grating valid, the intact pattern): the
     frames ``fidx[:n_l]`` of ``pos``, ``fr`` and ``out``, their per-grating covariance and shared columns in
-    the first LANES entries of ``arrs``' first two (:func:`_block_arrays`). Every array runs along K =
-    breakpoints × frames, so that the loops are long and element-wise (the compiler runs them in vector
-    registers); ``wbrep`` (3, n_g, (n_b − 1) · LANES) the pattern's piece weights repeated per frame, ``wh``
-    (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s. Lanes beyond
-    ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never written out."""
+    ``arrs``' first two (:func:`_block_arrays`). The frames are the innermost axis of every array, so that each
+    step is a short loop over them at constant offsets that the compiler turns into vector instructions; the
+    running integrals go breakpoint by breakpoint (each grating's X_n updated in place, then added into that
+    breakpoint's Y and Z at once), so that Y and Z are touched once per breakpoint and grating in the first-level
+    cache instead of in a pass over every breakpoint per grating. ``wb`` (3, n_g, n_b − 1) the pattern's piece
+    weights, ``wh`` (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s.
+    Lanes beyond ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never
+    written out."""
     vrep, sprep, g, gh, xn, xm, yb, zb, y, z, pt, m, cb, fw = arrs
     L = LANES
     n_g = vrep.shape[0]
@@ -558,31 +567,35 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
     n_int = n_b - 1
     n_p = pos.shape[1]
     # gather: the integrand (R E, (R E) × p) at the rule's points, p and t at the breakpoints
-    for ll in range(n_l):
-        f = fidx[ll]
-        for pi in range(3 * n_int + 3):
-            if pi < 3 * n_int:
-                j, e = pi // 3, pi % 3
-                i = points[j, e]
-                dst = g[j, e]
-            else:
-                e = pi - 3 * n_int
-                i = half_points[e]
-                dst = gh[e]
+    # (point by point, the frames innermost: unit-stride stores, the loads gathered)
+    for pi in range(3 * n_int + 3):
+        if pi < 3 * n_int:
+            i = points[pi // 3, pi % 3]
+            dst = g[pi // 3, pi % 3]
+        else:
+            i = half_points[pi - 3 * n_int]
+            dst = gh[pi - 3 * n_int]
+        for ll in range(n_l):
+            f = fidx[ll]
             p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
-            for c in range(2):
-                if c == 0:
-                    a0, a1, a2 = fr[f, i, 0, 1], fr[f, i, 1, 1], fr[f, i, 2, 1]
-                else:
-                    a0, a1, a2 = -fr[f, i, 0, 0], -fr[f, i, 1, 0], -fr[f, i, 2, 0]
-                dst[c * L + ll] = a0
-                dst[(2 + c) * L + ll] = a1
-                dst[(4 + c) * L + ll] = a2
-                dst[(6 + c) * L + ll] = a1 * p2 - a2 * p1
-                dst[(8 + c) * L + ll] = a2 * p0 - a0 * p2
-                dst[(10 + c) * L + ll] = a0 * p1 - a1 * p0
-        for i in range(n_b + 1):
-            idx = breaks[i] if i < n_b else half_points[2]
+            a0, a1, a2 = fr[f, i, 0, 1], fr[f, i, 1, 1], fr[f, i, 2, 1]
+            b0, b1, b2 = -fr[f, i, 0, 0], -fr[f, i, 1, 0], -fr[f, i, 2, 0]
+            dst[ll] = a0
+            dst[L + ll] = b0
+            dst[2 * L + ll] = a1
+            dst[3 * L + ll] = b1
+            dst[4 * L + ll] = a2
+            dst[5 * L + ll] = b2
+            dst[6 * L + ll] = a1 * p2 - a2 * p1
+            dst[7 * L + ll] = b1 * p2 - b2 * p1
+            dst[8 * L + ll] = a2 * p0 - a0 * p2
+            dst[9 * L + ll] = b2 * p0 - b0 * p2
+            dst[10 * L + ll] = a0 * p1 - a1 * p0
+            dst[11 * L + ll] = b0 * p1 - b1 * p0
+    for i in range(n_b + 1):
+        idx = breaks[i] if i < n_b else half_points[2]
+        for ll in range(n_l):
+            f = fidx[ll]
             for r in range(3):
                 pt[0, r, i * L + ll] = pos[f, idx, r]
                 pt[1, r, i * L + ll] = fr[f, idx, r, 2]
