@@ -528,11 +528,14 @@ def _block_arrays(n_g, n_b, n_sh):  # pragma: no cover (compiled)
     (n_b + 1, 21 · LANES) and Z (n_b + 1, 6 · n_sh · LANES); then along K = (n_b + 1) · LANES
     (breakpoint-major, frame-minor) Y (6, 6, K), Z (6, n_sh, K), p and t (2, 3, K), A Y and A' Y (2, 3, 6, K),
     C and C' (2, 3, 3, K); one point's work (48 · LANES: its piece's coefficients 36, its position 3, its
-    covariance 9)."""
+    covariance 9); the shared columns' curvature error interpolated to the rule's points, times the rule's
+    weights, per piece (n_b − 1, 3, 2 · n_sh · LANES) and to the first piece's middle point (3, 2 · n_sh · LANES),
+    row q·2 + c."""
     L = LANES
     kb = (n_b + 1) * L
     sizes = (3 * n_g * L, 2 * n_g * n_sh * L, 36 * (n_b - 1) * L, 36 * L, 12 * n_g * L, 12 * L,
-             21 * kb, 6 * n_sh * kb, 36 * kb, 6 * n_sh * kb, 6 * kb, 36 * kb, 18 * kb, 48 * L)
+             21 * kb, 6 * n_sh * kb, 36 * kb, 6 * n_sh * kb, 6 * kb, 36 * kb, 18 * kb, 48 * L,
+             6 * n_sh * (n_b - 1) * L, 6 * n_sh * L)
     # one allocation (a single frame's call makes a small one that it does not use)
     o = np.zeros(len(sizes) + 1, np.int64)
     for i in range(len(sizes)):
@@ -544,7 +547,8 @@ def _block_arrays(n_g, n_b, n_sh):  # pragma: no cover (compiled)
             buf[o[6]:o[7]].reshape((n_b + 1, 21 * L)), buf[o[7]:o[8]].reshape((n_b + 1, 6 * n_sh * L)),
             buf[o[8]:o[9]].reshape((6, 6, kb)), buf[o[9]:o[10]].reshape((6, n_sh, kb)),
             buf[o[10]:o[11]].reshape((2, 3, kb)), buf[o[11]:o[12]].reshape((2, 3, 6, kb)),
-            buf[o[12]:o[13]].reshape((2, 3, 3, kb)), buf[o[13]:o[14]])
+            buf[o[12]:o[13]].reshape((2, 3, 3, kb)), buf[o[13]:o[14]],
+            buf[o[14]:o[15]].reshape((n_b - 1, 3, 2 * n_sh * L)), buf[o[15]:o[16]].reshape((3, 2 * n_sh * L)))
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
@@ -560,7 +564,7 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
     weights, ``wh`` (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s.
     Lanes beyond ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never
     written out."""
-    vrep, sprep, g, gh, xn, xm, yb, zb, y, z, pt, m, cb, fw = arrs
+    vrep, sprep, g, gh, xn, xm, yb, zb, y, z, pt, m, cb, fw, wsq, wsqh = arrs
     L = LANES
     n_g = vrep.shape[0]
     n_b = breaks.size
@@ -604,10 +608,28 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
     # a constant offset of a small array, so that each update is a handful of vector instructions on data in
     # the first-level cache (no pass over every breakpoint per grating)
     n_sh = zb.shape[1] // (6 * L)
+    # the shared columns through their interpolated curvature error: Z = Σ_n X_n S_n = ∫ (R E, (R E) × p) δk_sh,
+    # δk_sh(u) = Σ_n B_n(u) S_n, so per rule point w_e δk_sh(u_e) once (n_g multiply-adds per column) and Z runs
+    # along the pieces like X_n (12 · n_sh per rule point instead of 12 · n_sh per grating and breakpoint)
+    nw = 2 * n_sh * L
+    wsq[:] = 0.0
+    wsqh[:] = 0.0
+    for n in range(n_g):
+        sn = sprep[n]
+        for j in range(n_int):
+            for e in range(3):
+                w, dst = wb[e, n, j], wsq[j, e]
+                for i in range(nw):
+                    dst[i] += w * sn[i]
+        for e in range(3):
+            w, dst = wh[e, n], wsqh[e]
+            for i in range(nw):
+                dst[i] += w * sn[i]
     xn[:] = 0.0
     yb[0] = 0.0
     zb[0] = 0.0
     for b in range(1, n_b + 1):
+        ybb, zbb = yb[b], zb[b]
         if b < n_b:  # the running integrals at breakpoint b: piece b − 1's rule added
             g0, g1, g2 = g[b - 1, 0], g[b - 1, 1], g[b - 1, 2]
             for n in range(n_g):
@@ -615,18 +637,23 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
                 xr = xn[n]
                 for i in range(12 * L):
                     xr[i] += w0 * g0[i] + w1 * g1[i] + w2 * g2[i]
-        ybb, zbb = yb[b], zb[b]
+            zbb[:] = zb[b - 1]
+            for e in range(3):
+                _shared(g[b - 1, e], wsq[b - 1, e], zbb, n_sh)
+        else:  # the first piece's middle point, from the base by its own rule
+            zbb[:] = 0.0
+            for e in range(3):
+                _shared(gh[e], wsqh[e], zbb, n_sh)
         ybb[:] = 0.0
-        zbb[:] = 0.0
         for n in range(n_g):
             if b < n_b:
                 xr = xn[n]
-            else:  # the first piece's middle point, from the base by its own rule
+            else:
                 xr = xm
                 w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
                 for i in range(12 * L):
                     xr[i] = w0 * gh[0, i] + w1 * gh[1, i] + w2 * gh[2, i]
-            _accumulate(xr, vrep[n], sprep[n], ybb, zbb, n_sh)
+            _accumulate(xr, vrep[n], ybb)
     # into the layout of _c_and_dc
     t = 0
     for r in range(6):
@@ -682,11 +709,10 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
-def _accumulate(x, v, s, yb, zb, n_sh):  # pragma: no cover (compiled)
-    """Y += X V Xᵀ (upper triangle, row-major) and Z += X S for one grating and LANES frames, every array 1-D
-    with rows of LANES frames: ``x`` (12 rows) X_n, row r·2 + c; ``v`` (3 rows) V_n (v00, v01, v11); ``s``
-    (2 · n_sh rows) the shared columns, row q·2 + c; ``yb`` (21 rows); ``zb`` (6 · n_sh rows), row
-    q·6 + r. Written out at constant offsets: one vector instruction per row."""
+def _accumulate(x, v, yb):  # pragma: no cover (compiled)
+    """Y += X V Xᵀ (upper triangle, row-major) for one grating and LANES frames, every array 1-D with rows of
+    LANES frames: ``x`` (12 rows) X_n, row r·2 + c; ``v`` (3 rows) V_n (v00, v01, v11); ``yb`` (21 rows).
+    Written out at constant offsets: a few vector instructions per row."""
     L = LANES
     for ll in range(L):
         x0 = x[0 * L + ll]
@@ -735,13 +761,21 @@ def _accumulate(x, v, s, yb, zb, n_sh):  # pragma: no cover (compiled)
         yb[18 * L + ll] += u40 * x8 + u41 * x9
         yb[19 * L + ll] += u40 * x10 + u41 * x11
         yb[20 * L + ll] += u50 * x10 + u51 * x11
-    for q in range(n_sh):  # one column at a time, so that the offsets within it are constants
-        sq = s[2 * q * L:2 * (q + 1) * L]
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _shared(gq, wq, zb, n_sh):  # pragma: no cover (compiled)
+    """Z += G (w δk_sh) at one rule point for LANES frames: ``gq`` (12 rows) the integrand, row r·2 + c; ``wq``
+    (2 · n_sh rows) the rule's weight times the shared columns' interpolated curvature error, row q·2 + c; ``zb``
+    (6 · n_sh rows), row q·6 + r. One column at a time, so that the offsets within it are constants."""
+    L = LANES
+    for q in range(n_sh):
+        sq = wq[2 * q * L:2 * (q + 1) * L]
         zq = zb[6 * q * L:6 * (q + 1) * L]
         for ll in range(L):
             s0, s1 = sq[ll], sq[L + ll]
             for r in range(6):
-                zq[r * L + ll] += x[2 * r * L + ll] * s0 + x[(2 * r + 1) * L + ll] * s1
+                zq[r * L + ll] += gq[2 * r * L + ll] * s0 + gq[(2 * r + 1) * L + ll] * s1
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
