@@ -371,7 +371,7 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     # empty lanes would cost a single frame more than its own arithmetic)
     lanes = which.size == 0 and n_f >= LANES
     nb_ = breaks.size if lanes else 1
-    arrs = _block_arrays(n_g, nb_, n_sh)
+    arrs = _block_arrays(n_g, nb_, n_sh, LANES if lanes else 0)
     vrep, sprep = arrs[0], arrs[1]
     wb = bases[0][:3 * n_g * (nb_ - 1)].reshape((3, n_g, nb_ - 1))
     wh = bases[0][3 * n_g * (nb_ - 1):].reshape((3, n_g)) if lanes else bases[0][:0].reshape((3, 0))
@@ -519,9 +519,9 @@ LANES = 16
 
 
 @njit(cache=True, nogil=True)
-def _block_arrays(n_g, n_b, n_sh):  # pragma: no cover (compiled)
+def _block_arrays(n_g, n_b, n_sh, L):  # pragma: no cover (compiled)
     """The scratch arrays of :func:`_lanes_block`, LANES frames side by side in the last axis (index
-    row · LANES + frame): per-grating covariance (n_g, 3 · LANES: v00, v01, v11) and shared columns
+    row · LANES + frame; ``L`` LANES, or 0 for a call that does not use them): per-grating covariance (n_g, 3 · LANES: v00, v01, v11) and shared columns
     (n_g, 2 · n_sh · LANES), which :func:`propagate` fills; the integrand per piece and rule point
     (n_b − 1, 3, 12 · LANES) and to the first piece's middle point (3, 12 · LANES); the running X_n
     (n_g, 12 · LANES); X_n at the first piece's middle point (12 · LANES); per breakpoint Y's upper triangle
@@ -531,12 +531,11 @@ def _block_arrays(n_g, n_b, n_sh):  # pragma: no cover (compiled)
     covariance 9); the shared columns' curvature error interpolated to the rule's points, times the rule's
     weights, per piece (n_b − 1, 3, 2 · n_sh · LANES) and to the first piece's middle point (3, 2 · n_sh · LANES),
     row q·2 + c."""
-    L = LANES
     kb = (n_b + 1) * L
     sizes = (3 * n_g * L, 2 * n_g * n_sh * L, 36 * (n_b - 1) * L, 36 * L, 12 * n_g * L, 12 * L,
              21 * kb, 6 * n_sh * kb, 36 * kb, 6 * n_sh * kb, 6 * kb, 36 * kb, 18 * kb, 48 * L,
              6 * n_sh * (n_b - 1) * L, 6 * n_sh * L)
-    # one allocation (a single frame's call makes a small one that it does not use)
+    # one allocation (empty for a call without lanes)
     o = np.zeros(len(sizes) + 1, np.int64)
     for i in range(len(sizes)):
         o[i + 1] = o[i] + sizes[i]
