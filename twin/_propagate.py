@@ -138,9 +138,9 @@ def _unpack_stencils(const):  # pragma: no cover (compiled)
 
 def pattern_weights(quad: dict, basis: np.ndarray) -> np.ndarray:
     """The quadrature weights times the interpolation basis (n_points, n_g) at the rule's points, as one row
-    (3 · n_g · n_int + 3 · n_g,): w_e B_n(u_e) per piece (e, n, piece), then the rule to the first piece's middle
-    point (e, n)."""
-    wb = (quad["weights"][:, :, None] * basis[quad["points"]]).transpose(1, 2, 0)  # (3, n_g, n_int)
+    (3 · n_int · n_g + 3 · n_g,): w_e B_n(u_e) per piece (e, piece, n), then the rule to the first piece's
+    middle point (e, n)."""
+    wb = (quad["weights"][:, :, None] * basis[quad["points"]]).transpose(1, 0, 2)  # (3, n_int, n_g)
     wh = quad["half_weights"][:, None] * basis[quad["half_points"]]  # (3, n_g)
     return np.concatenate([wb.ravel(), wh.ravel()])
 
@@ -156,21 +156,23 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
     n_b = breaks.size
     n_int = n_b - 1
     kk = _lanes(n_b)  # the breakpoints, the first piece's middle point, zeros to a multiple of 8
-    wb = wrow[:3 * n_g * n_int].reshape((3, n_g, n_int))
+    wb = wrow[:3 * n_g * n_int].reshape((3, n_int, n_g))
     wh = wrow[3 * n_g * n_int:].reshape((3, n_g))
     o = 0
     g = work[o:o + 3 * 12 * n_int].reshape((3, 12, n_int))
     o += 3 * 12 * n_int
     gh = work[o:o + 36].reshape((3, 12))
     o += 36
-    xn = work[o:o + 12 * kk].reshape((12, kk))  # one grating's X_n
-    o += 12 * kk
+    xs = work[o:o + 12 * n_g].reshape((12, n_g))  # X_n of every grating at one breakpoint
+    o += 12 * n_g
+    us = work[o:o + 12 * n_g].reshape((12, n_g))  # X_n V_n
+    o += 12 * n_g
+    vs = work[o:o + (3 + 2 * n_par) * n_g].reshape((3 + 2 * n_par, n_g))  # V_n (v00, v01, v11), S_n (q·2 + c)
+    o += (3 + 2 * n_par) * n_g
     y = work[o:o + 36 * kk].reshape((6, 6, kk))
     o += 36 * kk
     z = work[o:o + 6 * n_par * kk].reshape((6, n_par, kk))
     o += 6 * n_par * kk
-    xv = work[o:o + 12 * kk].reshape((2, 6, kk))
-    o += 12 * kk
     m = work[o:o + 36 * kk].reshape((2, 3, 6, kk))  # A Y and A' Y
     o += 36 * kk
     pt = work[o:o + 6 * kk].reshape((2, 3, kk))  # p and t at the breakpoints
@@ -185,40 +187,37 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
             _integrand(pos, fr, points[j, e], g[e, :, j])
     for e in range(3):
         _integrand(pos, fr, half_points[e], gh[e])
-    # grating by grating (one grating's integrals stay in the first-level cache): the running integrals X_n at
-    # the breakpoints and the first piece's middle point — each piece's increment along the pieces (vectorised),
-    # then the running sum with the 12 rows side by side (the sum along one row alone would wait on its own
-    # additions) — then Y += X_n V_n X_nᵀ (upper triangle) and Z += X_n S_n σ_p, element-wise along the lanes
+    # V_n and S_n with the gratings along the last axis (a grating left out carries nothing; its X_n is zero too:
+    # the pattern's basis has no column for it)
+    for n in range(n_g):
+        ok = use[n]
+        vs[0, n] = v[n, 0, 0] if ok else 0.0
+        vs[1, n] = v[n, 0, 1] if ok else 0.0
+        vs[2, n] = v[n, 1, 1] if ok else 0.0
+        for q in range(n_par):
+            vs[3 + 2 * q, n] = sp[n, 0, q] if ok else 0.0
+            vs[4 + 2 * q, n] = sp[n, 1, q] if ok else 0.0
+    # breakpoint by breakpoint with the gratings along the vector axis: X_n(b) = X_n(b − 1) + piece b − 1's rule
+    # for every grating at once, then Y(b) = Σ_n X_n V_n X_nᵀ and Z(b) = Σ_n X_n S_n as sums over the gratings
+    # (no pass over every breakpoint per grating, no running sum waiting on itself)
     y[:] = 0.0
     z[:] = 0.0
-    for n in range(n_g):
-        if not use[n]:
-            continue
-        for rc in range(12):
-            for j in range(n_int):
-                xn[rc, j + 1] = wb[0, n, j] * g[0, rc, j] + wb[1, n, j] * g[1, rc, j] + wb[2, n, j] * g[2, rc, j]
-            xn[rc, 0] = 0.0
-            xn[rc, n_b] = wh[0, n] * gh[0, rc] + wh[1, n] * gh[1, rc] + wh[2, n] * gh[2, rc]
-            for i in range(n_b + 1, kk):
-                xn[rc, i] = 0.0
-        for j in range(1, n_int):
+    xs[:] = 0.0
+    for b in range(1, n_b + 1):
+        if b < n_b:
+            j = b - 1
             for rc in range(12):
-                xn[rc, j + 1] += xn[rc, j]
-        v00, v01, v11 = v[n, 0, 0], v[n, 0, 1], v[n, 1, 1]
-        for r in range(6):
-            for i in range(kk):
-                a0, a1 = xn[2 * r, i], xn[2 * r + 1, i]
-                xv[0, r, i] = a0 * v00 + a1 * v01
-                xv[1, r, i] = a0 * v01 + a1 * v11
-        for r in range(6):
-            for c in range(r, 6):
-                for i in range(kk):
-                    y[r, c, i] += xv[0, r, i] * xn[2 * c, i] + xv[1, r, i] * xn[2 * c + 1, i]
-        for q in range(n_par):
-            s0, s1 = sp[n, 0, q], sp[n, 1, q]
-            for r in range(6):
-                for i in range(kk):
-                    z[r, q, i] += xn[2 * r, i] * s0 + xn[2 * r + 1, i] * s1
+                g0, g1, g2 = g[0, rc, j], g[1, rc, j], g[2, rc, j]
+                xr, w0, w1, w2 = xs[rc], wb[0, j], wb[1, j], wb[2, j]
+                for n in range(n_g):
+                    xr[n] += w0[n] * g0 + w1[n] * g1 + w2[n] * g2
+        else:  # the first piece's middle point, from the base by its own rule (the running sums are done)
+            for rc in range(12):
+                g0, g1, g2 = gh[0, rc], gh[1, rc], gh[2, rc]
+                xr, w0, w1, w2 = xs[rc], wh[0], wh[1], wh[2]
+                for n in range(n_g):
+                    xr[n] = w0[n] * g0 + w1[n] * g1 + w2[n] * g2
+        _sums(xs, us, vs, y, z, b)
     # p and t where C is formed
     for i in range(kk):
         idx = breaks[i] if i < n_b else half_points[2]  # (the padding repeats the middle point)
@@ -253,6 +252,36 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
                 val += base_var * ((pp if r == c else 0.0) - pos[j, r] * pos[j, c])
                 out[j, r, c] = val
                 out[j, c, r] = val
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _sums(xs, us, vs, y, z, b):  # pragma: no cover (compiled)
+    """Y[:, :, b] (upper triangle) = Σ_n X_n V_n X_nᵀ and Z[:, :, b] = Σ_n X_n S_n over the gratings, the last
+    axis of ``xs`` (12, n_g) X_n (row r·2 + c), ``vs`` (3 + 2 n_par, n_g) V_n and S_n; ``us`` (12, n_g) scratch
+    for X_n V_n. Each sum is a loop along the gratings (vector instructions, one reduction at its end)."""
+    n_g, n_par = xs.shape[1], z.shape[1]
+    v00, v01, v11 = vs[0], vs[1], vs[2]
+    for r in range(6):
+        a0, a1, u0, u1 = xs[2 * r], xs[2 * r + 1], us[2 * r], us[2 * r + 1]
+        for n in range(n_g):
+            u0[n] = a0[n] * v00[n] + a1[n] * v01[n]
+            u1[n] = a0[n] * v01[n] + a1[n] * v11[n]
+    for r in range(6):
+        u0, u1 = us[2 * r], us[2 * r + 1]
+        for c in range(r, 6):
+            a0, a1 = xs[2 * c], xs[2 * c + 1]
+            acc = 0.0
+            for n in range(n_g):
+                acc += u0[n] * a0[n] + u1[n] * a1[n]
+            y[r, c, b] = acc
+    for q in range(n_par):
+        s0, s1 = vs[3 + 2 * q], vs[4 + 2 * q]
+        for r in range(6):
+            a0, a1 = xs[2 * r], xs[2 * r + 1]
+            acc = 0.0
+            for n in range(n_g):
+                acc += a0[n] * s0[n] + a1[n] * s1[n]
+            z[r, q, b] = acc
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
@@ -320,9 +349,9 @@ def _lanes(n_b):  # pragma: no cover (compiled)
 @njit(cache=True, nogil=True)
 def _work_size(n_g, n_b, n_par):  # pragma: no cover (compiled)
     kk = _lanes(n_b)
-    # g, gh, x, y, z, xv, m, pt, cb, pc
-    return 36 * (n_b - 1) + 36 + 12 * kk + 36 * kk + 6 * n_par * kk + 12 * kk + 36 * kk + 6 * kk + 18 * kk \
-        + 36 * (n_b - 1)
+    # g, gh, xs, us, vs, y, z, m, pt, cb, pc
+    return 36 * (n_b - 1) + 36 + 24 * n_g + (3 + 2 * n_par) * n_g + 36 * kk + 6 * n_par * kk + 36 * kk + 6 * kk \
+        + 18 * kk + 36 * (n_b - 1)
 
 
 @njit(cache=True, nogil=True)
@@ -373,7 +402,7 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     nb_ = breaks.size if lanes else 1
     arrs = _block_arrays(n_g, nb_, n_sh, LANES if lanes else 0)
     vrep, sprep = arrs[0], arrs[1]
-    wb = bases[0][:3 * n_g * (nb_ - 1)].reshape((3, n_g, nb_ - 1))
+    wb = bases[0][:3 * n_g * (nb_ - 1)].reshape((3, nb_ - 1, n_g))
     wh = bases[0][3 * n_g * (nb_ - 1):].reshape((3, n_g)) if lanes else bases[0][:0].reshape((3, 0))
     st_start, st_weights = _unpack_stencils(const)
     fidx = np.empty(LANES, np.int64)
@@ -521,16 +550,16 @@ LANES = 16
 @njit(cache=True, nogil=True)
 def _block_arrays(n_g, n_b, n_sh, L):  # pragma: no cover (compiled)
     """The scratch arrays of :func:`_lanes_block`, LANES frames side by side in the last axis (index
-    row · LANES + frame; ``L`` LANES, or 0 for a call that does not use them): per-grating covariance (n_g, 3 · LANES: v00, v01, v11) and shared columns
-    (n_g, 2 · n_sh · LANES), which :func:`propagate` fills; the integrand per piece and rule point
-    (n_b − 1, 3, 12 · LANES) and to the first piece's middle point (3, 12 · LANES); the running X_n
-    (n_g, 12 · LANES); X_n at the first piece's middle point (12 · LANES); per breakpoint Y's upper triangle
-    (n_b + 1, 21 · LANES) and Z (n_b + 1, 6 · n_sh · LANES); then along K = (n_b + 1) · LANES
-    (breakpoint-major, frame-minor) Y (6, 6, K), Z (6, n_sh, K), p and t (2, 3, K), A Y and A' Y (2, 3, 6, K),
-    C and C' (2, 3, 3, K); one point's work (48 · LANES: its piece's coefficients 36, its position 3, its
-    covariance 9); the shared columns' curvature error interpolated to the rule's points, times the rule's
-    weights, per piece (n_b − 1, 3, 2 · n_sh · LANES) and to the first piece's middle point (3, 2 · n_sh · LANES),
-    row q·2 + c."""
+    row · LANES + frame; ``L`` LANES, or 0 for a call that does not use them): per-grating covariance
+    (n_g, 3 · LANES: v00, v01, v11) and shared columns (n_g, 2 · n_sh · LANES, row q·2 + c), which
+    :func:`propagate` fills; the integrand per piece and rule point (n_b − 1, 3, 12 · LANES) and to the first
+    piece's middle point (3, 12 · LANES); the running X_n (n_g, 12 · LANES); X_n at the first piece's middle
+    point (12 · LANES); per breakpoint Y's upper triangle (n_b + 1, 21 · LANES) and Z (n_b + 1, 6 · n_sh · LANES,
+    row q·6 + r); then along K = (n_b + 1) · LANES (breakpoint-major, frame-minor) Y (6, 6, K), Z (6, n_sh, K),
+    p and t (2, 3, K), A Y and A' Y (2, 3, 6, K), C and C' (2, 3, 3, K); one point's work (48 · LANES: its
+    piece's coefficients 36, its position 3, its covariance 9); the shared columns' curvature error
+    interpolated to the rule's points, times the rule's weights, per piece (n_b − 1, 3, 2 · n_sh · LANES) and to
+    the first piece's middle point (3, 2 · n_sh · LANES), row q·2 + c."""
     kb = (n_b + 1) * L
     sizes = (3 * n_g * L, 2 * n_g * n_sh * L, 36 * (n_b - 1) * L, 36 * L, 12 * n_g * L, 12 * L,
              21 * kb, 6 * n_sh * kb, 36 * kb, 6 * n_sh * kb, 6 * kb, 36 * kb, 18 * kb, 48 * L,
@@ -559,7 +588,7 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
     step is a short loop over them at constant offsets that the compiler turns into vector instructions; the
     running integrals go breakpoint by breakpoint (each grating's X_n updated in place, then added into that
     breakpoint's Y and Z at once), so that Y and Z are touched once per breakpoint and grating in the first-level
-    cache instead of in a pass over every breakpoint per grating. ``wb`` (3, n_g, n_b − 1) the pattern's piece
+    cache instead of in a pass over every breakpoint per grating. ``wb`` (3, n_b − 1, n_g) the pattern's piece
     weights, ``wh`` (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s.
     Lanes beyond ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never
     written out."""
@@ -617,7 +646,7 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
         sn = sprep[n]
         for j in range(n_int):
             for e in range(3):
-                w, dst = wb[e, n, j], wsq[j, e]
+                w, dst = wb[e, j, n], wsq[j, e]
                 for i in range(nw):
                     dst[i] += w * sn[i]
         for e in range(3):
@@ -632,7 +661,7 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
         if b < n_b:  # the running integrals at breakpoint b: piece b − 1's rule added
             g0, g1, g2 = g[b - 1, 0], g[b - 1, 1], g[b - 1, 2]
             for n in range(n_g):
-                w0, w1, w2 = wb[0, n, b - 1], wb[1, n, b - 1], wb[2, n, b - 1]
+                w0, w1, w2 = wb[0, b - 1, n], wb[1, b - 1, n], wb[2, b - 1, n]
                 xr = xn[n]
                 for i in range(12 * L):
                     xr[i] += w0 * g0[i] + w1 * g1[i] + w2 * g2[i]
