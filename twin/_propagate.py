@@ -165,8 +165,6 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
     o += 36
     xs = work[o:o + 12 * n_g].reshape((12, n_g))  # X_n of every grating at one breakpoint
     o += 12 * n_g
-    us = work[o:o + 12 * n_g].reshape((12, n_g))  # X_n V_n
-    o += 12 * n_g
     vs = work[o:o + (3 + 2 * n_par) * n_g].reshape((3 + 2 * n_par, n_g))  # V_n (v00, v01, v11), S_n (q·2 + c)
     o += (3 + 2 * n_par) * n_g
     y = work[o:o + 36 * kk].reshape((6, 6, kk))
@@ -217,7 +215,7 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
                 xr, w0, w1, w2 = xs[rc], wh[0], wh[1], wh[2]
                 for n in range(n_g):
                     xr[n] = w0[n] * g0 + w1[n] * g1 + w2[n] * g2
-        _sums(xs, us, vs, y, z, b)
+        _sums(xs, vs, y, z, b)
     # p and t where C is formed
     for i in range(kk):
         idx = breaks[i] if i < n_b else half_points[2]  # (the padding repeats the middle point)
@@ -255,33 +253,117 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
-def _sums(xs, us, vs, y, z, b):  # pragma: no cover (compiled)
+def _sums(xs, vs, y, z, b):  # pragma: no cover (compiled)
     """Y[:, :, b] (upper triangle) = Σ_n X_n V_n X_nᵀ and Z[:, :, b] = Σ_n X_n S_n over the gratings, the last
-    axis of ``xs`` (12, n_g) X_n (row r·2 + c), ``vs`` (3 + 2 n_par, n_g) V_n and S_n; ``us`` (12, n_g) scratch
-    for X_n V_n. Each sum is a loop along the gratings (vector instructions, one reduction at its end)."""
+    axis of ``xs`` (12, n_g) X_n (row r·2 + c) and ``vs`` (3 + 2 n_par, n_g) V_n (v00, v01, v11) and S_n (row
+    3 + q·2 + c). One loop along the gratings with the 21 sums of Y side by side (vector registers, one reduction
+    each at its end), then one per shared column with its six."""
     n_g, n_par = xs.shape[1], z.shape[1]
-    v00, v01, v11 = vs[0], vs[1], vs[2]
-    for r in range(6):
-        a0, a1, u0, u1 = xs[2 * r], xs[2 * r + 1], us[2 * r], us[2 * r + 1]
-        for n in range(n_g):
-            u0[n] = a0[n] * v00[n] + a1[n] * v01[n]
-            u1[n] = a0[n] * v01[n] + a1[n] * v11[n]
-    for r in range(6):
-        u0, u1 = us[2 * r], us[2 * r + 1]
-        for c in range(r, 6):
-            a0, a1 = xs[2 * c], xs[2 * c + 1]
-            acc = 0.0
-            for n in range(n_g):
-                acc += u0[n] * a0[n] + u1[n] * a1[n]
-            y[r, c, b] = acc
+    y00 = 0.0
+    y01 = 0.0
+    y02 = 0.0
+    y03 = 0.0
+    y04 = 0.0
+    y05 = 0.0
+    y11 = 0.0
+    y12 = 0.0
+    y13 = 0.0
+    y14 = 0.0
+    y15 = 0.0
+    y22 = 0.0
+    y23 = 0.0
+    y24 = 0.0
+    y25 = 0.0
+    y33 = 0.0
+    y34 = 0.0
+    y35 = 0.0
+    y44 = 0.0
+    y45 = 0.0
+    y55 = 0.0
+    for n in range(n_g):
+        x0 = xs[0, n]
+        x1 = xs[1, n]
+        x2 = xs[2, n]
+        x3 = xs[3, n]
+        x4 = xs[4, n]
+        x5 = xs[5, n]
+        x6 = xs[6, n]
+        x7 = xs[7, n]
+        x8 = xs[8, n]
+        x9 = xs[9, n]
+        x10 = xs[10, n]
+        x11 = xs[11, n]
+        v0, v1, v2 = vs[0, n], vs[1, n], vs[2, n]
+        u00 = x0 * v0 + x1 * v1
+        u01 = x0 * v1 + x1 * v2
+        u10 = x2 * v0 + x3 * v1
+        u11 = x2 * v1 + x3 * v2
+        u20 = x4 * v0 + x5 * v1
+        u21 = x4 * v1 + x5 * v2
+        u30 = x6 * v0 + x7 * v1
+        u31 = x6 * v1 + x7 * v2
+        u40 = x8 * v0 + x9 * v1
+        u41 = x8 * v1 + x9 * v2
+        u50 = x10 * v0 + x11 * v1
+        u51 = x10 * v1 + x11 * v2
+        y00 += u00 * x0 + u01 * x1
+        y01 += u00 * x2 + u01 * x3
+        y02 += u00 * x4 + u01 * x5
+        y03 += u00 * x6 + u01 * x7
+        y04 += u00 * x8 + u01 * x9
+        y05 += u00 * x10 + u01 * x11
+        y11 += u10 * x2 + u11 * x3
+        y12 += u10 * x4 + u11 * x5
+        y13 += u10 * x6 + u11 * x7
+        y14 += u10 * x8 + u11 * x9
+        y15 += u10 * x10 + u11 * x11
+        y22 += u20 * x4 + u21 * x5
+        y23 += u20 * x6 + u21 * x7
+        y24 += u20 * x8 + u21 * x9
+        y25 += u20 * x10 + u21 * x11
+        y33 += u30 * x6 + u31 * x7
+        y34 += u30 * x8 + u31 * x9
+        y35 += u30 * x10 + u31 * x11
+        y44 += u40 * x8 + u41 * x9
+        y45 += u40 * x10 + u41 * x11
+        y55 += u50 * x10 + u51 * x11
+    y[0, 0, b] = y00
+    y[0, 1, b] = y01
+    y[0, 2, b] = y02
+    y[0, 3, b] = y03
+    y[0, 4, b] = y04
+    y[0, 5, b] = y05
+    y[1, 1, b] = y11
+    y[1, 2, b] = y12
+    y[1, 3, b] = y13
+    y[1, 4, b] = y14
+    y[1, 5, b] = y15
+    y[2, 2, b] = y22
+    y[2, 3, b] = y23
+    y[2, 4, b] = y24
+    y[2, 5, b] = y25
+    y[3, 3, b] = y33
+    y[3, 4, b] = y34
+    y[3, 5, b] = y35
+    y[4, 4, b] = y44
+    y[4, 5, b] = y45
+    y[5, 5, b] = y55
     for q in range(n_par):
-        s0, s1 = vs[3 + 2 * q], vs[4 + 2 * q]
-        for r in range(6):
-            a0, a1 = xs[2 * r], xs[2 * r + 1]
-            acc = 0.0
-            for n in range(n_g):
-                acc += a0[n] * s0[n] + a1[n] * s1[n]
-            z[r, q, b] = acc
+        z0 = z1 = z2 = z3 = z4 = z5 = 0.0
+        for n in range(n_g):
+            s0, s1 = vs[3 + 2 * q, n], vs[4 + 2 * q, n]
+            z0 += xs[0, n] * s0 + xs[1, n] * s1
+            z1 += xs[2, n] * s0 + xs[3, n] * s1
+            z2 += xs[4, n] * s0 + xs[5, n] * s1
+            z3 += xs[6, n] * s0 + xs[7, n] * s1
+            z4 += xs[8, n] * s0 + xs[9, n] * s1
+            z5 += xs[10, n] * s0 + xs[11, n] * s1
+        z[0, q, b] = z0
+        z[1, q, b] = z1
+        z[2, q, b] = z2
+        z[3, q, b] = z3
+        z[4, q, b] = z4
+        z[5, q, b] = z5
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
@@ -349,8 +431,8 @@ def _lanes(n_b):  # pragma: no cover (compiled)
 @njit(cache=True, nogil=True)
 def _work_size(n_g, n_b, n_par):  # pragma: no cover (compiled)
     kk = _lanes(n_b)
-    # g, gh, xs, us, vs, y, z, m, pt, cb, pc
-    return 36 * (n_b - 1) + 36 + 24 * n_g + (3 + 2 * n_par) * n_g + 36 * kk + 6 * n_par * kk + 36 * kk + 6 * kk \
+    # g, gh, xs, vs, y, z, m, pt, cb, pc
+    return 36 * (n_b - 1) + 36 + 12 * n_g + (3 + 2 * n_par) * n_g + 36 * kk + 6 * n_par * kk + 36 * kk + 6 * kk \
         + 18 * kk + 36 * (n_b - 1)
 
 
