@@ -37,7 +37,7 @@ from sim_interrogator.needle_jig import AMIRO, MIN_CURVATURE, JigParams, amiro_f
 from twin import FiberModel, jsonout
 from twin.calibration.jig import fit, leave_one_rotation_out, read_poses, validate
 from twin.calibration.jig.nuisance import DEFAULT_TERMS, TERMS
-from twin.calibration.jig.score import ALL_LEVELS, CLINICAL
+from twin.calibration.jig.score import ALL_LEVELS, CLINICAL, difference
 from twin.data import jig_dir
 
 __all__ = ["DATA", "EFFECTS", "FACTOR", "KEYS", "REAL_TABLES", "VARIANTS", "budget", "compare", "model_scores",
@@ -61,8 +61,8 @@ FACTOR = 1.5
 KEYS = ("rms_strain_residual", "loro_kappa_error_1_per_m", "loro_direction_error_deg")
 #: The modelled effects and the parameters that turn each off (docs/jig.md, "Error budget").
 EFFECTS: dict[str, dict] = {
-    "reference bent in the jig's frame": {"reference_bias": (0.0, 0.0)},
-    "reference scatter between sessions": {"reference_curvature": 0.0},
+    "jig's zero (grooves short of their label)": {"reference_bias": (0.0, 0.0)},
+    "each rotation's zero (scatter between seatings)": {"reference_curvature": 0.0},
     "roll error when re-seated": {"orientation_error_deg": 0.0},
     "twist when pressed in": {"seat_twist_deg": 0.0},
     "stiffness vs groove (conformity)": {"conformity_std": 0.0},
@@ -118,10 +118,12 @@ def _score(st, key: str) -> dict:
 
 def model_scores(poses_path: str | Path, fiber_path: str | Path, gratings, variants=VARIANTS) -> list[dict]:
     """Leave-one-rotation-out score of each calibration variant on a real table, with the jig's zero added to the
-    held-out rotation's curvature (keys ``loro_*``) and without (``loro_raw_*``)."""
+    held-out rotation's curvature (keys ``loro_*``) and without (``loro_raw_*``), and its difference from the first
+    variant's (the linear baseline) with the range one rotation × grating moves it
+    (``loro_all_vs_first``, ..., :func:`twin.calibration.jig.score.difference`)."""
     fiber = FiberModel.load(fiber_path)
     poses = read_poses(poses_path, fiber=fiber)
-    rows = []
+    rows, first = [], {}
     for name, model, terms in variants:
         extra = {} if terms is None else {"terms": terms}
         row = {"variant": name}
@@ -129,6 +131,10 @@ def model_scores(poses_path: str | Path, fiber_path: str | Path, gratings, varia
             st = leave_one_rotation_out(fiber, poses, model=model, gratings=list(gratings),
                                         min_curvature=MIN_CURVATURE, jig_zero=jig_zero, **extra)
             row.update(_score(st, key))
+            base = first.setdefault(key, st)
+            for bands, tag in ((ALL_LEVELS, "all"), (CLINICAL, "clinical")):
+                row[f"{key}_{tag}_vs_first"] = difference(st.levels, st.kappa_rms, st.direction_mean, base.kappa_rms,
+                                                          base.direction_mean, bands).to_dict()
         rows.append(row)
     return rows
 
@@ -261,6 +267,14 @@ def _print_models(models: dict, out) -> None:
                          f"{_f(r[f'{key}_clinical_kappa_1_per_m'], '10.4f')}"
                          f"{'—' if cover is None else f'{100 * cover:.1f}%':>8s}")
             print(f"{r['variant']:28s}{line}", file=out)
+        print(f"Difference from {rows[0]['variant']} with the jig's zero, all levels (in brackets: its range when one "
+              "rotation × grating is left out; a range across 0 is not resolved by this table):", file=out)
+        for r in rows[1:]:
+            d = r["loro_all_vs_first"]
+            m, dm = d["magnitude_1_per_m"], d["magnitude_range_1_per_m"]
+            a, da = d["direction_deg"], d["direction_range_deg"]
+            print(f"  {r['variant']:26s}|Δκ| {_f(m, '+8.4f')} ({_f(dm and dm[0], '+.4f')} … {_f(dm and dm[1], '+.4f')})"
+                  f"   |Δdir| {_f(a, '+6.2f')}° ({_f(da and da[0], '+.2f')} … {_f(da and da[1], '+.2f')})", file=out)
     tw = models["twin"]
     print(f"\nTwin of needle_3CH_4AA_v2, median of {tw['seeds']} sessions (in brackets: fraction of sessions better "
           "than linear):", file=out)

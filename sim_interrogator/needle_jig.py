@@ -99,12 +99,14 @@ class JigParams:
         Std of the sensor's rotation at each grating, per orientation session, deg (twisting when pressed in; on
         top of the session's ``orientation_error_deg``).
     reference_curvature : float
-        Std (per component) of the reference pose's curvature at each grating, per orientation session, 1/m: a
-        reference that is not straight, or drift between the reference and the poses.
+        Std (per component) of each orientation session's zero at each grating, 1/m: how much less (or more) the
+        bent grooves of that seating bend the sensor than their labels, the same in all of them.
     reference_bias : (float, float)
-        The part of the reference pose's curvature that is the same in every session in the jig's frame, 1/m:
-        along the grooves' bend direction and across it (90° counter-clockwise from it): a "flat" groove that
-        holds the sensor slightly bent.
+        The part of that zero which is the same in every session in the jig's frame, 1/m: along the grooves' bend
+        direction and across it (90° counter-clockwise from it): the bent grooves hold the sensor this much less
+        bent than labelled. Against each orientation's own reference this is the same as a flat groove that holds
+        the sensor bent by as much; the real AMIRo references' absolute wavelengths say it is the bent grooves
+        (docs/jig.md, "The jig's zero"), so the reference pose is straight here.
     seat_curvature : float
         Std (per component) of a curvature offset at each grating, drawn per seating (one orientation and
         groove), 1/m: the sensor does not lie the same way in every groove.
@@ -298,7 +300,8 @@ def _seated_curvature(params: JigParams, n_gratings: int, bearing: np.ndarray, o
     ref = ref + (along * np.stack([np.cos(bearing), np.sin(bearing)], axis=-1)
                  + across * np.stack([-np.sin(bearing), np.cos(bearing)], axis=-1))[:, None, :]
     groove = (kappa[:, None] * scale[o_idx])[..., None] * np.stack([np.cos(a), np.sin(a)], axis=-1)
-    seating = seat[o_idx, l_idx] + pose + np.where((kappa == 0.0)[:, None, None], ref[o_idx], 0.0)
+    # the session's zero acts on the bent grooves (they fall short of their label); the reference pose is straight
+    seating = seat[o_idx, l_idx] + pose - np.where((kappa > 0.0)[:, None, None], ref[o_idx], 0.0)
     return groove, seating
 
 

@@ -8,9 +8,17 @@ import pytest
 
 from sim_interrogator.needle_jig import needle_fiber
 from twin import Calibration, strain
-from twin.calibration.jig import JigPoses, fit, jig_curvature, leave_one_rotation_out, validate, write_poses
+from twin.calibration.jig import (
+    JigPoses,
+    fit,
+    jig_curvature,
+    leave_one_rotation_out,
+    reference_bend,
+    validate,
+    write_poses,
+)
 from twin.calibration.jig.nuisance import DEFAULT_TERMS, TERMS
-from twin.calibration.jig.score import ALL_LEVELS, CLINICAL, Z95, cells, coverage, score
+from twin.calibration.jig.score import ALL_LEVELS, CLINICAL, Z95, cells, coverage, difference, score
 from twin.cli import main
 
 NEEDLE = needle_fiber()
@@ -29,15 +37,18 @@ def as_built():
                           core_radii=np.hypot(p[:, 0], p[:, 1]) / NEEDLE.strain_sensitivity)
 
 
-def session(true, roll_errors=None, references=None, trials=2, seed=0):
+def session(true, roll_errors=None, references=None, trials=2, seed=0, deficit=0j):
     """Noise-free poses from the forward model. Rotation o is really at ψ_o + roll_errors[o]; its reference pose is
-    bent by references[o] (fibre frame, 1/m, every grating); the bent poses carry a random common mode."""
+    bent by references[o] (fibre frame, 1/m, every grating); the bent poses carry a random common mode, and are bent
+    less than their label by ``deficit`` (jig frame, along + i across, 1/m)."""
     rng = np.random.default_rng(seed)
     n_o = ORIENTATIONS.size
     roll_errors = np.zeros(n_o) if roll_errors is None else np.asarray(roll_errors)
     references = np.zeros((n_o, 2)) if references is None else np.asarray(references)
     o_idx, kappa = (a.ravel() for a in np.meshgrid(np.repeat(np.arange(n_o), trials), LEVELS, indexing="ij"))
     k = jig_curvature(ORIENTATIONS[o_idx] + roll_errors[o_idx], kappa, ROLL)
+    short = deficit * np.exp(1j * (ROLL - ORIENTATIONS[o_idx] - roll_errors[o_idx]))
+    k = k - np.stack([short.real, short.imag], axis=-1)
     k = np.where((kappa == 0)[:, None], references[o_idx], k)
     d_t = np.where(kappa > 0, rng.normal(0, 2.0, o_idx.size), 0.0)[:, None]
     w = strain.forward(true, np.repeat(k[:, None, :], true.n_gratings, axis=1), delta_T=d_t)
@@ -201,6 +212,29 @@ def test_jig_zero_is_one_rule_for_every_model():
     assert np.all(np.abs(linear[:, 0]) < 0.1) and np.all(np.abs(nuisance[:, 0] - 0.14) < 1e-4)
 
 
+def test_reference_bend_tells_a_bent_reference_from_grooves_that_bend_less():
+    """A flat groove that bends the sensor by 0.14 1/m along the grooves' bend and 0.10 across, and bent grooves that
+    hold it 0.14 and 0.10 less bent than their labels, give the same zero (label − k̂) at every rotation, so every
+    figure taken against each rotation's own reference is the same (1e-4 1/m: the second order of strain). The
+    references' absolute wavelengths tell them apart: reference_bend finds (0.14, 0.10) for the first and 0 for the
+    second (1e-4), whatever all references share in the sensor's frame (here 0.05 1/m), with nothing left over."""
+    true = as_built()
+    z = jig_bent_references(0.14, 0.10) + 0.05
+    bent_reference = session(true, references=np.stack([z.real, z.imag], axis=-1))
+    shallow = session(true, references=np.tile([0.05, 0.0], (4, 1)), deficit=0.14 + 0.10j)
+    found = []
+    for poses in (bent_reference, shallow):
+        cal = fit(NEEDLE, poses, model="nuisance").calibration
+        np.testing.assert_allclose(cal.provenance["jig_zero_1_per_m"], np.tile([0.14, 0.10], (4, 1)), atol=1e-4)
+        bend, scatter = reference_bend(cal, poses)
+        assert bend.shape == (4, 2) and np.all(scatter < 1e-4)
+        found.append(bend)
+    np.testing.assert_allclose(found[0], np.tile([0.14, 0.10], (4, 1)), atol=1e-4)
+    np.testing.assert_allclose(found[1], 0.0, atol=1e-4)
+    with pytest.raises(ValueError, match="3 or more rotations"):
+        reference_bend(cal, shallow.select(np.isin(shallow.orientation, ORIENTATIONS[:2])))
+
+
 def test_a_disturbed_reference_is_reported():
     """Three trials per groove with 1 pm noise and a common shift per bent pose (the session's 2 K); one reference
     trial's peak 100 pm off: its rotation and grating stand out of the table's trial scatter (> 10 times; the common
@@ -244,6 +278,25 @@ def test_score_is_two_medians_over_the_cells_in_the_bands():
     assert np.rad2deg(everything.direction_error) == pytest.approx(np.median([2, 5, 3, 7.0]))
     empty = score(np.array([2.0, 3.0]), rms[:, :, 1:], mean[:, :, 1:], CLINICAL)
     assert empty.magnitude_error is None and empty.direction_error is None and empty.n_magnitude == 0
+
+
+def test_score_difference_and_its_range_over_clusters():
+    """Two calibrations on 2 rotations × 1 grating × 3 levels (0.5, 1, 2 1/m), all levels. a is 0.05 1/m better in
+    every cell: the difference is −0.05 whichever rotation is left out. In direction they differ in one cell only
+    (7° against 9° at rotation 1, 2 1/m): the medians over the four direction cells tie (4° each), with rotation 0
+    left out a is 1° better (5° against 6°), with rotation 1 left out they tie: range (−1°, 0°)."""
+    levels = np.array([0.5, 1.0, 2.0])
+    a_rms = np.array([[[0.1, 0.2, 0.4]], [[0.3, 0.0, 0.1]]])
+    a_mean = np.deg2rad(np.array([[[10.0, 2.0, 5.0]], [[20.0, -3.0, 7.0]]]))
+    b_mean = np.deg2rad(np.array([[[10.0, 2.0, 5.0]], [[20.0, -3.0, 9.0]]]))
+    d = difference(levels, a_rms, a_mean, a_rms + 0.05, b_mean, ALL_LEVELS)
+    assert d.magnitude == pytest.approx(-0.05) and d.magnitude_range == pytest.approx((-0.05, -0.05))
+    assert np.rad2deg(d.direction) == pytest.approx(0.0, abs=1e-12)
+    assert np.rad2deg(d.direction_range) == pytest.approx([-1.0, 0.0])
+    assert d.n_clusters == 2 and d.to_dict()["direction_range_deg"] == pytest.approx([-1.0, 0.0])
+    none = difference(np.array([2.0, 3.0]), a_rms[:, :, 1:], a_mean[:, :, 1:], a_rms[:, :, 1:], b_mean[:, :, 1:],
+                      CLINICAL)
+    assert none.magnitude is None and none.direction is None and none.magnitude_range is None
 
 
 def test_coverage_of_known_gaussian_errors():

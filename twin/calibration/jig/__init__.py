@@ -68,7 +68,7 @@ re-exported here.
 
 from __future__ import annotations
 
-from twin.calibration.jig.fits import JigFit, fit, gauge_layout
+from twin.calibration.jig.fits import JigFit, fit, gauge_layout, reference_bend
 from twin.calibration.jig.poses import (
     MATCH_TOL,
     MODELS,
@@ -102,6 +102,7 @@ __all__ = [
     "leave_one_rotation_out",
     "match_orientations",
     "read_poses",
+    "reference_bend",
     "validate",
     "write_poses",
 ]

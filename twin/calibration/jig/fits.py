@@ -608,6 +608,49 @@ def rotation_zeros(design: np.ndarray, roll: float, e: np.ndarray, orientation: 
     return np.stack([mean.real, mean.imag], axis=-1)
 
 
+def reference_bend(calibration: Calibration, poses: JigPoses, gratings=None) -> tuple[np.ndarray, np.ndarray]:
+    """How bent the reference (flat-groove) poses are in the jig's frame, from their absolute wavelengths.
+
+    Every rotation's strain is taken against its own reference, so its zero cannot tell a reference bent by the jig
+    from bent grooves that hold the sensor less bent than their label: both give label − k̂ a fixed part along the
+    bend (docs/jig.md, "The jig's zero"). The references' absolute wavelengths can: a reference bend b fixed in the
+    jig's frame turns with the rotation in the sensor's, k_ref,o = c + b e^{i(α − ψ_o)}. Read through the
+    calibration's map against the mean of the references (the common mode drops out), least squares over the
+    rotations gives b; c is what all references share in the sensor's frame.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        A jig calibration (design and ``jig_roll_rad``).
+    poses : JigPoses
+        At least 3 rotations, each with its reference rows (one session: the interrogator's absolute wavelengths
+        must hold between the rotations).
+    gratings : sequence of int, optional
+        Default the calibration's fitted gratings.
+
+    Returns
+    -------
+    bend : ndarray, shape (G, 2)
+        b along and across the bend, 1/m.
+    scatter : ndarray, shape (G,)
+        RMS magnitude of what the references keep about c + b e^{i(α − ψ_o)}, 1/m (reseating, drift).
+    """
+    prov = calibration.provenance
+    g = np.asarray(prov.get("jig_gratings", range(poses.n_gratings)) if gratings is None else gratings, dtype=int)
+    if poses.orientations.size < 3:
+        raise ValueError(f"{poses.source}: a reference bend needs references at 3 or more rotations, got "
+                         f"{poses.orientations.size}")
+    lam = poses.reference()  # (O, G, C)
+    lam0 = np.mean(lam, axis=0)
+    k = CurvatureSolver(np.asarray(calibration.design)[g]).solve(((lam - lam0) / lam0)[:, g]).curvature
+    kc = k[..., 0] + 1j * k[..., 1]  # (O, G), sensor frame
+    x = np.stack([np.ones(poses.orientations.size), np.exp(1j * (float(prov["jig_roll_rad"]) - poses.orientations))],
+                 axis=1)
+    coef = np.linalg.lstsq(x, kc, rcond=None)[0]  # (2, G)
+    rest = kc - x @ coef
+    return np.stack([coef[1].real, coef[1].imag], axis=-1), np.sqrt(np.mean(np.abs(rest) ** 2, axis=0))
+
+
 def _error_model(fiber: FiberModel, nz: NuisanceFit, alpha: float) -> dict:
     """The calibration's error model as provenance entries (docs/jig.md, "The error model"): what a new pose's
     curvature is expected to deviate from the jig's, used for the 95 % intervals of :func:`validate`.

@@ -29,11 +29,11 @@ on the groove means with weight (Σ_pose/T + Σ_seat)⁻¹ (T: the groove's tria
 gratings), and re-estimates the covariances from the residuals each time, until z settles.
 
 The fitted error model predicts how far a new pose's curvature is from the jig's label (the 95 % intervals of
-:func:`twin.calibration.jig.validate`): the jig's zero (the flat groove's curvature, docs/jig.md) as a bias unless
-it is added to the curvature; Σ_pose + Σ_seat through the calibration's map; the scatter of the rotations' zeros
-along and across the bend, and the jig zero's own error; κ² times the
-seatings' roll and gain variances (shared, and per grating); and the parameters' own covariance. The variances at
-the rotation level rest on 1–3 degrees of freedom and are pooled with the error budget as a prior.
+:func:`twin.calibration.jig.validate`): the jig's zero (the bent grooves' shortfall from their labels, docs/jig.md)
+as a bias unless it is added to the curvature; Σ_pose + Σ_seat through the calibration's map; the scatter of the
+rotations' zeros along and across the bend, and the jig zero's own error; κ² times the seatings' roll and gain
+variances (shared, and per grating); and the parameters' own covariance. The variances at the rotation level rest
+on 1–3 degrees of freedom and are pooled with the error budget as a prior.
 """
 
 from __future__ import annotations
@@ -92,9 +92,10 @@ class NuisanceFit:
         Fitted error covariances in strain (rank C − 1, common mode excluded): per pose, per groove (shared by its
         trials), and the scatter of the rotations' zeros.
     reference : ndarray, shape (O, G, 2)
-        Each rotation's zero as the curvature of its reference pose in the jig's frame, 1/m: along the grooves'
+        Each rotation's zero as the curvature of its reference pose in the jig's frame (equivalently, how much less
+        its bent grooves bend the sensor than labelled), 1/m: along the grooves'
         bend direction and across it (90° counter-clockwise). Its mean over the rotations is a property of the
-        jig (a "flat" groove that holds the sensor slightly bent), its scatter that of the reseating.
+        jig (bent grooves that hold the sensor less bent than labelled), its scatter that of the reseating.
     reference_std : ndarray, shape (G, 2)
         That scatter (along, across), 1/m, pooled with the budget's prior (:data:`PRIOR_DOF`).
     roll_std, gain_std : float

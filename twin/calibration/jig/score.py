@@ -12,6 +12,8 @@ Each cell is summarised as
 The score is two medians over the cells: the **magnitude error**, the median of ``kappa_rms`` over the cells whose
 level lies in the magnitude band, and the **direction error**, the median of |``direction_mean``| over the cells
 whose level lies in the direction band. Medians, so that one bad rotation or grating does not decide it.
+:func:`difference` compares two calibrations on the same cells and says how far leaving one rotation × grating
+out moves the comparison (whether a difference is resolved by the table).
 
 Bands (1/m, both ends included):
 
@@ -159,3 +161,69 @@ def coverage(error, sigma, z: float = Z95) -> tuple[float | None, int]:
     if n == 0:
         return None, 0
     return float(np.mean(np.abs(error[ok]) <= z * sigma[ok])), n
+
+
+@dataclass(frozen=True)
+class ScoreDifference:
+    """The score of one calibration minus another's on the same validation cells (:func:`difference`), and how
+    far one cluster moves it.
+
+    Attributes
+    ----------
+    magnitude, direction : float or None
+        Difference of the magnitude errors (1/m) and of the direction errors (rad); negative: the first is better.
+    magnitude_range, direction_range : (float, float) or None
+        Smallest and largest difference when the cells of one rotation × grating (a cluster: one zero, one roll)
+        are left out in turn. A difference whose range straddles 0 is not resolved by this table.
+    n_clusters : int
+    """
+
+    magnitude: float | None
+    direction: float | None
+    magnitude_range: tuple[float, float] | None = None
+    direction_range: tuple[float, float] | None = None
+    n_clusters: int = 0
+
+    def to_dict(self) -> dict:
+        """JSON-ready (1/m, deg)."""
+        def deg(x):
+            return None if x is None else float(np.rad2deg(x))
+
+        return {
+            "magnitude_1_per_m": self.magnitude,
+            "direction_deg": deg(self.direction),
+            "magnitude_range_1_per_m": None if self.magnitude_range is None else list(self.magnitude_range),
+            "direction_range_deg": None if self.direction_range is None else [deg(x) for x in self.direction_range],
+            "n_clusters": self.n_clusters,
+        }
+
+
+def difference(levels, a_rms, a_mean, b_rms, b_mean, bands: Bands = CLINICAL) -> ScoreDifference:
+    """Score of calibration a minus that of b (per-cell summaries of :func:`cells` on the same poses, shape
+    (O, G, L)), with its range over leaving one rotation × grating out.
+
+    The cells of one rotation and grating share that rotation's zero and roll, so they are not independent: one such
+    cluster can move a median by a few tenths of a degree. The range says whether a difference outlives that.
+    """
+    a_rms, a_mean, b_rms, b_mean = (np.asarray(x, dtype=np.float64) for x in (a_rms, a_mean, b_rms, b_mean))
+
+    def diff(keep):
+        sa = score(levels, np.where(keep, a_rms, np.nan), np.where(keep, a_mean, np.nan), bands)
+        sb = score(levels, np.where(keep, b_rms, np.nan), np.where(keep, b_mean, np.nan), bands)
+        return tuple(None if x is None or y is None else x - y for x, y in
+                     ((sa.magnitude_error, sb.magnitude_error), (sa.direction_error, sb.direction_error)))
+
+    n_o, n_g = a_rms.shape[:2]
+    full = diff(np.ones(a_rms.shape, bool))
+    left = []
+    for o in range(n_o):  # a few rotations × gratings
+        for n in range(n_g):
+            keep = np.ones(a_rms.shape, bool)
+            keep[o, n] = False
+            left.append(diff(keep))
+    ranges = []
+    for i in range(2):
+        v = [x[i] for x in left if x[i] is not None]
+        ranges.append((float(min(v)), float(max(v))) if v and full[i] is not None else None)
+    return ScoreDifference(magnitude=full[0], direction=full[1], magnitude_range=ranges[0],
+                           direction_range=ranges[1], n_clusters=n_o * n_g)

@@ -48,10 +48,10 @@ class JigValidation:
         calibrations; None otherwise).
     magnitude_bias : ndarray, shape (G,), or None
         Expected |k̂| − κ in this jig, 1/m: 0 when the jig's zero was added, else minus the jig's zero along the
-        bend (the flat groove holds the sensor slightly bent). The 95 % interval of κ is |k̂| − bias ± 1.96σ.
+        bend (the bent grooves hold the sensor less bent than labelled). The 95 % interval of κ is |k̂| − bias ± 1.96σ.
     jig_zero : ndarray, shape (G, 2), or None
         The jig's zero (along, across the bend, 1/m) added to every k̂ (docs/jig.md, "The jig's zero"): the
-        poses are zeroed against this jig's flat groove, whose curvature the calibration carries; None when not
+        poses are labelled by this jig's grooves, whose shortfall the calibration carries; None when not
         added (``jig_zero=False``, or a calibration without one). ``measured`` includes it.
     """
 
@@ -190,8 +190,8 @@ def validate(
         The summary covers |κ| ≥ this, 1/m.
     jig_zero : bool
         Add the jig's zero the calibration carries (``provenance['jig_zero_1_per_m']``) to every k̂, turned into
-        the sensor's frame by the pose's rotation: the poses' strain is taken against this jig's flat groove, which
-        holds the sensor slightly bent, and k̂ + zero is the absolute curvature the label states (docs/jig.md,
+        the sensor's frame by the pose's rotation: this jig's bent grooves hold the sensor less bent than their labels
+        by that much, so k̂ + zero is the curvature the label states (docs/jig.md,
         "The jig's zero"). False (default): k̂ is the change from each rotation's reference, as if that reference
         were straight. Only for poses zeroed in the jig the calibration was made in.
     """
