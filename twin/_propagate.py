@@ -256,8 +256,10 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
 def _sums(xs, vs, y, z, b):  # pragma: no cover (compiled)
     """Y[:, :, b] (upper triangle) = Σ_n X_n V_n X_nᵀ and Z[:, :, b] = Σ_n X_n S_n over the gratings, the last
     axis of ``xs`` (12, n_g) X_n (row r·2 + c) and ``vs`` (3 + 2 n_par, n_g) V_n (v00, v01, v11) and S_n (row
-    3 + q·2 + c). One loop along the gratings with the 21 sums of Y side by side (vector registers, one reduction
-    each at its end), then one per shared column with its six."""
+    3 + q·2 + c). One loop along the gratings with the 21 sums of Y side by side (in registers, one reduction
+    each at its end), then one per shared column with its six. The arithmetic is :func:`_accumulate`'s (there
+    per frame into rows of lanes, here into sums over the gratings): written out in both, since the compiler
+    vectorises each loop only when its body is straight-line code on its own operands."""
     n_g, n_par = xs.shape[1], z.shape[1]
     y00 = 0.0
     y01 = 0.0
