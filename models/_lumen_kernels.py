@@ -11,6 +11,7 @@ import numpy as np
 from numba import njit
 
 from models import _rod_kernels
+from twin import _jit_cache  # noqa: F401  (before the first cached kernel; see its docstring)
 
 
 @njit(cache=True, nogil=True)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 from numba import carray, njit
 
+from twin import _jit_cache  # noqa: F401  (before the first cached kernel; see its docstring)
 from twin._numba_entry import float64_at
 from twin.so3 import exp_entries, log_entries
 

@@ -39,6 +39,7 @@ from numba import carray, njit
 from models._rod_kernels import view_parts_in_call, view_read
 from models.rod_state import RodReader, RodView
 from sim_interrogator.optics import Optics, _apply_effects, _design_strain
+from twin import _jit_cache  # noqa: F401  (before the first cached kernel; see its docstring)
 from twin._numba_entry import addresses, compiled_entry, float64_at, int32_at, int64_at
 
 __all__ = ["FramePath", "frame_wavelengths", "grating_average"]

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+import twin._jit_cache  # noqa: F401  (before the first cached kernel; see its docstring)
 from twin import Calibration, FiberModel, PeakStatus, spun, strain
 from twin.calibration import nominal_delta_theta, scaled_core_angles
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from twin import _jit_cache  # noqa: F401  (before the first cached kernel; see its docstring)
 from twin._kernels import LANES, exp_curve, exp_lanes, exp_material, rk4_curve
 
 __all__ = ["integrate", "pack", "reconstruct"]

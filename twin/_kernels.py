@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from twin import _jit_cache  # noqa: F401  (before the first cached kernel; see its docstring)
 from twin.so3 import exp_coefficients
 
 _SQRT3_12 = np.sqrt(3.0) / 12.0

@@ -26,6 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
+from twin import _jit_cache  # noqa: F401  (before the first cached kernel; see its docstring)
+
 __all__ = ["covariance", "interpolation_kernel", "pack", "pattern_weights", "propagate"]
 
 _HEADER = 16

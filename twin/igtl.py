@@ -58,6 +58,7 @@ from typing import TYPE_CHECKING, TextIO
 import numba
 import numpy as np
 
+from twin import _jit_cache  # noqa: F401  (before the first cached kernel; see its docstring)
 from twin.frames import Frame, Shape, Truth
 
 if TYPE_CHECKING:  # pragma: no cover

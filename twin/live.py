@@ -68,6 +68,7 @@ from typing import Protocol, TextIO
 import numpy as np
 from numba import njit
 
+from twin import _jit_cache  # noqa: F401  (before the first cached kernel; see its docstring)
 from twin.frames import Frame, Shape
 from twin.io.errors import SourceFailed
 from twin.io.rate import RateMeter

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from twin import _jit_cache  # noqa: F401  (before the first cached kernel; see its docstring)
+
 __all__ = ["exp", "exp_coefficients", "exp_entries", "from_quaternion", "log", "log_entries", "to_quaternion"]
 
 # the Taylor series' divisors as reciprocals (numba reads module floats as constants)
