@@ -21,9 +21,10 @@ literal transcription (calibration ``lab`` unless ``--calibration`` says otherwi
   experimenter with the sheath's CAD model measures; it adds the clearance (≤ 0.17 mm) and corner cutting.
 
 The default pipeline's 95 % confidence tube (:mod:`twin.uncertainty`) is checked against the catheter, placed
-with the tracked base and no registration (:mod:`scenarios._common.coverage`; the model error fitted on the lab's
-identification shapes): ``coverage_95`` is the fraction of the catheter's points (s > 0, every frame) inside it,
-``mean_sigma_mm`` its mean 1σ lateral radius.
+in its own pose at s = 0 and no registration (:mod:`scenarios._common.coverage`; the model error fitted with the
+lab calibration on shapes it was not identified on, the sheath's twist added): ``coverage_95`` is the fraction of
+the catheter's points (s > 0, every frame) inside it, ``coverage_95_by_quarter`` the same per quarter of the
+length, ``mean_sigma_mm`` its mean 1σ lateral radius.
 
 Lost peaks are counted per frame and marked in the error plot. Frames are classed by the sharpest bend of the
 sheath under the sensed region: ``sharp`` (≥ 100 1/m: an 8 mm bend) and ``gentle`` (< 50 1/m).
@@ -205,7 +206,8 @@ class Result:
             "sharp_frames": int(self.sharp.sum()),
             "rod_curvature_at_lost_1_m": float(self.rod_curvature[lost].max()) if lost.any() else None,
             "max_bore_offset_mm": float(np.nanmax(self.bore) * 1e3) if np.isfinite(self.bore).any() else None,
-            **{k: self.uncertainty[k] for k in ("coverage_95", "mean_sigma_mm") if k in self.uncertainty},
+            **{k: self.uncertainty[k] for k in ("coverage_95", "coverage_95_by_quarter", "mean_sigma_mm")
+               if k in self.uncertainty},
         }
 
     def to_dict(self) -> dict:
@@ -301,9 +303,8 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
     for mode, shape in shapes.items():
         curvature[mode] = shape.curvature[pick]
         curvature[f"{mode}_valid"] = shape.valid[pick]
-    # the 95 % tube of every frame against the catheter, placed with the tracked base (no registration)
-    truth = coverage.truth_in_base(ser.truth_s, ser.truth_positions, ser.base_frames, ser.base_positions,
-                                   shapes["default"].s)
+    # the 95 % tube of every frame against the catheter, in its own pose at s = 0 (no registration)
+    truth = coverage.truth_at_base(ser.truth_s, ser.truth_positions, ser.base_frames, shapes["default"].s)
     tube = coverage.run_coverage(sim.fiber, sim.optics.config, used.calibration, shapes["default"], ser.wavelengths,
                                  truth, progress, twist=coverage.SHEATH_TWIST)
     result = Result(params, sim.describe(), t, max_e, mean_e, tip_e, sheath_e, analysed, ser.lost_peaks, lost_g,

@@ -26,7 +26,8 @@ no registration is needed or done):
 * ``shape_error_max_mm`` — the largest shape error against the rod over the run (Kabsch, the algorithm's error);
 * ``coverage_95``, ``mean_sigma_mm`` — the default pipeline's 95 % confidence tube against the rod (no
   registration; the white noise shrunk by the window's averaging; :mod:`scenarios._common.coverage`): the
-  fraction of the rod's points (s > 0, every window) inside it and its mean 1σ lateral radius.
+  fraction of the rod's points (s > 0, every window) inside it (``coverage_95_by_quarter``: per quarter of the
+  length) and its mean 1σ lateral radius.
 
 Calibration: ``true`` (default) reconstructs with the twin's true fibre parameters (as-built λ0 at the reference
 temperature, intrinsic twist, Δθ, g); ``lambda0`` with the as-built λ0 only (nominal Δθ, g, no twist);
@@ -223,7 +224,8 @@ class Result:
                "paper_pipeline_tip_variation_mm": tip_stats(r.tips["paper"])["variation"] * 1e3,
                "paper_literal_tip_variation_mm": tip_stats(r.tips["paper-literal"])["variation"] * 1e3,
                "temperature_change_k": float(r.bath_celsius[0] - r.bath_celsius[-1])}
-        out.update({k: r.uncertainty[k] for k in ("coverage_95", "mean_sigma_mm") if k in r.uncertainty})
+        out.update({k: r.uncertainty[k] for k in ("coverage_95", "coverage_95_by_quarter", "mean_sigma_mm")
+                    if k in r.uncertainty})
         out["predicted_mismatch_effect_mm"] = predicted_effect(r) * 1e3
         out["expected_mismatch_effect_mm"] = expected_effect(r) * 1e3
         effect = self.mismatch_effect(r)
@@ -331,9 +333,8 @@ def run_bath(params: Params, mismatch: float, fiber: FiberModel,
     truth = Truth(s=series.truth_s, positions=series.truth_positions[0], curvature=series.truth_curvature[0],
                   fixture=series.fixture)
     # the 95 % tube of each window against the rod at the window's middle frame, in the (fixed) base frame
-    tube = coverage.run_coverage(fiber, cfg, cal, shp["default"], w, coverage.truth_in_base(
-        series.truth_s, series.truth_positions[mid], series.base_frames[mid], series.base_positions[mid],
-        shp["default"].s), say, averaged=n_avg)
+    tube = coverage.run_coverage(fiber, cfg, cal, shp["default"], w, coverage.truth_at_base(
+        series.truth_s, series.truth_positions[mid], series.base_frames[mid], shp["default"].s), say, averaged=n_avg)
     return BathRun(mismatch=mismatch, s_t_deviation=s_t / nominal_s_t - 1.0, t=t,
                    bath_celsius=temp.mean(axis=1) + params.room_celsius, tips=tips, true_tip=true_tip,
                    shape_error=errors, curvature=curv, true_curvature=series.truth_curvature[0],

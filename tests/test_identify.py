@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from twin import Calibration, FiberModel, shapes, strain
+from twin import Calibration, FiberModel, Reconstructor, shapes, strain
 from twin.calibration import scaled_core_angles
 from twin.calibration.identify import Observation, identify, paper_cost, parameter_jacobian
 
@@ -100,3 +100,31 @@ def test_bad_observations_are_clear():
         identify(NOMINAL, [Observation(np.full((10, 4), 1550.0), np.zeros((3, 3)))])
     with pytest.raises(ValueError, match="formulation must be one of"):
         identify(NOMINAL, observations(["arc"]), formulation="max")
+
+
+@pytest.mark.slow
+def test_the_stated_uncertainty_is_the_spread_over_noise_seeds():
+    """Monte Carlo over 100 noise seeds where the true σ is known: the lab's six shapes, one frame of 1 pm noise
+    each, truths the true fibre's own noise-free reconstructions (no model error), so the identifications' spread
+    over seeds is their error. The stated 1σ (the larger of the least-squares value and the delete-one jackknife)
+    is that spread within −20 %/+25 % (100 draws pin a standard deviation to ≈ 7 %; measured +7 % for Δθ, −1 % for
+    g), and the least-squares value alone is not: it takes the residuals along a curve as independent, which the
+    integrated noise is not (12–14 times too small measured). The lab calibration's actual Δθ error of 0.18 mrad
+    against 8.4 stated is one lucky set of fixtures, not this (docs/math.md §8.4)."""
+    names = ["arc", "s-curve", "hook", "helix", "rotating-bend", "two-plane"]
+    s = np.linspace(0, 0.17, 86)
+    clean = {n: strain.forward(TRUE, shapes.get(n).curvature(NOMINAL.grating_s)) for n in names}
+    rec = Reconstructor(NOMINAL, Calibration(delta_theta=1.039, gain=G_TRUE))
+    truth = {n: rec(clean[n]).positions_at(s) for n in names}
+    est, stated, lsq = [], [], []
+    for seed in range(100):
+        rng = np.random.default_rng(seed)
+        res = identify(NOMINAL, [Observation(clean[n] + rng.normal(scale=1e-3, size=clean[n].shape), truth[n], s, n)
+                                 for n in names])
+        est.append([res.delta_theta, res.gain])
+        stated.append([res.delta_theta_std, res.gain_std])
+        lsq.append(np.sqrt(np.diag(res.covariance)))
+    spread = np.std(est, axis=0, ddof=1)
+    ratio = np.sqrt(np.mean(np.square(stated), axis=0)) / spread
+    assert np.all((ratio > 0.8) & (ratio < 1.25)), ratio
+    assert np.all(np.sqrt(np.mean(np.square(lsq), axis=0)) < 0.2 * spread)

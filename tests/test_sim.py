@@ -331,7 +331,7 @@ def test_static_shapes_regression(optics):
     assert {r["shape"] for r in d["shapes"]} == set(params.shapes)
     assert set(d["summary"]) == {"max_error_mm", "mean_error_mm", "paper_max_error_mm", "paper_mean_error_mm",
                                  "paper_literal_max_error_mm", "paper_literal_mean_error_mm", "coverage_95",
-                                 "mean_sigma_mm"}
+                                 "coverage_95_by_quarter", "mean_sigma_mm"}
     # the confidence tube (docs/math.md §8.4): its model error fitted on the other fold's two shapes, so the
     # coverage of four shapes is coarse; a tube of tens of micrometres around an error of that size
     assert 0.8 <= s["coverage_95"] <= 1.0 and 0.0 < s["mean_sigma_mm"] < 0.5
