@@ -36,7 +36,7 @@ import mujoco
 import numpy as np
 from numba import carray, njit
 
-from models._rod_kernels import view_parts, view_read
+from models._rod_kernels import view_parts_in_call, view_read
 from models.rod_state import RodReader, RodView
 from sim_interrogator.optics import Optics, _apply_effects, _design_strain
 from twin._numba_entry import addresses, compiled_entry, float64_at, int32_at, int64_at
@@ -62,12 +62,9 @@ def _size(n_v: int, n_g: int, n_c: int) -> int:
     return N_SCALARS + n_v * n_g + 6 * n_g * n_c + n_c + 1 + 6 * n_g
 
 
-@njit(cache=True, nogil=True)
-def _parts(buffer, n_v, n_g, n_c):
-    """The parts of :class:`FramePath`'s buffer. Constants: the scalars, the grating average transposed (n_v,
-    n_g), the design matrix (n_g, n_c, 3), S_T (n_c,), λ0 and the nominal λ0 (n_g, n_c). Work: the rod read the
-    average is of (1,), axial strain and temperature change (1, n_g), the average's κ1 and κ2 (n_g,), (k_x, k_y)
-    (1, n_g, 2), the strain (1, n_g, n_c)."""
+@njit(cache=True, nogil=True, inline="always")
+def _offsets(n_v, n_g, n_c):
+    """Where the constants of :class:`FramePath`'s buffer end and its work begins (:func:`_parts`)."""
     m = n_g * n_c
     a = N_SCALARS
     b = a + n_v * n_g
@@ -75,13 +72,36 @@ def _parts(buffer, n_v, n_g, n_c):
     d = c + n_c
     e = d + m
     f = e + m
-    g = f + 1
+    return a, b, c, d, e, f, f + 1
+
+
+@njit(cache=True, nogil=True)
+def _parts(buffer, n_v, n_g, n_c):
+    """The parts of :class:`FramePath`'s buffer. Constants: the scalars, the grating average transposed (n_v,
+    n_g), the design matrix (n_g, n_c, 3), S_T (n_c,), λ0 and the nominal λ0 (n_g, n_c). Work: the rod read the
+    average is of (1,), axial strain and temperature change (1, n_g), the average's κ1 and κ2 (n_g,), (k_x, k_y)
+    (1, n_g, 2), the strain (1, n_g, n_c)."""
+    a, b, c, d, e, f, g = _offsets(n_v, n_g, n_c)
     return (buffer[:a], buffer[a:b].reshape((n_v, n_g)), buffer[b:c].reshape((n_g, n_c, 3)), buffer[c:d],
             buffer[d:e].reshape((n_g, n_c)), buffer[e:f].reshape((n_g, n_c)), buffer[f:g],
             buffer[g : g + n_g].reshape((1, n_g)), buffer[g + n_g : g + 2 * n_g].reshape((1, n_g)),
             buffer[g + 2 * n_g : g + 3 * n_g], buffer[g + 3 * n_g : g + 4 * n_g],
             buffer[g + 4 * n_g : g + 6 * n_g].reshape((1, n_g, 2)),
-            buffer[g + 6 * n_g : g + 6 * n_g + m].reshape((1, n_g, n_c)))
+            buffer[g + 6 * n_g : g + 6 * n_g + n_g * n_c].reshape((1, n_g, n_c)))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _parts_at(p, n_v, n_g, n_c):
+    """:func:`_parts` as views made from the buffer's address ``p``, inside one compiled call (numba's slicing and
+    reshaping check each part, ≈ 30–50 ns a part a call)."""
+    a, b, c, d, e, f, g = _offsets(n_v, n_g, n_c)
+    return (carray(float64_at(p), a), carray(float64_at(p + 8 * a), (n_v, n_g)),
+            carray(float64_at(p + 8 * b), (n_g, n_c, 3)), carray(float64_at(p + 8 * c), n_c),
+            carray(float64_at(p + 8 * d), (n_g, n_c)), carray(float64_at(p + 8 * e), (n_g, n_c)),
+            carray(float64_at(p + 8 * f), 1), carray(float64_at(p + 8 * g), (1, n_g)),
+            carray(float64_at(p + 8 * (g + n_g)), (1, n_g)), carray(float64_at(p + 8 * (g + 2 * n_g)), n_g),
+            carray(float64_at(p + 8 * (g + 3 * n_g)), n_g), carray(float64_at(p + 8 * (g + 4 * n_g)), (1, n_g, 2)),
+            carray(float64_at(p + 8 * (g + 6 * n_g)), (1, n_g, n_c)))
 
 
 @njit(cache=True, nogil=True)
@@ -116,20 +136,19 @@ def frame_wavelengths(fixed, have_frames, roll, axial_value, temp_value, drift_s
     site_row = carray(float64_at(fixed[3]), sizes[3])
     tree_asleep = carray(int32_at(fixed[4]), sizes[4])
     rod_buffer = carray(float64_at(fixed[5]), sizes[5])
-    buffer = carray(float64_at(fixed[6]), sizes[6])
     order = carray(int64_at(fixed[7]), (n_g, n_c))
     drift = carray(float64_at(fixed[8]), (n_g, n_c))
     ne = plastic.size // 6
     n_v = ne - 1
     (scalars, average_t, design, s_t, lam0, lam0_nominal, averaged, axial, temp, k1, k2, curvature,
-     strain) = _parts(buffer, n_v, n_g, n_c)
+     strain) = _parts_at(fixed[6], n_v, n_g, n_c)
     if axial_value == axial_value:  # a number for every grating (NaN: ``axial`` holds them already)
         axial[0, :] = axial_value
     if temp_value == temp_value:
         temp[0, :] = temp_value
     if not have_frames and view_read(x, plastic, qpos, site_row, tree_asleep, rod_buffer) < 0:
         return False
-    darboux = view_parts(rod_buffer, ne)[5]
+    darboux = view_parts_in_call(rod_buffer, ne)[5]
     read = rod_buffer[1]  # the view's count of fresh reads: the average is of the read it names
     if averaged[0] != read:
         # (κ1, κ2) averaged over each grating: average_t is the matrix transposed, (n_interior, n_gratings), so

@@ -22,6 +22,7 @@ from sim_interrogator.servers import FispecServer, HyperionServer, IllumisenseSe
 from twin import Reconstructor, strain
 from twin.frames import PeakStatus
 from twin.io import hyperion, open_source
+from twin.io.errors import SourceFailed
 from twin.io.hyperion.driver import HyperionSource, assign_peaks
 from twin.io.illumisense.driver import IllumisenseSource
 from twin.io.source import SourceClosed
@@ -162,7 +163,8 @@ def test_illumisense_open_errors_name_the_url():
     src = open_source(f"illumisense://127.0.0.1:{port}?wait=1&retry_for=0.3")
     assert src.read(0.1) is None
     assert src.stats()["connect_failures"] >= 1 and src.stats()["state"] == "disconnected"
-    with pytest.raises(SourceClosed, match="no connection"):
+    with pytest.raises(SourceFailed, match=rf"^illumisense://127.0.0.1:{port}\?wait=1&retry_for=0.3: no connection "
+                       r"for 0.3 s \(cannot connect to .*refused\)$"):  # the URL once
         for _ in range(100):
             src.read(0.1)
     with pytest.raises(ValueError, match="unknown option"):

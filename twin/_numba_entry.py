@@ -49,7 +49,9 @@ def _pointer_to(item):
     @intrinsic
     def at(typingctx, address):
         """A pointer to ``item`` at the integer ``address`` (for :func:`numba.carray`)."""
-        sig = types.CPointer(item)(types.int64)
+        if not isinstance(address, types.Integer):
+            return None
+        sig = types.CPointer(item)(address)
 
         def codegen(context, builder, signature, args):
             return builder.inttoptr(args[0], context.get_value_type(signature.return_type))

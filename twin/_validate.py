@@ -113,6 +113,21 @@ def check_field_types(data, kinds: dict[str, str], where: str = "") -> None:
     for field, kind in kinds.items():
         if field in data and data[field] is not None and not tests[kind](data[field]):
             raise ValueError(f"{where}{field}: expected {names[kind]}, got {_toml_kind(data[field])}")
+        if field in data and kind != "integer" and (big := _beyond_float(data[field])) is not None:
+            raise ValueError(f"{where}{field}: {'-' if big < 0 else ''}an integer of {len(str(abs(big)))} digits is "
+                             "beyond any float (±1.8e308)")
+
+
+def _beyond_float(value) -> int | None:
+    """The first Python int in ``value`` (a number or nested lists of them) that float64 cannot hold, or None
+    (TOML integers are unbounded; converting one raises OverflowError, not the ValueError the readers report)."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value if abs(value) >= 1 << 1024 else None
+    if isinstance(value, list | tuple):
+        for v in value:
+            if (big := _beyond_float(v)) is not None:
+                return big
+    return None
 
 
 def check_table(data, cls, what: str, where: str = "") -> None:

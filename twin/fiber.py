@@ -356,6 +356,10 @@ def read_toml(path: Path, what: str) -> dict:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not valid TOML ({exc})") from None
+    except ValueError as exc:  # an integer of more digits than Python converts (4300): its first sentence
+        raise ValueError(f"{path}: not valid TOML ({str(exc).split(':')[0]})") from None
+    except RecursionError:  # arrays or tables nested thousands deep: tomllib reads them recursively
+        raise ValueError(f"{path}: not valid TOML (arrays or tables nested too deeply)") from None
 
 
 #: Largest accepted |spin rate|, turns/m: a 1 mm pitch, far tighter than any drawn spun fibre (≈ 6–50 mm).

@@ -65,6 +65,9 @@ class FoxgloveServer:
         The public address (port 0: any free port; :attr:`address` says which).
     max_clients : int
         Most clients connected at once.
+    handshake_timeout : float
+        s a client has to send its whole HTTP request (a client trickling it byte by byte is dropped then, not
+        kept holding one of the ``max_clients`` places).
     backlog : int
         Most messages queued per client by the SDK.
     name : str
@@ -79,11 +82,12 @@ class FoxgloveServer:
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8765, *, max_clients: int = 4, backlog: int = 64,
-                 name: str = "catheter-twin"):
+                 name: str = "catheter-twin", handshake_timeout: float = 5.0):
         foxglove = require("foxglove", "Foxglove")
         if max_clients < 1:
             raise ValueError(f"FoxgloveServer: max_clients must be at least 1, got {max_clients}")
         self.max_clients = int(max_clients)
+        self.handshake_timeout = float(handshake_timeout)
         self.context = foxglove.Context()
         self._sdk = foxglove.start_server(name=name, host="127.0.0.1", port=0, context=self.context,
                                           message_backlog_size=int(backlog))
@@ -123,7 +127,6 @@ class FoxgloveServer:
             if full:
                 threading.Thread(target=_refuse, args=(conn,), name="foxglove-refuse", daemon=True).start()
                 continue
-            conn.settimeout(5.0)  # the handshake's deadline; the relay then blocks
             with self._lock:
                 self._pairs.append((conn,))
                 self.clients_seen += 1
@@ -134,7 +137,8 @@ class FoxgloveServer:
         then relay both ways."""
         pair: tuple = (conn,)
         try:
-            head, rest = _read_head(conn)
+            head, rest = _read_head(conn, self.handshake_timeout)
+            conn.settimeout(self.handshake_timeout)  # the rest of the handshake; the relay then blocks
             if not self._admitted(head):
                 with self._lock:
                     self.clients_forbidden += 1
@@ -204,12 +208,18 @@ SPEC_SUBPROTOCOL, SDK_SUBPROTOCOL = "foxglove.websocket.v1", "foxglove.sdk.v1"
 _HEAD_MAX = 16384
 
 
-def _read_head(sock: socket.socket) -> tuple[bytes, bytes]:
-    """An HTTP head (up to the blank line) and whatever came after it."""
+def _read_head(sock: socket.socket, timeout: float) -> tuple[bytes, bytes]:
+    """An HTTP head (up to the blank line) and whatever came after it, all within ``timeout`` s (a deadline for
+    the whole head, not for each read: a peer sending a byte now and then would otherwise hold on for hours)."""
+    deadline = time.monotonic() + timeout
     buf = b""
     while b"\r\n\r\n" not in buf:
         if len(buf) > _HEAD_MAX:
             raise ValueError("HTTP head too long")
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise ValueError(f"HTTP head not complete within {timeout:g} s")
+        sock.settimeout(left)
         chunk = sock.recv(4096)
         if not chunk:
             raise ValueError("connection closed during the handshake")
@@ -254,7 +264,7 @@ def _handshake(head: bytes, rest: bytes, client: socket.socket, server: socket.s
     answers to its own name for the same protocol; the accept key does not depend on the subprotocol)."""
     head, asked_spec = _swap_protocol(head, SPEC_SUBPROTOCOL, SDK_SUBPROTOCOL)
     server.sendall(head + rest)
-    reply, rest = _read_head(server)
+    reply, rest = _read_head(server, 5.0)
     if asked_spec:
         reply, _ = _swap_protocol(reply, SDK_SUBPROTOCOL, SPEC_SUBPROTOCOL)
     client.sendall(reply + rest)
@@ -264,9 +274,9 @@ def _refuse(conn: socket.socket) -> None:
     """Answer a client over the cap with HTTP 503 after its request (a reply before it, or a close with its
     request unread, can reach the client as a reset instead of the answer); at most 2 s in all."""
     try:
-        conn.settimeout(1.0)
         with contextlib.suppress(OSError, ValueError):
-            _read_head(conn)
+            _read_head(conn, 1.0)
+        conn.settimeout(1.0)
         conn.sendall(_REFUSE)
         conn.shutdown(socket.SHUT_WR)
         while conn.recv(4096):  # until the client closes (or the timeout)

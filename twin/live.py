@@ -518,9 +518,10 @@ class LiveLoop:
         self.c.frames_rejected += n
         if not self._matched_any:
             shape = self._shape
+            url = getattr(self.source, "url", "")  # the place: which source sent them
             raise ValueError(
-                f"frames have {bad[0]} gratings × {bad[1]} cores but the fibre model has {shape[0]} × "
-                f"{shape[1]}; give the sensor's fibre model (--fiber FILE)"
+                f"{url + ': ' if url else ''}frames have {bad[0]} gratings × {bad[1]} cores but the fibre model has "
+                f"{shape[0]} × {shape[1]}; give the sensor's fibre model (--fiber FILE)"
             )
 
     # ---------------------------------------------------------------- status

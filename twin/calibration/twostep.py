@@ -44,6 +44,8 @@ FIELD_KINDS = {
     "gain_std": "number",
     "design": "matrices",
     "provenance": "table",
+    "spin_rate": "number",
+    "spin_rate_std": "number",
 }
 #: resolution λ0 is stored at, nm (see :func:`two_step`)
 LAMBDA0_RESOLUTION_DECIMALS = 9

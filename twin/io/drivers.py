@@ -14,7 +14,8 @@ Common behaviour
 - **Reconnect policy**: after a connection drops (peer closed, reset, device gone, a protocol error that cannot
   be resynchronised), the first new attempt is immediate, then the delay doubles from 0.1 s up to 5 s
   (:class:`~twin.io.transport.Backoff`), and is reset once frames flow again. Retries go on forever unless
-  ``retry_for=SECONDS`` is given, after which :meth:`read` raises :class:`~twin.io.source.SourceClosed`.
+  ``retry_for=SECONDS`` is given, after which :meth:`read` raises :class:`~twin.io.errors.SourceFailed` (the
+  live loop ends with that line and a non-zero status: giving up is not an end of the data).
   :meth:`read` never blocks longer than its timeout while disconnected; it returns None.
 - **Counters** in :meth:`stats`: ``state`` (connected / disconnected / closed), ``frames``, ``framing_errors``,
   ``lost_samples`` and ``sequence_gaps`` (from the source's sample numbers), ``disconnects``, ``reconnects``
@@ -36,7 +37,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from twin.frames import Frame, PeakStatus
-from twin.io.errors import FramingError
+from twin.io.errors import FramingError, SourceFailed
 from twin.io.options import Option
 from twin.io.source import MAX_BATCH, Source, SourceClosed
 from twin.io.transport import Backoff, ConnectionLost
@@ -60,7 +61,7 @@ class Driver(Source):
     wait : bool
         Do not fail when the first connection attempt fails; keep retrying.
     retry_for : float or None
-        Give up (SourceClosed) after this many seconds without a connection; None retries forever.
+        Give up (SourceFailed) after this many seconds without a connection; None retries forever.
     backoff : Backoff, optional
         Reconnect delays.
     start_wait : float or None
@@ -206,7 +207,8 @@ class Driver(Source):
             if not self._connected:
                 if self.retry_for is not None and self._down_since is not None \
                         and now - self._down_since > self.retry_for:
-                    raise SourceClosed(f"{self.url}: no connection for {self.retry_for:g} s ({self.last_error})")
+                    why = self.last_error.removeprefix(f"{self.url}: ")
+                    raise SourceFailed(f"{self.url}: no connection for {self.retry_for:g} s ({why})")
                 if now < self._next_attempt:
                     pause = self._next_attempt - now
                     time.sleep(pause if remaining is None else min(pause, remaining))

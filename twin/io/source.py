@@ -153,7 +153,12 @@ def parse_url(url: str) -> tuple[str, str, dict[str, str]]:
     if not parts.scheme:
         raise ValueError(f"{url!r}: a source URL starts with a scheme: {', '.join(s + '://' for s in schemes())}")
     rest = url.split("://", 1)[1].split("?", 1)[0] if "://" in url else parts.path
-    return parts.scheme, rest, dict(parse_qsl(parts.query, keep_blank_values=True))
+    pairs = parse_qsl(parts.query, keep_blank_values=True)
+    query = dict(pairs)
+    if len(query) < len(pairs):  # the last one would win unsaid: say which is meant
+        twice = next(k for i, (k, _) in enumerate(pairs) if k in dict(pairs[:i]))
+        raise ValueError(f"{url!r}: option {twice!r} given more than once")
+    return parts.scheme, rest, query
 
 
 def open_source(url: str, **options) -> Source:

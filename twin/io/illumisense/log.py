@@ -2,8 +2,10 @@
 
 Nobody publishes a log format; loggers write each record's payload (the text after the 4-byte length prefix)
 as one line, so a line is read exactly as a payload (docs/protocols-illumisense.md): date, time, sample
-number, channel blocks, optional sensor blocks, any line ending. All lines are tokenized and decoded in one pass
-into arrays (one batch per layout; no object per record).
+number, channel blocks, optional sensor blocks, any line ending. The lines are found in one compiled pass and
+decoded a block of lines at a time into arrays (one batch per layout; no object per record), so what reading
+takes beyond the file and its frames is bounded by a block, and a file of junk is refused after its header
+lines without the rest being decoded.
 
 - Lines end in LF, CR LF or CR alone, in any mixture; a UTF-8 byte-order mark before the first line is skipped.
   A last line without a line end was cut (the writer was stopped mid-line): it is left out, since its last
@@ -28,6 +30,7 @@ from typing import NamedTuple
 import numpy as np
 
 from twin.frames import VENDOR_SHAPE_SPACING, VendorArrays
+from twin.io.illumisense import scan as _scan
 from twin.io.illumisense.codec import _decode_groups
 from twin.io.illumisense.stream import LayoutConsensus
 
@@ -61,43 +64,44 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
     path = Path(path)
     data = path.read_bytes()
     # a UTF-8 byte-order mark (editors on Windows) is not part of the first line
-    ends, starts, pos = [], [], 3 if data.startswith(b"\xef\xbb\xbf") else 0
-    # lines end in LF, CR LF or CR alone (old tools), in any mixture (a header may end otherwise than the records)
-    for line in data[pos:].splitlines(keepends=True):
-        starts.append(pos)
-        ends.append(pos + len(line.rstrip(b"\r\n")))
-        pos += len(line)
-    keep = [i for i, (a, b) in enumerate(zip(starts, ends, strict=True)) if data[a:b].strip()]
-    if keep and keep[-1] == len(starts) - 1 and data[-1:] not in (b"\n", b"\r"):
-        keep.pop()  # a last line without its line end was cut: its last number may be cut short (the reader says so)
+    starts, ends, number = _scan.lines(np.frombuffer(data, np.uint8), 3 if data.startswith(b"\xef\xbb\xbf") else 0)
     kw = {"channels_as": channels_as, "n_cores": n_cores}
-    # every line decoded at once into arrays, one group per layout (no Frame per record)
-    res, groups, gid, gidx = _decode_groups(data, [starts[i] for i in keep], [ends[i] for i in keep], **kw)
-    # lines that failed and hold a decimal comma: retried with commas read as points, all at once
-    retry = [k for k in np.flatnonzero(gid < 0).tolist() if b"," in data[starts[keep[k]] : ends[keep[k]]]]
-    if retry:
-        lines = [data[starts[keep[k]] : ends[keep[k]]].replace(b",", b".") for k in retry]
-        lens = np.array([len(x) for x in lines], np.int64)
-        s2 = np.concatenate([[0], np.cumsum(lens + 1)[:-1]])
-        _, more, gid2, gidx2 = _decode_groups(b"\n".join(lines), s2, s2 + lens, **kw)
-        ok = gid2 >= 0
-        gid[np.array(retry)[ok]] = gid2[ok] + len(groups)
-        gidx[np.array(retry)[ok]] = gidx2[ok]
-        groups = groups + more
+    layouts: list = []  # the layouts learned, shared by the blocks (later blocks read on the one-pass path)
+    groups: list = []
     errors: list[str] = []
     decoded: list[_Row] = []
     header = 0
-    for k, i in enumerate(keep):
-        if gid[k] < 0:
-            if not decoded:
-                header += 1
-                if header > max_header_lines:
-                    break
+    # decoded a block of lines at a time into arrays, one group per layout (no Frame per record): what a block
+    # needs (tokens, a refusal per bad line) is bounded by the block, not by the file
+    for b0 in range(0, starts.size, _BLOCK_LINES):
+        s, e = starts[b0 : b0 + _BLOCK_LINES], ends[b0 : b0 + _BLOCK_LINES]
+        res, more, gid, gidx = _decode_groups(data, s, e, layouts=layouts, **kw)
+        gid = np.where(gid >= 0, gid + len(groups), gid)
+        groups += more
+        # lines that failed and hold a decimal comma: retried with commas read as points, all at once
+        retry = [k for k in np.flatnonzero(gid < 0).tolist() if b"," in data[s[k] : e[k]]]
+        if retry:
+            lines = [data[s[k] : e[k]].replace(b",", b".") for k in retry]
+            lens = np.array([len(x) for x in lines], np.int64)
+            s2 = np.concatenate([[0], np.cumsum(lens + 1)[:-1]])
+            _, more, gid2, gidx2 = _decode_groups(b"\n".join(lines), s2, s2 + lens, **kw)
+            ok = gid2 >= 0
+            gid[np.array(retry)[ok]] = gid2[ok] + len(groups)
+            gidx[np.array(retry)[ok]] = gidx2[ok]
+            groups += more
+        for k, line in enumerate(number[b0 : b0 + _BLOCK_LINES].tolist()):
+            if gid[k] < 0:
+                if not decoded:
+                    header += 1
+                    if header > max_header_lines:
+                        break
+                    continue
+                errors.append(f"line {line}: {res[k]}")
                 continue
-            errors.append(f"line {i + 1}: {res[k]}")
-            continue
-        g = int(gid[k])
-        decoded.append(_Row(groups[g].lay.key, i + 1, g, int(gidx[k])))
+            g = int(gid[k])
+            decoded.append(_Row(groups[g].lay.key, line, g, int(gidx[k])))
+        if header > max_header_lines:
+            break
     consensus = LayoutConsensus(quorum, window, relearn=False)
     kept: list[_Row] = []
     for r in decoded:
@@ -115,6 +119,10 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
     errors.sort(key=lambda e: int(e.split(":", 1)[0].split()[1]))
     kept.sort(key=lambda r: r.line)
     return _arrays(kept, groups, errors, consensus.odd)
+
+
+#: lines decoded at once: bounds the tokenizer's arrays and the refusals held, whatever the file's size
+_BLOCK_LINES = 1 << 12
 
 
 class _Row(NamedTuple):

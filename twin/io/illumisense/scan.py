@@ -20,6 +20,10 @@ A record is ASCII text: fields separated by TAB. Converting ~300 decimal fields 
 :func:`parse_layout` is the stream's common case in one pass: records of a layout already known are read
 straight into the token values and the Frame arrays (:func:`channels`), each field checked against what its
 place in the layout requires, without the tokenizer's arrays; what it does not read goes through :func:`scan`.
+
+The framing passes live here too, so that no byte of a hostile input costs a Python step: :func:`spans` (the
+records of a stream in sync), :func:`hunt` (the next possible record after an error) and :func:`lines` (the
+lines of a text log).
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["DEC", "EMPTY", "INT", "ROLE_ANY", "ROLE_FIXED", "ROLE_INT", "ROLE_LABEL", "ROLE_NUMBER", "SLOW", "TEXT",
-           "TIME_SLOW", "channels", "match_layout", "parse_layout", "scan", "spans"]
+           "TIME_SLOW", "channels", "hunt", "lines", "match_layout", "parse_layout", "scan", "spans"]
 
 INT = 0  #: optional sign and 1–15 digits: value exact
 DEC = 1  #: decimal number on the exact fast path
@@ -613,6 +617,104 @@ def spans(buf: np.ndarray, p: int, min_payload: int, max_payload: int) -> tuple[
         Offset of each record's prefix and end of its payload; they stop at the first bad or incomplete one.
     """
     return _spans(buf, int(p), int(min_payload), int(max_payload))
+
+
+@njit(cache=True)
+def _lines(buf, pos):
+    n = buf.size
+    m = 0  # lines: every line end, and a last line without one
+    i = pos
+    while i < n:
+        c = buf[i]
+        if c == 10 or c == 13:
+            m += 1
+            if c == 13 and i + 1 < n and buf[i + 1] == 10:
+                i += 1
+        i += 1
+    starts = np.empty(m + 1, np.int64)
+    ends = np.empty(m + 1, np.int64)
+    number = np.empty(m + 1, np.int64)
+    k = 0
+    line = 0
+    a = pos
+    filled = False
+    i = pos
+    while i <= n:
+        c = buf[i] if i < n else 10
+        if c == 10 or c == 13:
+            if i == n and a == n:
+                break  # the data ended with a line end
+            line += 1
+            if filled and i < n:  # a last line without its line end (i == n) was cut: left out
+                starts[k] = a
+                ends[k] = i
+                number[k] = line
+                k += 1
+            if c == 13 and i + 1 < n and buf[i + 1] == 10:
+                i += 1
+            a = i + 1
+            filled = False
+        elif not (c == 32 or c == 9 or c == 11 or c == 12):
+            filled = True
+        i += 1
+    return starts[:k], ends[:k], number[:k]
+
+
+def lines(buf: np.ndarray, pos: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lines of a text log from offset ``pos`` on, in one compiled pass (no bytes object per line).
+
+    Lines end in LF, CR LF or CR alone, in any mixture. Lines holding only white space are left out, and so is
+    a last line without its line end (the writer was stopped mid-line: its last number may be cut short).
+
+    Returns
+    -------
+    starts, ends : ndarray of int64 (k,)
+        Each line's bounds in ``buf``, the line end excluded.
+    number : ndarray of int64 (k,)
+        Its 1-based line number (blank lines counted).
+    """
+    return _lines(buf, int(pos))
+
+
+@njit(cache=True)
+def _hunt(buf, p, min_payload, max_payload, checked):
+    n = buf.size
+    p0 = p
+    while p < n:
+        if buf[p] == 0:
+            if n - p < 4:
+                return p
+            length = (np.int64(buf[p + 1]) << 16) | (np.int64(buf[p + 2]) << 8) | np.int64(buf[p + 3])
+            if min_payload <= length <= max_payload:
+                hi = min(p + 4 + length - 1, n)  # the last payload byte may be the LF
+                i = p + 4 + (checked if p == p0 else 0)
+                while i < hi and buf[i] != 0 and buf[i] != 10:
+                    i += 1
+                if i == hi:
+                    return p
+        p += 1
+    return n
+
+
+def hunt(buf: np.ndarray, p: int, min_payload: int, max_payload: int, checked: int = 0) -> int:
+    """Where a resynchronising stream decoder looks next: the first offset from ``p`` on holding a NUL that could
+    start a record — a 4-byte prefix in ``[min_payload, max_payload]`` whose payload bytes received so far hold no
+    NUL and no LF before its last byte — or a NUL in the last 3 bytes (its prefix is not complete yet); ``buf.size``
+    when there is none. Every offset skipped is one the decoder's own checks would reject one at a time (a flood of
+    NUL bytes would cost a Python step each); the candidate returned is still decided by them.
+
+    Parameters
+    ----------
+    buf : ndarray of uint8
+    p : int
+        Offset to start from.
+    min_payload, max_payload : int
+        Accepted payload lengths, bytes (``max_payload`` below 16 MiB: the prefix's first byte is NUL).
+    checked : int
+        Payload bytes of a candidate at ``p`` already found clean (a decoder waiting for the rest of one does not
+        scan what it has scanned).
+    """
+    return int(_hunt(buf, int(p), int(min_payload), int(max_payload), int(checked)))
 
 
 @njit(cache=True)

@@ -3,11 +3,12 @@
 importable from :mod:`twin.io.illumisense`; records are decoded by :mod:`twin.io.illumisense.codec`.
 
 Framing: the payload is printable text with no NUL and no LF before its end, and the length prefix of any payload
-under 16 MiB starts with a NUL byte. After an error the decoder hunts: it skips to the next NUL byte, reads a
-candidate length, rejects it at once when it is out of bounds or when the bytes already received for it hold a NUL
-or an early LF, and accepts it only when the payload decodes. In sync, a record still waiting for the rest of its
-payload is checked the same way as its bytes arrive, so a corrupted prefix that is still in bounds does not make
-the decoder wait for bytes the later prefixes prove wrong. Every loss of sync counts once in
+under 16 MiB starts with a NUL byte. After an error the decoder hunts: it skips to the next NUL byte that could
+start a record (one compiled pass, :func:`~twin.io.illumisense.scan.hunt`, so a flood of NUL bytes costs no Python
+step a byte), reads a candidate length, rejects it at once when it is out of bounds or when the bytes already
+received for it hold a NUL or an early LF, and accepts it only when the payload decodes. In sync, a record still
+waiting for the rest of its payload is checked the same way as its bytes arrive, so a corrupted prefix that is still
+in bounds does not make the decoder wait for bytes the later prefixes prove wrong. Every loss of sync counts once in
 :attr:`StreamDecoder.framing_errors`; skipped bytes in ``bytes_discarded``. The channel layout is learned from a
 consensus (:class:`LayoutConsensus`), not from the first record alone: records of another layout are counted in
 ``odd_records`` and dropped, and a new layout that persists is re-learned.
@@ -363,11 +364,13 @@ class StreamDecoder:
         p = self._pos
         while True:
             if self._hunting and not spans:
-                q = buf.find(b"\x00", p)
-                if q < 0:
-                    self.bytes_discarded += len(buf) - p
-                    self._pos = len(buf)
-                    return spans
+                # straight to the next candidate the checks below could accept (compiled: a flood of NUL bytes
+                # or of bad prefixes would otherwise cost a Python step a byte)
+                view = np.frombuffer(buf, np.uint8)
+                q = _scan.hunt(view, p, MIN_PAYLOAD, self.max_payload, self._scanned)
+                del view  # a live view would forbid resizing the bytearray
+                if q != p:  # the candidate waited for (if any) is rejected: what was scanned of it is not ours
+                    self._scanned = 0
                 self.bytes_discarded += q - p
                 self._pos = p = q
             if len(buf) - p < 4:
