@@ -53,9 +53,9 @@ def check(out: np.ndarray, ref: np.ndarray):
 
 @pytest.mark.parametrize("n", [1, LANES - 1, LANES, LANES + 1, 35])
 def test_complete_frames_on_lanes_equal_one_frame_at_a_time(n):
-    """Batches of 1, 7, 8, 9 and 35 complete frames (a missing peak in some: the lanes take any peak pattern):
-    the lanes' covariance equals the one-frame route's to 1e-12 of the largest element, lanes left empty in the
-    last block included."""
+    """Batches of 1, LANES − 1, LANES, LANES + 1 and 35 complete frames (a missing peak in some: the lanes take any
+    peak pattern): the lanes' covariance equals the one-frame route's to 1e-12 of the largest element, lanes left
+    empty in the last block included."""
     unc = uncertainty()
     w = wavelengths(n, seed=n)
     w[::4, 5, 2] = np.nan  # a missing peak: the grating still solved, from three cores

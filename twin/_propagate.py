@@ -5,18 +5,23 @@ Per frame it evaluates, at the interpolant's breakpoints (the base, the gratings
 piece's middle point, the running integrals X_n = (Φ_n, Ψ_n) (6 × 2 per grating: the integrals of B_n R E and
 B_n (R E) × p) by the 3-point rule on each piece, then Y = Σ_n X_n V_n X_nᵀ + Z Zᵀ (6 × 6), C = A Y Aᵀ and
 C' = A' Y Aᵀ + A Y A'ᵀ, and fills C in between by cubic Hermite interpolation (t⁴(a + b t + c t²) on the first
-piece). Every array it loops over keeps the breakpoints along its last axis, so the work per grating is a
-handful of element-wise loops over ~20 breakpoints that the compiler turns into vector instructions: no
-reduction across lanes, nothing allocated per frame.
+piece). One frame (:func:`_frame`) keeps the breakpoints along the last axis of every array, so the work per
+grating is a handful of element-wise loops over ~20 breakpoints that the compiler turns into vector
+instructions; a batch's complete frames go LANES at a time (:func:`_lanes_block`) with the frames along the
+last axis, breakpoint by breakpoint. No reduction across lanes, nothing allocated per frame.
 
 :func:`propagate` also forms the per-grating covariance itself (the noise of the inversion for the frame's peak
 pattern, looked up in a table of every pattern; the model error's white and interpolation parts; the
-calibration parameters' columns ∂k/∂p σ_p), so that one call does all of :meth:`Uncertainty.propagate`.
+calibration parameters' columns ∂k/∂p σ_p), so that one call does all of :meth:`Uncertainty.propagate`; for a
+frame with every grating valid the interpolation term's divided differences are one precomputed weighted sum per
+grating (:func:`_stencils`).
 Constants travel as one flat array made by :func:`pack`, the interpolation weights of each pattern of valid
 gratings as one row of ``bases`` (:func:`pattern_weights`): numba checks every array argument on every call.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -48,9 +53,35 @@ def pack(quad: dict, grating_s: np.ndarray, lam0: np.ndarray, window: float | No
     header[:12] = (n_g, n_c, n_p, n_b, n_par, np.inf if window is None else window, curvature, relative,
                    interpolation, base_var, ck_table.shape[1], quad["h"][0])
     header[12:14] = (twist, order)
+    start, weights = _stencils(np.asarray(grating_s, dtype=np.float64), order)
     parts = (header, grating_s, lam0, ck_table, sens_table, par_sd, quad["breaks"], quad["points"],
-             quad["interval"], _hermite_weights(quad), quad["first"], quad["half_points"])
+             quad["interval"], _hermite_weights(quad), quad["first"], quad["half_points"], start, weights)
     return np.concatenate([np.asarray(a, dtype=np.float64).ravel() for a in parts])
+
+
+def _stencils(s: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """The interpolation term of a frame with every grating valid as one weighted sum per grating: the first
+    grating of grating n's stencil (n_g,) and the weights (n_g, order + 1) such that
+    Σ_q weights[n, q] k[start_n + q] is :func:`_interpolation_frame`'s |k⁽ᵖ⁾_n| √(½ Σ H^(2p+2)) / (w_n √2)
+    before the norm — the p-th divided difference written out (Σ_q k_q / Π_{r≠q} (s_q − s_r)), times p! and
+    the grating's constant factor. All zero with fewer than p + 1 gratings."""
+    n = s.size
+    start = np.zeros(n)
+    weights = np.zeros((n, order + 1))
+    if n < order + 1:
+        return start, weights
+    e = 2 * order + 2
+    for j in range(n):  # once per setup: a handful of gratings
+        a = min(max(j - order // 2, 0), n - order - 1)
+        nodes = s[a:a + order + 1]
+        diff = nodes[:, None] - nodes[None, :]
+        np.fill_diagonal(diff, 1.0)
+        hm = s[j] - s[j - 1] if j > 0 else 0.0
+        hp = s[j + 1] - s[j] if j < n - 1 else 0.0
+        factor = math.factorial(order) * np.sqrt(0.5 * (hm**e + hp**e)) / (0.5 * (hm + hp)) / np.sqrt(2.0)
+        start[j] = a
+        weights[j] = factor / diff.prod(axis=1)
+    return start, weights
 
 
 def _hermite_weights(quad: dict) -> np.ndarray:
@@ -92,11 +123,24 @@ def _unpack(const):  # pragma: no cover (compiled)
     return grating_s, lam0, ck_table, sens_table, par_sd, breaks, points, interval, hw, first, half_points
 
 
+@njit(cache=True, nogil=True)
+def _unpack_stencils(const):  # pragma: no cover (compiled)
+    """The intact pattern's interpolation stencils of :func:`pack` (:func:`_stencils`): start (n_g,) int64,
+    weights (n_g, order + 1)."""
+    n_g, n_c, n_p, n_b, n_par = int(const[0]), int(const[1]), int(const[2]), int(const[3]), int(const[4])
+    n_codes, order = int(const[10]), int(const[13])
+    o = _HEADER + n_g + n_g * n_c + n_g * n_codes * 4 * (1 + n_par) + n_par + n_b + (n_b - 1) * 3 + n_p \
+        + 4 * n_p + 9 + 3
+    start = const[o:o + n_g].astype(np.int64)
+    o += n_g
+    return start, const[o:o + n_g * (order + 1)].reshape((n_g, order + 1))
+
+
 def pattern_weights(quad: dict, basis: np.ndarray) -> np.ndarray:
     """The quadrature weights times the interpolation basis (n_points, n_g) at the rule's points, as one row
-    (3 · n_g · n_int + 3 · n_g,): w_e B_n(u_e) per piece (e, n, piece), then the rule to the first piece's middle
-    point (e, n)."""
-    wb = (quad["weights"][:, :, None] * basis[quad["points"]]).transpose(1, 2, 0)  # (3, n_g, n_int)
+    (3 · n_int · n_g + 3 · n_g,): w_e B_n(u_e) per piece (e, piece, n), then the rule to the first piece's
+    middle point (e, n)."""
+    wb = (quad["weights"][:, :, None] * basis[quad["points"]]).transpose(1, 0, 2)  # (3, n_int, n_g)
     wh = quad["half_weights"][:, None] * basis[quad["half_points"]]  # (3, n_g)
     return np.concatenate([wb.ravel(), wh.ravel()])
 
@@ -112,21 +156,21 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
     n_b = breaks.size
     n_int = n_b - 1
     kk = _lanes(n_b)  # the breakpoints, the first piece's middle point, zeros to a multiple of 8
-    wb = wrow[:3 * n_g * n_int].reshape((3, n_g, n_int))
+    wb = wrow[:3 * n_g * n_int].reshape((3, n_int, n_g))
     wh = wrow[3 * n_g * n_int:].reshape((3, n_g))
     o = 0
     g = work[o:o + 3 * 12 * n_int].reshape((3, 12, n_int))
     o += 3 * 12 * n_int
     gh = work[o:o + 36].reshape((3, 12))
     o += 36
-    xn = work[o:o + 12 * kk].reshape((12, kk))  # one grating's X_n
-    o += 12 * kk
+    xs = work[o:o + 12 * n_g].reshape((12, n_g))  # X_n of every grating at one breakpoint
+    o += 12 * n_g
+    vs = work[o:o + (3 + 2 * n_par) * n_g].reshape((3 + 2 * n_par, n_g))  # V_n (v00, v01, v11), S_n (q·2 + c)
+    o += (3 + 2 * n_par) * n_g
     y = work[o:o + 36 * kk].reshape((6, 6, kk))
     o += 36 * kk
     z = work[o:o + 6 * n_par * kk].reshape((6, n_par, kk))
     o += 6 * n_par * kk
-    xv = work[o:o + 12 * kk].reshape((2, 6, kk))
-    o += 12 * kk
     m = work[o:o + 36 * kk].reshape((2, 3, 6, kk))  # A Y and A' Y
     o += 36 * kk
     pt = work[o:o + 6 * kk].reshape((2, 3, kk))  # p and t at the breakpoints
@@ -141,40 +185,37 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
             _integrand(pos, fr, points[j, e], g[e, :, j])
     for e in range(3):
         _integrand(pos, fr, half_points[e], gh[e])
-    # grating by grating (one grating's integrals stay in the first-level cache): the running integrals X_n at
-    # the breakpoints and the first piece's middle point — each piece's increment along the pieces (vectorised),
-    # then the running sum with the 12 rows side by side (the sum along one row alone would wait on its own
-    # additions) — then Y += X_n V_n X_nᵀ (upper triangle) and Z += X_n S_n σ_p, element-wise along the lanes
+    # V_n and S_n with the gratings along the last axis (a grating left out carries nothing; its X_n is zero too:
+    # the pattern's basis has no column for it)
+    for n in range(n_g):
+        ok = use[n]
+        vs[0, n] = v[n, 0, 0] if ok else 0.0
+        vs[1, n] = v[n, 0, 1] if ok else 0.0
+        vs[2, n] = v[n, 1, 1] if ok else 0.0
+        for q in range(n_par):
+            vs[3 + 2 * q, n] = sp[n, 0, q] if ok else 0.0
+            vs[4 + 2 * q, n] = sp[n, 1, q] if ok else 0.0
+    # breakpoint by breakpoint with the gratings along the vector axis: X_n(b) = X_n(b − 1) + piece b − 1's rule
+    # for every grating at once, then Y(b) = Σ_n X_n V_n X_nᵀ and Z(b) = Σ_n X_n S_n as sums over the gratings
+    # (no pass over every breakpoint per grating, no running sum waiting on itself)
     y[:] = 0.0
     z[:] = 0.0
-    for n in range(n_g):
-        if not use[n]:
-            continue
-        for rc in range(12):
-            for j in range(n_int):
-                xn[rc, j + 1] = wb[0, n, j] * g[0, rc, j] + wb[1, n, j] * g[1, rc, j] + wb[2, n, j] * g[2, rc, j]
-            xn[rc, 0] = 0.0
-            xn[rc, n_b] = wh[0, n] * gh[0, rc] + wh[1, n] * gh[1, rc] + wh[2, n] * gh[2, rc]
-            for i in range(n_b + 1, kk):
-                xn[rc, i] = 0.0
-        for j in range(1, n_int):
+    xs[:] = 0.0
+    for b in range(1, n_b + 1):
+        if b < n_b:
+            j = b - 1
             for rc in range(12):
-                xn[rc, j + 1] += xn[rc, j]
-        v00, v01, v11 = v[n, 0, 0], v[n, 0, 1], v[n, 1, 1]
-        for r in range(6):
-            for i in range(kk):
-                a0, a1 = xn[2 * r, i], xn[2 * r + 1, i]
-                xv[0, r, i] = a0 * v00 + a1 * v01
-                xv[1, r, i] = a0 * v01 + a1 * v11
-        for r in range(6):
-            for c in range(r, 6):
-                for i in range(kk):
-                    y[r, c, i] += xv[0, r, i] * xn[2 * c, i] + xv[1, r, i] * xn[2 * c + 1, i]
-        for q in range(n_par):
-            s0, s1 = sp[n, 0, q], sp[n, 1, q]
-            for r in range(6):
-                for i in range(kk):
-                    z[r, q, i] += xn[2 * r, i] * s0 + xn[2 * r + 1, i] * s1
+                g0, g1, g2 = g[0, rc, j], g[1, rc, j], g[2, rc, j]
+                xr, w0, w1, w2 = xs[rc], wb[0, j], wb[1, j], wb[2, j]
+                for n in range(n_g):
+                    xr[n] += w0[n] * g0 + w1[n] * g1 + w2[n] * g2
+        else:  # the first piece's middle point, from the base by its own rule (the running sums are done)
+            for rc in range(12):
+                g0, g1, g2 = gh[0, rc], gh[1, rc], gh[2, rc]
+                xr, w0, w1, w2 = xs[rc], wh[0], wh[1], wh[2]
+                for n in range(n_g):
+                    xr[n] = w0[n] * g0 + w1[n] * g1 + w2[n] * g2
+        _sums(xs, vs, y, z, b)
     # p and t where C is formed
     for i in range(kk):
         idx = breaks[i] if i < n_b else half_points[2]  # (the padding repeats the middle point)
@@ -209,6 +250,122 @@ def _frame(pos, fr, v, sp, use, base_var, h0, wrow, breaks, points, interval, hw
                 val += base_var * ((pp if r == c else 0.0) - pos[j, r] * pos[j, c])
                 out[j, r, c] = val
                 out[j, c, r] = val
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _sums(xs, vs, y, z, b):  # pragma: no cover (compiled)
+    """Y[:, :, b] (upper triangle) = Σ_n X_n V_n X_nᵀ and Z[:, :, b] = Σ_n X_n S_n over the gratings, the last
+    axis of ``xs`` (12, n_g) X_n (row r·2 + c) and ``vs`` (3 + 2 n_par, n_g) V_n (v00, v01, v11) and S_n (row
+    3 + q·2 + c). One loop along the gratings with the 21 sums of Y side by side (in registers, one reduction
+    each at its end), then one per shared column with its six. The arithmetic is :func:`_accumulate`'s (there
+    per frame into rows of lanes, here into sums over the gratings): written out in both, since the compiler
+    vectorises each loop only when its body is straight-line code on its own operands."""
+    n_g, n_par = xs.shape[1], z.shape[1]
+    y00 = 0.0
+    y01 = 0.0
+    y02 = 0.0
+    y03 = 0.0
+    y04 = 0.0
+    y05 = 0.0
+    y11 = 0.0
+    y12 = 0.0
+    y13 = 0.0
+    y14 = 0.0
+    y15 = 0.0
+    y22 = 0.0
+    y23 = 0.0
+    y24 = 0.0
+    y25 = 0.0
+    y33 = 0.0
+    y34 = 0.0
+    y35 = 0.0
+    y44 = 0.0
+    y45 = 0.0
+    y55 = 0.0
+    for n in range(n_g):
+        x0 = xs[0, n]
+        x1 = xs[1, n]
+        x2 = xs[2, n]
+        x3 = xs[3, n]
+        x4 = xs[4, n]
+        x5 = xs[5, n]
+        x6 = xs[6, n]
+        x7 = xs[7, n]
+        x8 = xs[8, n]
+        x9 = xs[9, n]
+        x10 = xs[10, n]
+        x11 = xs[11, n]
+        v0, v1, v2 = vs[0, n], vs[1, n], vs[2, n]
+        u00 = x0 * v0 + x1 * v1
+        u01 = x0 * v1 + x1 * v2
+        u10 = x2 * v0 + x3 * v1
+        u11 = x2 * v1 + x3 * v2
+        u20 = x4 * v0 + x5 * v1
+        u21 = x4 * v1 + x5 * v2
+        u30 = x6 * v0 + x7 * v1
+        u31 = x6 * v1 + x7 * v2
+        u40 = x8 * v0 + x9 * v1
+        u41 = x8 * v1 + x9 * v2
+        u50 = x10 * v0 + x11 * v1
+        u51 = x10 * v1 + x11 * v2
+        y00 += u00 * x0 + u01 * x1
+        y01 += u00 * x2 + u01 * x3
+        y02 += u00 * x4 + u01 * x5
+        y03 += u00 * x6 + u01 * x7
+        y04 += u00 * x8 + u01 * x9
+        y05 += u00 * x10 + u01 * x11
+        y11 += u10 * x2 + u11 * x3
+        y12 += u10 * x4 + u11 * x5
+        y13 += u10 * x6 + u11 * x7
+        y14 += u10 * x8 + u11 * x9
+        y15 += u10 * x10 + u11 * x11
+        y22 += u20 * x4 + u21 * x5
+        y23 += u20 * x6 + u21 * x7
+        y24 += u20 * x8 + u21 * x9
+        y25 += u20 * x10 + u21 * x11
+        y33 += u30 * x6 + u31 * x7
+        y34 += u30 * x8 + u31 * x9
+        y35 += u30 * x10 + u31 * x11
+        y44 += u40 * x8 + u41 * x9
+        y45 += u40 * x10 + u41 * x11
+        y55 += u50 * x10 + u51 * x11
+    y[0, 0, b] = y00
+    y[0, 1, b] = y01
+    y[0, 2, b] = y02
+    y[0, 3, b] = y03
+    y[0, 4, b] = y04
+    y[0, 5, b] = y05
+    y[1, 1, b] = y11
+    y[1, 2, b] = y12
+    y[1, 3, b] = y13
+    y[1, 4, b] = y14
+    y[1, 5, b] = y15
+    y[2, 2, b] = y22
+    y[2, 3, b] = y23
+    y[2, 4, b] = y24
+    y[2, 5, b] = y25
+    y[3, 3, b] = y33
+    y[3, 4, b] = y34
+    y[3, 5, b] = y35
+    y[4, 4, b] = y44
+    y[4, 5, b] = y45
+    y[5, 5, b] = y55
+    for q in range(n_par):
+        z0 = z1 = z2 = z3 = z4 = z5 = 0.0
+        for n in range(n_g):
+            s0, s1 = vs[3 + 2 * q, n], vs[4 + 2 * q, n]
+            z0 += xs[0, n] * s0 + xs[1, n] * s1
+            z1 += xs[2, n] * s0 + xs[3, n] * s1
+            z2 += xs[4, n] * s0 + xs[5, n] * s1
+            z3 += xs[6, n] * s0 + xs[7, n] * s1
+            z4 += xs[8, n] * s0 + xs[9, n] * s1
+            z5 += xs[10, n] * s0 + xs[11, n] * s1
+        z[0, q, b] = z0
+        z[1, q, b] = z1
+        z[2, q, b] = z2
+        z[3, q, b] = z3
+        z[4, q, b] = z4
+        z[5, q, b] = z5
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
@@ -276,9 +433,9 @@ def _lanes(n_b):  # pragma: no cover (compiled)
 @njit(cache=True, nogil=True)
 def _work_size(n_g, n_b, n_par):  # pragma: no cover (compiled)
     kk = _lanes(n_b)
-    # g, gh, x, y, z, xv, m, pt, cb, pc
-    return 36 * (n_b - 1) + 36 + 12 * kk + 36 * kk + 6 * n_par * kk + 12 * kk + 36 * kk + 6 * kk + 18 * kk \
-        + 36 * (n_b - 1)
+    # g, gh, xs, vs, y, z, m, pt, cb, pc
+    return 36 * (n_b - 1) + 36 + 12 * n_g + (3 + 2 * n_par) * n_g + 36 * kk + 6 * n_par * kk + 36 * kk + 6 * kk \
+        + 18 * kk + 36 * (n_b - 1)
 
 
 @njit(cache=True, nogil=True)
@@ -327,17 +484,11 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     # empty lanes would cost a single frame more than its own arithmetic)
     lanes = which.size == 0 and n_f >= LANES
     nb_ = breaks.size if lanes else 1
-    arrs = _block_arrays(n_g, nb_, n_sh)
+    arrs = _block_arrays(n_g, nb_, n_sh, LANES if lanes else 0)
     vrep, sprep = arrs[0], arrs[1]
-    wbrep = np.empty((3, n_g, (nb_ - 1) * LANES))
+    wb = bases[0][:3 * n_g * (nb_ - 1)].reshape((3, nb_ - 1, n_g))
     wh = bases[0][3 * n_g * (nb_ - 1):].reshape((3, n_g)) if lanes else bases[0][:0].reshape((3, 0))
-    if lanes:
-        wb = bases[0][:3 * n_g * (nb_ - 1)].reshape((3, n_g, nb_ - 1))
-        for e in range(3):
-            for n in range(n_g):
-                for j in range(nb_ - 1):
-                    for ll in range(LANES):
-                        wbrep[e, n, j * LANES + ll] = wb[e, n, j]
+    st_start, st_weights = _unpack_stencils(const)
     fidx = np.empty(LANES, np.int64)
     n_l = 0
     left_out = 0
@@ -349,7 +500,15 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
             n_valid += valid[f, n]
         # the model error: white + relative·|k|, and the interpolation part, added in variance
         if interp != 0.0:
-            _interpolation_frame(kf, valid[f], grating_s, order, idx, tab, sig)
+            if n_valid == n_g:  # the intact pattern: precomputed stencils (no divisions, no powers)
+                for n in range(n_g):
+                    a, d0, d1 = st_start[n], 0.0, 0.0
+                    for q in range(order + 1):
+                        d0 += st_weights[n, q] * kf[a + q, 0]
+                        d1 += st_weights[n, q] * kf[a + q, 1]
+                    sig[n] = np.sqrt(d0 * d0 + d1 * d1)
+            else:
+                _interpolation_frame(kf, valid[f], grating_s, order, idx, tab, sig)
         for n in range(n_g):
             wsig = white + relative * np.sqrt(kf[n, 0] ** 2 + kf[n, 1] ** 2)
             isig = interp * sig[n] if interp != 0.0 else 0.0
@@ -389,16 +548,16 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
             continue
         if lanes:
             for n in range(n_g):
-                vrep[n, 0, n_l] = v[n, 0, 0]
-                vrep[n, 1, n_l] = v[n, 0, 1]
-                vrep[n, 2, n_l] = v[n, 1, 1]
+                vrep[n, n_l] = v[n, 0, 0]
+                vrep[n, LANES + n_l] = v[n, 0, 1]
+                vrep[n, 2 * LANES + n_l] = v[n, 1, 1]
                 for i in range(2):
                     for q in range(n_sh):
-                        sprep[n, i, q, n_l] = sp[n, i, q]
+                        sprep[n, (q * 2 + i) * LANES + n_l] = sp[n, i, q]
             fidx[n_l] = f
             n_l += 1
             if n_l == LANES:
-                _lanes_block(arrs, pos, frames, fidx, n_l, base_var, const[11], wbrep, wh, breaks, points,
+                _lanes_block(arrs, pos, frames, fidx, n_l, base_var, const[11], wb, wh, breaks, points,
                              interval, hw, first, half_points, cov_out)
                 n_l = 0
             continue
@@ -408,12 +567,12 @@ def propagate(const, pos, frames, k, valid, w, bases, which, cov_out, ck_out):  
     for ll in range(n_l):  # the last fewer than LANES: their v and S from the lanes
         f = fidx[ll]
         for n in range(n_g):
-            v[n, 0, 0] = vrep[n, 0, ll]
-            v[n, 0, 1] = v[n, 1, 0] = vrep[n, 1, ll]
-            v[n, 1, 1] = vrep[n, 2, ll]
+            v[n, 0, 0] = vrep[n, ll]
+            v[n, 0, 1] = v[n, 1, 0] = vrep[n, LANES + ll]
+            v[n, 1, 1] = vrep[n, 2 * LANES + ll]
             for i in range(2):
                 for q in range(n_sh):
-                    sp[n, i, q] = sprep[n, i, q, ll]
+                    sp[n, i, q] = sprep[n, (q * 2 + i) * LANES + ll]
         _frame(pos[f], frames[f], v, sp, valid[f], base_var, const[11], bases[0], breaks, points, interval, hw,
                first, half_points, work, cov_out[f])
     return left_out
@@ -467,139 +626,159 @@ def interpolation_kernel(k, valid, s, order, out):  # pragma: no cover (compiled
 
 
 
-#: the complete frames :func:`propagate` carries side by side
-LANES = 8
+#: the complete frames :func:`propagate` carries side by side: 16, two vectors of eight, so that the loops over them
+#: are long enough for the compiler's loop vectoriser (it leaves loops of fewer than 16 iterations scalar)
+LANES = 16
 
 
 @njit(cache=True, nogil=True)
-def _block_arrays(n_g, n_b, n_sh):  # pragma: no cover (compiled)
-    """The scratch arrays of :func:`_lanes_block`, along K = (n_b + 1) · LANES (breakpoint-major, frame-minor):
-    per-grating covariance (n_g, 3, K: v00, v01, v11) and shared columns (n_g, 2, n_sh, K), whose first LANES
-    entries :func:`propagate` fills; the integrand (3, 12, (n_b − 1) · LANES) and (3, 12, LANES); X_n (12, K);
-    Y (6, 6, K); Z (6, n_sh, K); X_n V_n (2, 6, K); p, t (2, 3, K); A Y, A' Y (2, 3, 6, K); C, C' (2, 3, 3, K);
-    one point's work (48 · LANES: its piece's coefficients 36, its position 3, its covariance 9)."""
-    L = LANES
+def _block_arrays(n_g, n_b, n_sh, L):  # pragma: no cover (compiled)
+    """The scratch arrays of :func:`_lanes_block`, LANES frames side by side in the last axis (index
+    row · LANES + frame; ``L`` LANES, or 0 for a call that does not use them): per-grating covariance
+    (n_g, 3 · LANES: v00, v01, v11) and shared columns (n_g, 2 · n_sh · LANES, row q·2 + c), which
+    :func:`propagate` fills; the integrand per piece and rule point (n_b − 1, 3, 12 · LANES) and to the first
+    piece's middle point (3, 12 · LANES); the running X_n (n_g, 12 · LANES); X_n at the first piece's middle
+    point (12 · LANES); per breakpoint Y's upper triangle (n_b + 1, 21 · LANES) and Z (n_b + 1, 6 · n_sh · LANES,
+    row q·6 + r); then along K = (n_b + 1) · LANES (breakpoint-major, frame-minor) Y (6, 6, K), Z (6, n_sh, K),
+    p and t (2, 3, K), A Y and A' Y (2, 3, 6, K), C and C' (2, 3, 3, K); one point's work (48 · LANES: its
+    piece's coefficients 36, its position 3, its covariance 9); the shared columns' curvature error
+    interpolated to the rule's points, times the rule's weights, per piece (n_b − 1, 3, 2 · n_sh · LANES) and to
+    the first piece's middle point (3, 2 · n_sh · LANES), row q·2 + c."""
     kb = (n_b + 1) * L
-    shapes = ((n_g, 3, kb), (n_g, 2, n_sh, kb), (3, 12, (n_b - 1) * L), (3, 12, L), (12, kb), (6, 6, kb),
-              (6, n_sh, kb), (2, 6, kb), (2, 3, kb), (2, 3, 6, kb), (2, 3, 3, kb))
-    n_fw = 48 * L
-    # one allocation (a single frame's call makes a small one that it does not use)
-    buf = np.empty((n_g * (3 + 2 * n_sh) + 120 + 6 * n_sh) * kb + 36 * (n_b - 1) * L + 36 * L + n_fw)
-    o0 = 0
-    o1 = o0 + 3 * n_g * kb
-    o2 = o1 + 2 * n_sh * n_g * kb
-    o3 = o2 + 36 * (n_b - 1) * L
-    o4 = o3 + 36 * L
-    o5 = o4 + 12 * kb
-    o6 = o5 + 36 * kb
-    o7 = o6 + 6 * n_sh * kb
-    o8 = o7 + 12 * kb
-    o9 = o8 + 6 * kb
-    o10 = o9 + 36 * kb
-    o11 = o10 + 18 * kb
-    return (buf[o0:o1].reshape(shapes[0]), buf[o1:o2].reshape(shapes[1]), buf[o2:o3].reshape(shapes[2]),
-            buf[o3:o4].reshape(shapes[3]), buf[o4:o5].reshape(shapes[4]), buf[o5:o6].reshape(shapes[5]),
-            buf[o6:o7].reshape(shapes[6]), buf[o7:o8].reshape(shapes[7]), buf[o8:o9].reshape(shapes[8]),
-            buf[o9:o10].reshape(shapes[9]), buf[o10:o11].reshape(shapes[10]), buf[o11:o11 + n_fw])
+    sizes = (3 * n_g * L, 2 * n_g * n_sh * L, 36 * (n_b - 1) * L, 36 * L, 12 * n_g * L, 12 * L,
+             21 * kb, 6 * n_sh * kb, 36 * kb, 6 * n_sh * kb, 6 * kb, 36 * kb, 18 * kb, 48 * L,
+             6 * n_sh * (n_b - 1) * L, 6 * n_sh * L)
+    # one allocation (empty for a call without lanes)
+    o = np.zeros(len(sizes) + 1, np.int64)
+    for i in range(len(sizes)):
+        o[i + 1] = o[i] + sizes[i]
+    buf = np.empty(o[-1])
+    return (buf[o[0]:o[1]].reshape((n_g, 3 * L)), buf[o[1]:o[2]].reshape((n_g, 2 * n_sh * L)),
+            buf[o[2]:o[3]].reshape((n_b - 1, 3, 12 * L)), buf[o[3]:o[4]].reshape((3, 12 * L)),
+            buf[o[4]:o[5]].reshape((n_g, 12 * L)), buf[o[5]:o[6]],
+            buf[o[6]:o[7]].reshape((n_b + 1, 21 * L)), buf[o[7]:o[8]].reshape((n_b + 1, 6 * n_sh * L)),
+            buf[o[8]:o[9]].reshape((6, 6, kb)), buf[o[9]:o[10]].reshape((6, n_sh, kb)),
+            buf[o[10]:o[11]].reshape((2, 3, kb)), buf[o[11]:o[12]].reshape((2, 3, 6, kb)),
+            buf[o[12]:o[13]].reshape((2, 3, 3, kb)), buf[o[13]:o[14]],
+            buf[o[14]:o[15]].reshape((n_b - 1, 3, 2 * n_sh * L)), buf[o[15]:o[16]].reshape((3, 2 * n_sh * L)))
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
-def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, points, interval, hw, first,
+def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points, interval, hw, first,
                  half_points, out):  # pragma: no cover (compiled)
     """:func:`_frame` for up to LANES complete frames at once (every grating valid, the intact pattern): the
     frames ``fidx[:n_l]`` of ``pos``, ``fr`` and ``out``, their per-grating covariance and shared columns in
-    the first LANES entries of ``arrs``' first two (:func:`_block_arrays`). Every array runs along K =
-    breakpoints × frames, so that the loops are long and element-wise (the compiler runs them in vector
-    registers); ``wbrep`` (3, n_g, (n_b − 1) · LANES) the pattern's piece weights repeated per frame, ``wh``
-    (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s. Lanes beyond
-    ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never written out."""
-    vrep, sprep, g, gh, xn, y, z, xv, pt, m, cb, fw = arrs
+    ``arrs``' first two (:func:`_block_arrays`). The frames are the innermost axis of every array, so that each
+    step is a short loop over them at constant offsets that the compiler turns into vector instructions; the
+    running integrals go breakpoint by breakpoint (each grating's X_n updated in place, then added into that
+    breakpoint's Y and Z at once), so that Y and Z are touched once per breakpoint and grating in the first-level
+    cache instead of in a pass over every breakpoint per grating. ``wb`` (3, n_b − 1, n_g) the pattern's piece
+    weights, ``wh`` (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s.
+    Lanes beyond ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never
+    written out."""
+    vrep, sprep, g, gh, xn, xm, yb, zb, y, z, pt, m, cb, fw, wsq, wsqh = arrs
     L = LANES
-    n_g, n_sh = vrep.shape[0], sprep.shape[2]
+    n_g = vrep.shape[0]
     n_b = breaks.size
     n_int = n_b - 1
-    kb = (n_b + 1) * L
     n_p = pos.shape[1]
-    # the per-frame constants repeated along the breakpoints (a dependence at distance LANES: vectorised)
-    for n in range(n_g):
-        for a in range(3):
-            row = vrep[n, a]
-            for i in range(L, kb):
-                row[i] = row[i - L]
-        for a in range(2):
-            for q in range(n_sh):
-                row = sprep[n, a, q]
-                for i in range(L, kb):
-                    row[i] = row[i - L]
     # gather: the integrand (R E, (R E) × p) at the rule's points, p and t at the breakpoints
-    for ll in range(n_l):
-        f = fidx[ll]
-        for pi in range(3 * n_int + 3):
-            if pi < 3 * n_int:
-                j, e = pi // 3, pi % 3
-                i = points[j, e]
-                dst = g[e]
-                col = j * L + ll
-            else:
-                e = pi - 3 * n_int
-                i = half_points[e]
-                dst = gh[e]
-                col = ll
+    # (point by point, the frames innermost: unit-stride stores, the loads gathered)
+    for pi in range(3 * n_int + 3):
+        if pi < 3 * n_int:
+            i = points[pi // 3, pi % 3]
+            dst = g[pi // 3, pi % 3]
+        else:
+            i = half_points[pi - 3 * n_int]
+            dst = gh[pi - 3 * n_int]
+        for ll in range(n_l):
+            f = fidx[ll]
             p0, p1, p2 = pos[f, i, 0], pos[f, i, 1], pos[f, i, 2]
-            for c in range(2):
-                if c == 0:
-                    a0, a1, a2 = fr[f, i, 0, 1], fr[f, i, 1, 1], fr[f, i, 2, 1]
-                else:
-                    a0, a1, a2 = -fr[f, i, 0, 0], -fr[f, i, 1, 0], -fr[f, i, 2, 0]
-                dst[c, col] = a0
-                dst[2 + c, col] = a1
-                dst[4 + c, col] = a2
-                dst[6 + c, col] = a1 * p2 - a2 * p1
-                dst[8 + c, col] = a2 * p0 - a0 * p2
-                dst[10 + c, col] = a0 * p1 - a1 * p0
-        for i in range(n_b + 1):
-            idx = breaks[i] if i < n_b else half_points[2]
+            a0, a1, a2 = fr[f, i, 0, 1], fr[f, i, 1, 1], fr[f, i, 2, 1]
+            b0, b1, b2 = -fr[f, i, 0, 0], -fr[f, i, 1, 0], -fr[f, i, 2, 0]
+            dst[ll] = a0
+            dst[L + ll] = b0
+            dst[2 * L + ll] = a1
+            dst[3 * L + ll] = b1
+            dst[4 * L + ll] = a2
+            dst[5 * L + ll] = b2
+            dst[6 * L + ll] = a1 * p2 - a2 * p1
+            dst[7 * L + ll] = b1 * p2 - b2 * p1
+            dst[8 * L + ll] = a2 * p0 - a0 * p2
+            dst[9 * L + ll] = b2 * p0 - b0 * p2
+            dst[10 * L + ll] = a0 * p1 - a1 * p0
+            dst[11 * L + ll] = b0 * p1 - b1 * p0
+    for i in range(n_b + 1):
+        idx = breaks[i] if i < n_b else half_points[2]
+        for ll in range(n_l):
+            f = fidx[ll]
             for r in range(3):
                 pt[0, r, i * L + ll] = pos[f, idx, r]
                 pt[1, r, i * L + ll] = fr[f, idx, r, 2]
-    y[:] = 0.0
-    z[:] = 0.0
+    # breakpoint by breakpoint, grating by grating: X_n(b) = X_n(b − 1) + the piece's rule (in place), then at
+    # once Y(b) += X_n V_n X_nᵀ (upper triangle) and Z(b) += X_n S_n; every operand is a row of LANES frames at
+    # a constant offset of a small array, so that each update is a handful of vector instructions on data in
+    # the first-level cache (no pass over every breakpoint per grating)
+    n_sh = zb.shape[1] // (6 * L)
+    # the shared columns through their interpolated curvature error: Z = Σ_n X_n S_n = ∫ (R E, (R E) × p) δk_sh,
+    # δk_sh(u) = Σ_n B_n(u) S_n, so per rule point w_e δk_sh(u_e) once (n_g multiply-adds per column) and Z runs
+    # along the pieces like X_n (12 · n_sh per rule point instead of 12 · n_sh per grating and breakpoint)
+    nw = 2 * n_sh * L
+    wsq[:] = 0.0
+    wsqh[:] = 0.0
     for n in range(n_g):
-        # X_n: each piece's increment, the running sum over the pieces, the first piece's middle point
-        for rc in range(12):
-            xr = xn[rc]
-            g0, g1, g2 = g[0, rc], g[1, rc], g[2, rc]
-            b0, b1, b2 = wbrep[0, n], wbrep[1, n], wbrep[2, n]
-            for i in range(L):
-                xr[i] = 0.0
-            for i in range(n_int * L):
-                xr[L + i] = b0[i] * g0[i] + b1[i] * g1[i] + b2[i] * g2[i]
-            w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
-            for i in range(L):
-                xr[n_b * L + i] = w0 * gh[0, rc, i] + w1 * gh[1, rc, i] + w2 * gh[2, rc, i]
-        # the running sum with the 12 rows side by side (one row's additions would wait on each other)
-        for j in range(2, n_b):
-            for rc in range(12):
-                xr = xn[rc]
-                for i in range(j * L, j * L + L):
-                    xr[i] += xr[i - L]
-        # the Y and Z updates of _frame with V and the shared columns per lane (arrays here, scalars there): kept
-        # written out in both, since numba vectorises each loop only with its own operand kinds
-        v00, v01, v11 = vrep[n, 0], vrep[n, 1], vrep[n, 2]
-        for r in range(6):
-            for i in range(kb):
-                a0, a1 = xn[2 * r, i], xn[2 * r + 1, i]
-                xv[0, r, i] = a0 * v00[i] + a1 * v01[i]
-                xv[1, r, i] = a0 * v01[i] + a1 * v11[i]
-        for r in range(6):
-            for c in range(r, 6):
-                for i in range(kb):
-                    y[r, c, i] += xv[0, r, i] * xn[2 * c, i] + xv[1, r, i] * xn[2 * c + 1, i]
+        sn = sprep[n]
+        for j in range(n_int):
+            for e in range(3):
+                w, dst = wb[e, j, n], wsq[j, e]
+                for i in range(nw):
+                    dst[i] += w * sn[i]
+        for e in range(3):
+            w, dst = wh[e, n], wsqh[e]
+            for i in range(nw):
+                dst[i] += w * sn[i]
+    xn[:] = 0.0
+    yb[0] = 0.0
+    zb[0] = 0.0
+    for b in range(1, n_b + 1):
+        ybb, zbb = yb[b], zb[b]
+        if b < n_b:  # the running integrals at breakpoint b: piece b − 1's rule added
+            g0, g1, g2 = g[b - 1, 0], g[b - 1, 1], g[b - 1, 2]
+            for n in range(n_g):
+                w0, w1, w2 = wb[0, b - 1, n], wb[1, b - 1, n], wb[2, b - 1, n]
+                xr = xn[n]
+                for i in range(12 * L):
+                    xr[i] += w0 * g0[i] + w1 * g1[i] + w2 * g2[i]
+            zbb[:] = zb[b - 1]
+            for e in range(3):
+                _shared(g[b - 1, e], wsq[b - 1, e], zbb, n_sh)
+        else:  # the first piece's middle point, from the base by its own rule
+            zbb[:] = 0.0
+            for e in range(3):
+                _shared(gh[e], wsqh[e], zbb, n_sh)
+        ybb[:] = 0.0
+        for n in range(n_g):
+            if b < n_b:
+                xr = xn[n]
+            else:
+                xr = xm
+                w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
+                for i in range(12 * L):
+                    xr[i] = w0 * gh[0, i] + w1 * gh[1, i] + w2 * gh[2, i]
+            _accumulate(xr, vrep[n], ybb)
+    # into the layout of _c_and_dc
+    t = 0
+    for r in range(6):
+        for c in range(r, 6):
+            for b in range(n_b + 1):
+                for ll in range(L):
+                    y[r, c, b * L + ll] = yb[b, t * L + ll]
+            t += 1
+    for r in range(6):
         for q in range(n_sh):
-            s0, s1 = sprep[n, 0, q], sprep[n, 1, q]
-            for r in range(6):
-                for i in range(kb):
-                    z[r, q, i] += xn[2 * r, i] * s0[i] + xn[2 * r + 1, i] * s1[i]
+            for b in range(n_b + 1):
+                for ll in range(L):
+                    z[r, q, b * L + ll] = zb[b, (q * 6 + r) * L + ll]
     _c_and_dc(y, z, pt, m, cb)  # Y += Z Zᵀ, then C and C' at the breakpoints of every frame
     # every point from its piece's coefficients (as _frame), plus the base angle exactly; ``fw`` holds the
     # piece's coefficients (rows e·9 + r·3 + c), the point's position (36–38) and covariance (39–47) at constant
@@ -639,6 +818,76 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wbrep, wh, breaks, poin
                     val = fw[(39 + r * 3 + c) * L + ll]
                     out[f, j, r, c] = val
                     out[f, j, c, r] = val
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _accumulate(x, v, yb):  # pragma: no cover (compiled)
+    """Y += X V Xᵀ (upper triangle, row-major) for one grating and LANES frames, every array 1-D with rows of
+    LANES frames: ``x`` (12 rows) X_n, row r·2 + c; ``v`` (3 rows) V_n (v00, v01, v11); ``yb`` (21 rows).
+    Written out at constant offsets: a few vector instructions per row."""
+    L = LANES
+    for ll in range(L):
+        x0 = x[0 * L + ll]
+        x1 = x[1 * L + ll]
+        x2 = x[2 * L + ll]
+        x3 = x[3 * L + ll]
+        x4 = x[4 * L + ll]
+        x5 = x[5 * L + ll]
+        x6 = x[6 * L + ll]
+        x7 = x[7 * L + ll]
+        x8 = x[8 * L + ll]
+        x9 = x[9 * L + ll]
+        x10 = x[10 * L + ll]
+        x11 = x[11 * L + ll]
+        v0, v1, v2 = v[ll], v[L + ll], v[2 * L + ll]
+        u00 = x0 * v0 + x1 * v1
+        u01 = x0 * v1 + x1 * v2
+        u10 = x2 * v0 + x3 * v1
+        u11 = x2 * v1 + x3 * v2
+        u20 = x4 * v0 + x5 * v1
+        u21 = x4 * v1 + x5 * v2
+        u30 = x6 * v0 + x7 * v1
+        u31 = x6 * v1 + x7 * v2
+        u40 = x8 * v0 + x9 * v1
+        u41 = x8 * v1 + x9 * v2
+        u50 = x10 * v0 + x11 * v1
+        u51 = x10 * v1 + x11 * v2
+        yb[0 * L + ll] += u00 * x0 + u01 * x1
+        yb[1 * L + ll] += u00 * x2 + u01 * x3
+        yb[2 * L + ll] += u00 * x4 + u01 * x5
+        yb[3 * L + ll] += u00 * x6 + u01 * x7
+        yb[4 * L + ll] += u00 * x8 + u01 * x9
+        yb[5 * L + ll] += u00 * x10 + u01 * x11
+        yb[6 * L + ll] += u10 * x2 + u11 * x3
+        yb[7 * L + ll] += u10 * x4 + u11 * x5
+        yb[8 * L + ll] += u10 * x6 + u11 * x7
+        yb[9 * L + ll] += u10 * x8 + u11 * x9
+        yb[10 * L + ll] += u10 * x10 + u11 * x11
+        yb[11 * L + ll] += u20 * x4 + u21 * x5
+        yb[12 * L + ll] += u20 * x6 + u21 * x7
+        yb[13 * L + ll] += u20 * x8 + u21 * x9
+        yb[14 * L + ll] += u20 * x10 + u21 * x11
+        yb[15 * L + ll] += u30 * x6 + u31 * x7
+        yb[16 * L + ll] += u30 * x8 + u31 * x9
+        yb[17 * L + ll] += u30 * x10 + u31 * x11
+        yb[18 * L + ll] += u40 * x8 + u41 * x9
+        yb[19 * L + ll] += u40 * x10 + u41 * x11
+        yb[20 * L + ll] += u50 * x10 + u51 * x11
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _shared(gq, wq, zb, n_sh):  # pragma: no cover (compiled)
+    """Z += G (w δk_sh) at one rule point for LANES frames: ``gq`` (12 rows) the integrand, row r·2 + c; ``wq``
+    (2 · n_sh rows) the rule's weight times the shared columns' interpolated curvature error, row q·2 + c; ``zb``
+    (6 · n_sh rows), row q·6 + r. One column at a time, so that the offsets within it are constants."""
+    L = LANES
+    for q in range(n_sh):
+        sq = wq[2 * q * L:2 * (q + 1) * L]
+        zq = zb[6 * q * L:6 * (q + 1) * L]
+        for ll in range(L):
+            s0, s1 = sq[ll], sq[L + ll]
+            for r in range(6):
+                zq[r * L + ll] += gq[2 * r * L + ll] * s0 + gq[(2 * r + 1) * L + ll] * s1
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
