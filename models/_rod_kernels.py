@@ -376,30 +376,69 @@ def view_read(x, plastic, qpos, site_row, tree_asleep, buffer):
 
 
 @njit(cache=True, nogil=True)
-def truth_samples(x, frames, darboux, lerp_index, lerp_weight, frame_edge, frame_h, basis_t, positions, frames_out,
-                  curvature, twist):
-    """What :meth:`models.rod_state.RodState.to_truth` computes, in one pass, at sample points fixed for a rod
-    (:class:`models.rod_state.RodTruth` places them once).
+def smooth_samples(x, frames, darboux, stencil, w_value, w_slope, frame_edge, frame_h, positions, frames_out):
+    """Centreline points and material frames on the smooth curve through the vertices, at sample points fixed
+    for a rod (:meth:`models.rod_state._Interpolator.smooth` places them).
 
-    Centreline ``positions`` (m, 3): x[i0] + a (x[i1] − x[i0]) with (i0, i1) = ``lerp_index`` (m, 2), a =
-    ``lerp_weight`` (m,) (:func:`positions_at`'s arithmetic); material frames ``frames_out`` (m, 3, 3): edge
-    ``frame_edge`` (m,)'s frame turned by exp(h · Darboux) with h = ``frame_h`` (m,) (:func:`frames_at`'s);
-    (k_x, k_y) = (κ2, −κ1) into ``curvature`` (n_g, 2) and τ into ``twist`` (n_g,) through ``basis_t``
-    (n_interior, n_g), the interpolation matrix to the gratings transposed.
+    Sample q's point is the degree-5 polynomial through the six vertices from ``stencil`` [q] (m,) on, Σ_k
+    ``w_value`` [q, k] x[stencil[q] + k] (a vertex itself where q sits on one), and its tangent t that
+    polynomial's, Σ_k ``w_slope`` [q, k] x[...] normalised (w_value, w_slope (m, 6)). The frame is edge
+    ``frame_edge`` [q]'s turned by exp(h · Darboux) with h = ``frame_h`` [q] (the geodesic interpolation of
+    :func:`frames_at`, which gives the roll), then turned onto t by the smallest rotation,
+    u ↦ u + 2 (d3·u) t − ((d3 + t)·u / (1 + d3·t)) (d3 + t) (two reflections; it takes d3 to t and, as d1 and d2
+    are normal to d3, d_i to d_i − (t·d_i) / (1 + d3·t) (d3 + t)). Into ``positions`` (m, 3) and ``frames_out``
+    (m, 3, 3). ``w_value`` and ``w_slope`` (m, 6): six vertices (SMOOTH_VERTICES in models/rod_state.py).
     """
-    for q in range(lerp_weight.size):
-        i0, i1, a = lerp_index[q, 0], lerp_index[q, 1], lerp_weight[q]
-        for k in range(3):
-            positions[q, k] = x[i0, k] + a * (x[i1, k] - x[i0, k])
     for q in range(frame_h.size):
+        j = stencil[q]
+        p0 = p1 = p2 = t0 = t1 = t2 = 0.0
+        for k in range(6):  # SMOOTH_VERTICES, a literal: the loop unrolls
+            a, b = w_value[q, k], w_slope[q, k]
+            x0, x1, x2 = x[j + k, 0], x[j + k, 1], x[j + k, 2]
+            p0 += a * x0
+            p1 += a * x1
+            p2 += a * x2
+            t0 += b * x0
+            t1 += b * x1
+            t2 += b * x2
+        positions[q, 0], positions[q, 1], positions[q, 2] = p0, p1, p2
+        inv = 1.0 / np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        t0, t1, t2 = t0 * inv, t1 * inv, t2 * inv
         e, h = frame_edge[q], frame_h[q]
         e00, e01, e02, e10, e11, e12, e20, e21, e22 = exp_entries(h * darboux[e, 0], h * darboux[e, 1],
                                                                   h * darboux[e, 2])
-        for r in range(3):
-            f0, f1, f2 = frames[e, r, 0], frames[e, r, 1], frames[e, r, 2]
-            frames_out[q, r, 0] = f0 * e00 + f1 * e10 + f2 * e20
-            frames_out[q, r, 1] = f0 * e01 + f1 * e11 + f2 * e21
-            frames_out[q, r, 2] = f0 * e02 + f1 * e12 + f2 * e22
+        # the geodesic frame's columns d1, d2, d3, then turned onto t: d3 ↦ t, and (d_i · d3 = 0)
+        # d_i ↦ d_i − (t · d_i) / (1 + d3 · t) (d3 + t)
+        a0 = frames[e, 0, 0] * e00 + frames[e, 0, 1] * e10 + frames[e, 0, 2] * e20
+        a1 = frames[e, 1, 0] * e00 + frames[e, 1, 1] * e10 + frames[e, 1, 2] * e20
+        a2 = frames[e, 2, 0] * e00 + frames[e, 2, 1] * e10 + frames[e, 2, 2] * e20
+        b0 = frames[e, 0, 0] * e01 + frames[e, 0, 1] * e11 + frames[e, 0, 2] * e21
+        b1 = frames[e, 1, 0] * e01 + frames[e, 1, 1] * e11 + frames[e, 1, 2] * e21
+        b2 = frames[e, 2, 0] * e01 + frames[e, 2, 1] * e11 + frames[e, 2, 2] * e21
+        d0 = frames[e, 0, 0] * e02 + frames[e, 0, 1] * e12 + frames[e, 0, 2] * e22
+        d1 = frames[e, 1, 0] * e02 + frames[e, 1, 1] * e12 + frames[e, 1, 2] * e22
+        d2 = frames[e, 2, 0] * e02 + frames[e, 2, 1] * e12 + frames[e, 2, 2] * e22
+        w0, w1, w2 = d0 + t0, d1 + t1, d2 + t2
+        c = 1.0 / (1.0 + d0 * t0 + d1 * t1 + d2 * t2)
+        fa = (t0 * a0 + t1 * a1 + t2 * a2) * c
+        fb = (t0 * b0 + t1 * b1 + t2 * b2) * c
+        frames_out[q, 0, 0], frames_out[q, 1, 0], frames_out[q, 2, 0] = a0 - fa * w0, a1 - fa * w1, a2 - fa * w2
+        frames_out[q, 0, 1], frames_out[q, 1, 1], frames_out[q, 2, 1] = b0 - fb * w0, b1 - fb * w1, b2 - fb * w2
+        frames_out[q, 0, 2], frames_out[q, 1, 2], frames_out[q, 2, 2] = t0, t1, t2
+
+
+@njit(cache=True, nogil=True)
+def truth_samples(x, frames, darboux, stencil, w_value, w_slope, frame_edge, frame_h, basis_t, positions,
+                  frames_out, curvature, twist):
+    """What :meth:`models.rod_state.RodState.to_truth` computes, in one pass, at sample points fixed for a rod
+    (:class:`models.rod_state.RodTruth` places them once).
+
+    Centreline ``positions`` (m, 3) and material frames ``frames_out`` (m, 3, 3) on the smooth curve through
+    the vertices (:func:`smooth_samples`, whose arguments these are); (k_x, k_y) = (κ2, −κ1) into ``curvature``
+    (n_g, 2) and τ into ``twist`` (n_g,) through ``basis_t`` (n_interior, n_g), the interpolation matrix to the
+    gratings transposed.
+    """
+    smooth_samples(x, frames, darboux, stencil, w_value, w_slope, frame_edge, frame_h, positions, frames_out)
     # basis_t is (n_interior, n_g): the gratings' sums advance side by side, each in vertex order
     n_v, n_g = basis_t.shape
     curvature[:] = 0.0

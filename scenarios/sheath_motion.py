@@ -56,6 +56,7 @@ from scenarios.report import (
 )
 from sim_interrogator.sheath_setups import SheathPath
 from twin import metrics
+from twin.uncertainty import truth_in_base
 
 PAPER_MEAN_MAX_MM = 2.5
 PAPER_WORST_MM = 21.2
@@ -304,7 +305,7 @@ def run_experiment(params: Params, progress=None, viewer=None) -> Result:
         curvature[mode] = shape.curvature[pick]
         curvature[f"{mode}_valid"] = shape.valid[pick]
     # the 95 % tube of every frame against the catheter, in its own pose at s = 0 (no registration)
-    truth = coverage.truth_at_base(ser.truth_s, ser.truth_positions, ser.base_frames, shapes["default"].s)
+    truth = truth_in_base(ser.truth_s, ser.truth_positions, ser.base_frames, ser.base_positions, shapes["default"].s)
     tube = coverage.run_coverage(sim.fiber, sim.optics.config, used.calibration, shapes["default"], ser.wavelengths,
                                  truth, progress, twist=coverage.SHEATH_TWIST)
     result = Result(params, sim.describe(), t, max_e, mean_e, tip_e, sheath_e, analysed, ser.lost_peaks, lost_g,

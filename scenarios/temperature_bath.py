@@ -60,6 +60,7 @@ from sim_interrogator.sim import SimInterrogator
 from sim_interrogator.thermal_setup import PROFILES, Bath
 from twin import FiberModel, Reconstructor, Shape, metrics, shapes
 from twin.frames import Truth
+from twin.uncertainty import truth_in_base
 
 PAPER_TIP_VARIATION_MM = 0.29  #: Al-Ahmad et al.: tip variation over 30 K (60 → 30 °C)
 
@@ -333,8 +334,9 @@ def run_bath(params: Params, mismatch: float, fiber: FiberModel,
     truth = Truth(s=series.truth_s, positions=series.truth_positions[0], curvature=series.truth_curvature[0],
                   fixture=series.fixture)
     # the 95 % tube of each window against the rod at the window's middle frame, in the (fixed) base frame
-    tube = coverage.run_coverage(fiber, cfg, cal, shp["default"], w, coverage.truth_at_base(
-        series.truth_s, series.truth_positions[mid], series.base_frames[mid], shp["default"].s), say, averaged=n_avg)
+    tube = coverage.run_coverage(fiber, cfg, cal, shp["default"], w, truth_in_base(
+        series.truth_s, series.truth_positions[mid], series.base_frames[mid], series.base_positions[mid],
+        shp["default"].s), say, averaged=n_avg)
     return BathRun(mismatch=mismatch, s_t_deviation=s_t / nominal_s_t - 1.0, t=t,
                    bath_celsius=temp.mean(axis=1) + params.room_celsius, tips=tips, true_tip=true_tip,
                    shape_error=errors, curvature=curv, true_curvature=series.truth_curvature[0],

@@ -25,7 +25,7 @@ from twin.io.source import open_source
 from twin.live import Counts, LiveLoop
 from twin.reference_errors import TruthError, TubeFigures, VendorDistance
 from twin.synthetic import multicore_fiber
-from twin.uncertainty import Uncertainty, inside, truth_at_base
+from twin.uncertainty import Uncertainty, inside, truth_in_base
 
 TWIN = [sys.executable, "-m", "twin.cli"]
 ENV = {**os.environ, "MPLBACKEND": "Agg"}
@@ -175,7 +175,7 @@ def test_the_tube_figures_are_what_their_definitions_say(recording):
     out = Uncertainty(rec).propagate(shapes[first], frames.wavelengths[first])
     distal = out.s > 0
     t = frames.truth
-    truth = truth_at_base(t.s, t.positions[first], t.frames[first, 0], out.s)
+    truth = truth_in_base(t.s, t.positions[first], t.frames[first, 0], t.positions[first, 0], out.s)
     assert got[0]["tube_frames"] == first.size
     assert got[0]["mean_sigma_mm"] == pytest.approx(out.sigma[:, distal].mean() * 1e3, abs=1e-4)
     assert got[0]["coverage_95"] == pytest.approx(inside(out, truth)[:, distal].mean(), abs=1e-4)

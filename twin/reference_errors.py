@@ -328,7 +328,7 @@ class TubeFigures:
         sel = self._slots.take(shapes.all_valid, frames.timestamp)
         if not sel.size:
             return
-        from twin.uncertainty import inside, truth_at_base
+        from twin.uncertainty import inside, truth_in_base
 
         out = self.uncertainty.propagate(shapes[sel], frames.wavelengths[sel])
         distal = out.s > 0  # the base point is exact by construction
@@ -349,8 +349,8 @@ class TubeFigures:
             return
         rows = sel[have]
         try:
-            t = truth_at_base(truth.s[i0:], truth.positions[rows, i0:], truth.frames[rows, i0], out.s)
-        except ValueError as e:  # too few samples, or not evenly spaced from the base: no pose at s = 0 from them
+            t = truth_in_base(truth.s, truth.positions[rows], truth.frames[rows, i0], truth.positions[rows, i0], out.s)
+        except ValueError as e:  # too few samples for a spline through them
             self.note = f"coverage skipped: {e}"
             return
         self._inside.append(inside(out[have], t, self.level)[:, distal].sum(axis=-1))

@@ -43,7 +43,7 @@ from twin.frames import Shape
 from twin.reconstruct import Reconstructor
 
 __all__ = ["TWIN_INTERPOLATION", "TWIN_MODEL_ERROR", "TWIN_SHEATH_TWIST", "ModelError", "Uncertainty", "coverage",
-           "fit_model_error", "inside", "interpolation_order", "lateral_errors", "truth_at_base", "truth_in_base"]
+           "fit_model_error", "inside", "interpolation_order", "lateral_errors", "truth_in_base"]
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,8 @@ class ModelError:
     base_angle : float
         1σ of the base frame's orientation about each of its axes, rad: the reconstruction starts from the base
         frame as given (a clamp, a tracked hub), which sits off the fibre's true first tangent and roll by this
-        much; it moves every point by δφ × p. 0 in the twin, whose base pose is exact (:func:`truth_at_base`).
+        much; it moves every point by δφ × p. 0 in the twin, whose base pose is exact (its truth's
+        frame at s = 0 is the rod's smooth centreline's, models.rod_state.RodState.smooth_at).
     twist : float
         1σ of the catheter's twist rate that the fibre does not measure, rad/m, taken as constant along the
         fibre: a fibre without a twist measurement reconstructs as if the material frame did not turn about the
@@ -181,7 +182,7 @@ TWIN_INTERPOLATION = 0.0435
 #: the calibration's stated 1σ of Δθ and g × 0.295, fitted on top of it for the lab calibration on the library's
 #: six shapes it was not identified on, held by connect constraints (scenarios/_common/coverage.py
 #: ``lab_model_error``; realistic optics; no white part needed; docs/math.md §8.4). No base angle: the twin's base
-#: pose is exact once the truth is placed in the rod's own pose at s = 0 (:func:`truth_at_base`); a real clamp or
+#: pose is exact (the truth's pose at s = 0 is the rod's smooth centreline's, models/rod_state.py); a real clamp or
 #: tracker sits off the fibre's tangent by its own tolerance, which ``base_angle`` carries. No twist term: the
 #: fibre cannot measure the twist, and its size belongs to the setting — none under connect constraints,
 #: 0.08 rad/m in the lab's grooves and tubes, :data:`TWIN_SHEATH_TWIST` in the twin's sheath — so a catheter in
@@ -516,64 +517,6 @@ def truth_in_base(truth_s: np.ndarray, positions: np.ndarray, base_frames: np.nd
 
     local = np.einsum("...mi,...ij->...mj", positions - base_positions[..., None, :], base_frames)
     return CubicSpline(truth_s, local, axis=-2)(s)
-
-
-#: Vertices that :func:`truth_at_base` passes a polynomial through (degree 5) for the pose at s = 0, which lies
-#: inside its first interval: on centrelines of the library's curvatures sampled as the rod's truth it places the
-#: centreline within 0.5 µm (tests/test_coverage_terms.py; the cubic spline's own tangent there, next to its end,
-#: erred by up to 2.4 µm, a degree-7 polynomial extrapolated from the vertices after s = 0 by up to 9 mm in a
-#: sheath, where the rod bends hard near its base).
-_NEAR = 6
-
-
-def truth_at_base(truth_s: np.ndarray, positions: np.ndarray, frames0: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """The true centreline at arc lengths ``s`` (n,) m in its own pose at s = 0, (..., n, 3) m: the truth as the
-    tube is checked against it, from samples ``positions`` (..., m, 3) world at ``truth_s`` (m,) m (``truth_s[0]``
-    = 0, the others evenly spaced) and the sampled material frame at s = 0 ``frames0`` (..., 3, 3), which gives
-    the roll.
-
-    The twin's rod is a polyline of vertices h = 1.95 mm apart, and its truth (models/rod_state.RodTruth) samples
-    it at s = 0 between two vertices: the point linearly, on the chord — off the centreline by κ h² a(1 − a)/2,
-    a the sample's place between the vertices (5 µm at 25 1/m) — and the frame at the constant rate of one vertex,
-    its tangent off the centreline's by κ' h² (1/6 − a²/2) (1 mrad at κ' = 1700 1/m², the library's wave). That
-    is an error of the base pose which no reconstruction started there can make and which the tube, of zero width
-    at the base, is narrowest to hold (docs/math.md §8.4). So the vertex before s = 0 is recovered from the chord
-    point and the vertex after it (at a = 1 − s₁/h, with h the samples' spacing; a = 0 where the first sample is
-    a vertex, as for a truth sampled evenly from 0), the centreline is the cubic spline through the vertices
-    (a linear interpolant would cut their corners by h²κ/8, up to 0.03 mm) — interpolated at s = 0, never
-    extrapolated, which a rod bent hard near its base in a sheath does not allow — and the base pose is the point
-    and tangent at 0 of the polynomial through the first :data:`_NEAR` vertices, with ``frames0`` turned onto
-    that tangent by the smallest rotation. The last sample, a chord point too, is left out likewise (the spline's
-    last piece reaches it). No registration: the tube is checked as it is used, from the base."""
-    from scipy.interpolate import CubicSpline
-
-    ts = np.asarray(truth_s, dtype=np.float64)
-    p = np.asarray(positions, dtype=np.float64)
-    r0 = np.asarray(frames0, dtype=np.float64)
-    if ts.size < _NEAR + 1 or abs(ts[0]) > 1e-9:
-        raise ValueError(f"truth_at_base: needs at least {_NEAR + 1} samples from s = 0, got {ts.size} from "
-                         f"s = {ts[0] if ts.size else float('nan')} m")
-    h = ts[2] - ts[1]
-    a = 1.0 - ts[1] / h
-    if not 0.0 <= a < 1.0:
-        raise ValueError(f"truth_at_base: the first samples at {ts[1]} and {ts[2]} m are not evenly spaced from 0")
-    before = (p[..., 0, :] - a * p[..., 1, :]) / (1.0 - a)  # the vertex at −a h (the sample itself when a = 0)
-    knots = np.concatenate([[-a * h], ts[1:-1]])
-    vertices = np.concatenate([before[..., None, :], p[..., 1:-1, :]], axis=-2)
-    line = CubicSpline(knots, vertices, axis=-2)
-    # the pose from the polynomial through the first _NEAR vertices, s = 0 inside its first interval
-    x = knots[:_NEAR] / h
-    coef = np.einsum("ij,...jk->...ik", np.linalg.inv(np.vander(x, _NEAR, increasing=True)), vertices[..., :_NEAR, :])
-    p0, d0 = coef[..., 0, :], coef[..., 1, :] / h
-    t0 = d0 / np.linalg.norm(d0, axis=-1, keepdims=True)
-    # the smallest rotation taking the sampled tangent d3 onto t0 (two reflections), applied to each axis
-    d3 = r0[..., :, 2]
-    w = d3 + t0
-    c = np.sum(d3 * t0, axis=-1)[..., None]
-    cols = [r0[..., :, k] for k in range(3)]
-    base = np.stack([u + 2.0 * np.sum(d3 * u, -1, keepdims=True) * t0 - np.sum(w * u, -1, keepdims=True) / (1.0 + c)
-                     * w for u in cols], axis=-1)
-    return np.einsum("...mi,...ij->...mj", line(np.asarray(s, dtype=np.float64)) - p0[..., None, :], base)
 
 
 def inside(shape: Shape, truth: np.ndarray, level: float = 0.95) -> np.ndarray:

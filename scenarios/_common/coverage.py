@@ -2,11 +2,12 @@
 (:mod:`twin.uncertainty`) is checked against the catheter's own centreline, and the model-error term is fitted on
 runs other than those scored.
 
-The truth is placed in the reconstruction's base frame by the rod's own pose at s = 0
-(:func:`~twin.uncertainty.truth_at_base`: the smooth centreline's point and tangent there, the sampled frame's
-roll): no registration is fitted to the data being scored, so the tube is tested as it would be used from an
-exact base. The truth is interpolated at the reconstruction's arc lengths with a cubic spline through the rod's
-vertices (~2 mm apart; a linear one would cut corners by h²κ/8, up to 0.03 mm).
+The truth is placed in the reconstruction's base frame by its own pose at s = 0
+(:func:`~twin.uncertainty.truth_in_base`; the simulator samples it on the rod's smooth centreline, its frame's
+tangent that curve's, models.rod_state.RodState.smooth_at): no registration is fitted to the data being scored,
+so the tube is tested as it would be used from an exact base. The truth is interpolated at the reconstruction's
+arc lengths with a cubic spline through the rod's vertices (~2 mm apart; a linear one would cut corners by
+h²κ/8, up to 0.03 mm).
 
 The model error is fitted (:func:`twin.uncertainty.fit_model_error`) with a calibration on shapes that
 calibration was not identified on, never on those scored: with the lab calibration on the library's other six
@@ -50,11 +51,11 @@ from twin.uncertainty import (
     inside,
     interpolation_order,
     lateral_errors,
-    truth_at_base,
+    truth_in_base,
 )
 
 __all__ = ["LEVEL", "SHEATH_TWIST", "by_quarter", "fit_on_frames", "interpolation_constant", "lab_model_error",
-           "sheath_terms", "summary", "truth_at_base", "truth_of_frames", "twist_sigma", "width"]
+           "sheath_terms", "summary", "truth_of_frames", "twist_sigma", "width"]
 
 #: The tube every report checks, and its acceptance band (issue 21): 92–98 % of the truth points inside.
 LEVEL = 0.95
@@ -67,7 +68,7 @@ MODEL_ERROR_SHAPES = tuple(n for n in library.names() if n not in LAB_SHAPES)
 #: in its groove, whose errors reach 2 mm RMS), an error of those fixtures that the scored runs do not have (the
 #: sheath's own twist is derived apart, :data:`SHEATH_TWIST`).
 MODEL_ERROR_FIXTURE = "connect"
-_CACHE_VERSION = 8  # 8: the truth in its smooth pose at s = 0 (truth_at_base), fitted off the calibration's shapes
+_CACHE_VERSION = 9  # 9: the simulator's truth sampled on the rod's smooth centreline (its pose at s = 0 exact)
 _MODEL_ERROR_SEEDS = 100  # noise seeds of the model error's shapes: the lab session's + 100 + i (its own: + 1 + i)
 
 #: 1σ of the constant twist rate the twin's catheter takes in its sheath, rad/m
@@ -82,11 +83,12 @@ Say = Callable[[str], None]
 
 
 def truth_of_frames(frames, s: np.ndarray) -> np.ndarray:
-    """:func:`~twin.uncertainty.truth_at_base` for frames of one settled shape (their truths, each in its own
-    pose at s = 0)."""
+    """The truths of frames of one settled shape at arc lengths ``s``, each in its own pose at s = 0
+    (:func:`~twin.uncertainty.truth_in_base`), (n_frames, len(s), 3) m."""
     truths: Sequence[Truth] = [f.truth for f in frames]
-    return truth_at_base(truths[0].s, np.stack([t.positions for t in truths]), np.stack([t.frames[0] for t in truths]),
-                         s)
+    i0 = int(np.argmin(np.abs(truths[0].s)))
+    return truth_in_base(truths[0].s, np.stack([t.positions for t in truths]),
+                         np.stack([t.frames[i0] for t in truths]), np.stack([t.positions[i0] for t in truths]), s)
 
 
 def summary(shape: Shape, truth: np.ndarray) -> dict:
