@@ -30,7 +30,9 @@ the two differ by a relative φ²/12 (1.07e-3 on the library helix at 2.8 mm seg
 1.07e-3). Both vanish together, and for a straight rod they agree to rounding.
 
 Cost: the per-edge arithmetic of :meth:`RodReader.read` and :meth:`RodState.frames_at` is compiled
-(:mod:`models._rod_kernels`, numba): ≈ 5 µs for 100 segments, where the numpy formulation took ≈ 50 µs.
+(:mod:`models._rod_kernels`, numba): ≈ 4 µs for 100 segments, where the numpy formulation took ≈ 50 µs. The
+sensor-rate read of :class:`RodView` takes the small angles by their series (≈ 1.6 µs; equal to the exact read
+to rounding) and keeps its last read while MuJoCo reports the rod asleep and nothing it reads has changed.
 """
 
 from __future__ import annotations
@@ -318,7 +320,8 @@ class RodReader:
         names = [f"{name}_twist_{e}" for e in range(ne - 1)] + [f"{name}_twist"]
         ids = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names])
         self._tw_edges = np.flatnonzero(ids >= 0)
-        self._tw_qadr = model.jnt_qposadr[ids[ids >= 0]].astype(np.int64)
+        self._tw_joints = ids[ids >= 0]
+        self._tw_qadr = model.jnt_qposadr[self._tw_joints].astype(np.int64)
         self._all_twist = self._tw_edges.size == ne
         self._theta_buf = np.zeros(ne)
         self._site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"{name}_base")
@@ -414,6 +417,11 @@ class RodView:
     twist angles cost a few microseconds a frame in Python; MuJoCo keeps an ``mjData``'s arrays where they are
     for its lifetime, so views taken once stay valid.
 
+    The read (:func:`models._rod_kernels.view_read`) takes the small angles by their series (equal to the exact
+    read to rounding: frames within 1e-15, Darboux vectors within ≈ 1e-15/l̄; :mod:`models._rod_kernels`), and
+    while MuJoCo reports the rod asleep and its inputs are bit for bit those of the last read it keeps the
+    buffers as they are.
+
     Attributes
     ----------
     reader : RodReader
@@ -426,33 +434,60 @@ class RodView:
 
     def __init__(self, reader: RodReader, data: mujoco.MjData) -> None:
         r = reader
+        model = r.model
         self.reader, self.data = reader, data
         self.positions = data.flexvert_xpos[r._va : r._va + r._nv]  # a view: the vertices now, m
         self.plastic = data.plastic[r._pa : r._pa + 6 * r._ne]
         self.qpos = data.qpos
         self.site_row = data.site_xmat[r._site] if r._site >= 0 else np.zeros(9)
-        self.theta = np.zeros(r._ne)  # the clamped edge's entry stays 0
-        self.frames = np.empty((r._ne, 3, 3))
-        self.darboux = np.empty((r._ne - 1, 3))
+        self.tree_asleep = data.tree_asleep
+        # the kinematic trees whose sleep the read watches: those of the vertices, the twist joints and the base
+        bodies = [model.flex_vertbodyid[r._va : r._va + r._nv], model.jnt_bodyid[r._tw_joints]]
+        if r._site >= 0:
+            bodies.append(model.site_bodyid[[r._site]])
+        trees = np.unique(model.body_treeid[np.concatenate(bodies)])
+        trees = trees[trees >= 0]  # −1: a static body (the world), never moves
+        index = np.concatenate([[r._tw_edges.size], r._tw_edges, r._tw_qadr, trees])
+        ne = r._ne
+        self._buffer = np.zeros(_rod_kernels.READ_HEADER + (ne - 1) + ne + 3 * (ne + 1) + 7 * ne + 9 + 9 * ne
+                                + 3 * (ne - 1) + _rod_kernels.SCRATCH_ROWS * ne + index.size)
+        self._header, inv_lbar, self.theta, _, self.frames, self.darboux, _, index_part = _rod_kernels.view_parts(
+            self._buffer, ne)
+        inv_lbar[:] = r._inv_lbar  # the clamped edge's θ stays 0
+        index_part[:] = index  # integers far below 2⁵³: exact as floats
         # past numba's dispatcher (twin/_numba_entry.py): these arguments keep their types
-        self._kernel = compiled_entry(_rod_kernels.bound_frames_and_darboux, *self.kernel_arguments())
+        self._kernel = compiled_entry(_rod_kernels.view_read, *self.read_arguments())
+
+    def read_arguments(self) -> tuple:
+        """The arguments of :func:`models._rod_kernels.view_read`, for callers that fuse the rod read into a
+        compiled call of their own (:mod:`sim_interrogator.frame_path`)."""
+        return self.positions, self.plastic, self.qpos, self.site_row, self.tree_asleep, self._buffer
 
     def kernel_arguments(self) -> tuple:
-        """The arguments of :func:`models._rod_kernels.bound_frames_and_darboux`, for callers that fuse the rod
-        read into a compiled call of their own (:mod:`sim_interrogator.frame_path`)."""
+        """The arguments of :func:`models._rod_kernels.bound_frames_and_darboux` (the exact read, into this view's
+        buffers), for callers that fuse it into a compiled call of their own (:mod:`models._lumen_kernels`). A
+        view read that way must not be read by :meth:`compute` as well (its kept inputs would not describe the
+        buffers)."""
         r = self.reader
         return (self.positions, self.plastic, self.qpos, r._tw_edges, r._tw_qadr, self.theta, self.site_row,
                 r._inv_lbar, self.frames, self.darboux)
 
+    @property
+    def reads(self) -> int:
+        """How many times the buffers were filled afresh (a read that kept them, asleep, does not count)."""
+        return int(self._header[1])
+
     def compute(self) -> None:
         """Fill :attr:`frames` and :attr:`darboux` from the bound ``mjData`` now (after ``mj_step``)."""
-        if not self._kernel(*self.kernel_arguments()):
+        if self._kernel(*self.read_arguments()) < 0:
             self.restart()
 
     def restart(self) -> None:
         """Fill the buffers while ``mjData.plastic`` is still zero (before the first step: frames as MuJoCo
         restarts them, :meth:`RodReader.compute`)."""
         self.reader.compute(self.data, self.frames, self.darboux)
+        self._header[0] = 0.0  # the kept inputs no longer describe the buffers
+        self._header[1] += 1.0
 
     def state(self) -> RodState:
         """The :class:`RodState` of the last :meth:`compute` (copies: the view's buffers are reused)."""

@@ -10,6 +10,8 @@ Setup: the default 8 Fr catheter (100 segments) held in the library helix by con
 * ``optics_overhead``: fraction of that wall time spent in the optics (reading the rod state, curvature at
   the gratings, wavelengths with every effect); the truth attached to each frame is reported apart
   (``truth_us_per_frame``).
+* ``optics_overhead_awake``: the same fraction of the ``realtime_factor_awake`` run (every frame reads a rod
+  that moved: no read is kept as MuJoCo's sleep allows), with ``optics_us_per_frame_awake``.
 * ``sheath_steps_per_s``: physics steps per wall second of the catheter in the default sheath
   (``sim://sheath-cycle``: 100 segments, 2 ms, ≈ 70 contacts), the frames at 100 Hz — where the contact solve
   bounds every sheath scenario and design study (docs/simulation.md §4).
@@ -56,7 +58,7 @@ def bench_sim(quick: bool = False) -> dict:
 
     sim, simulated, wall = _frames(100, duration)
     frames = int(duration * sim.rate)
-    _, awake_simulated, awake_wall = _frames(100, duration, awake=True)
+    awake, awake_simulated, awake_wall = _frames(100, duration, awake=True)
     _, coarse_simulated, coarse_wall = _frames(50, duration)
 
     sheath = SimInterrogator(registry.load("twin.sim_setups", "sheath-cycle")(), rate=100.0, truth=False)
@@ -77,5 +79,7 @@ def bench_sim(quick: bool = False) -> dict:
         "frame_rate_hz": sim.rate,
         "realtime_factor_50_segments": round(coarse_simulated / coarse_wall, 2),
         "realtime_factor_awake": round(awake_simulated / awake_wall, 2),
+        "optics_overhead_awake": round(awake.optics_time / awake_wall, 3),
+        "optics_us_per_frame_awake": round(awake.optics_time / frames * 1e6, 1),
         "sheath_steps_per_s": round(sheath_steps),
     }

@@ -37,7 +37,7 @@ GOALS: dict[tuple[str, str], tuple[str, float, str]] = {
     ("reconstruct", "uncertainty_cost_ratio"): ("<=", 2.0, "×"),
     ("reconstruct", "uncertainty_latency_ratio"): ("<=", 2.0, "×"),
     ("sim", "realtime_factor"): (">=", 2.0, "×"),
-    ("sim", "optics_overhead"): ("<=", 0.1, ""),
+    ("sim", "optics_overhead"): ("<=", 0.05, ""),
     ("stream", "max_frames_per_s"): (">=", 40_000.0, "frames/s"),
     ("stream", "decode_frames_per_s"): (">=", 60_000.0, "frames/s"),
 }
