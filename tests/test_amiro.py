@@ -60,12 +60,14 @@ def test_needle_toml_is_the_scenarios_amiro_fiber(fiber):
     assert fiber.strain_sensitivity == twin.strain_sensitivity
 
 
-def test_calibration_reproduces(tmp_path):
-    out = tmp_path / "cal.toml"
+def test_calibration_reproduces(tmp_path, capsys):
     """The shipped calibration is the error-model (nuisance) one, with its jig zero and error model, and the command
-    in SOURCE.md makes it again."""
+    in SOURCE.md makes it again; it prints the jig zero as the bent grooves' shortfall (docs/jig.md)."""
+    out = tmp_path / "cal.toml"
     assert main(["jig-calibrate", str(POSES), "--fiber", str(NEEDLE), "--gratings", "0,1,2", "--model", "nuisance",
                  "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "Jig zero (the bent grooves' shortfall from their labels" in printed and "flat groove's" not in printed
     new, kept = Calibration.load(out), Calibration.load(CALIBRATION)
     assert kept.provenance["jig_model"] == "nuisance"
     np.testing.assert_allclose(np.array(new.lambda0), np.array(kept.lambda0), rtol=0, atol=1e-9)

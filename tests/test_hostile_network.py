@@ -60,6 +60,40 @@ def test_foxglove_clients_trickling_their_request_are_dropped_at_the_deadline_an
                 t.join(timeout=10)
 
 
+@pytest.mark.timeout(120)
+def test_a_refused_foxglove_client_that_keeps_sending_is_closed_at_the_refusal_deadline():
+    """A client over the cap gets 503 and is then drained until it closes, within 2 s in all: the drain had a 1 s
+    timeout per read and no deadline, so a refused client sending a byte every 0.1 s held its thread for ever (one
+    thread per refused connection, without bound)."""
+    require_module("foxglove", "foxglove-sdk (the ros extra)")
+    from twin.foxglove import FoxgloveServer
+
+    with FoxgloveServer(port=0, max_clients=1, handshake_timeout=60.0) as server:
+        port = server.address[1]
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as holder:
+            holder.sendall(b"GET / HTTP/1.1\r\n")  # holds the only place (its head never ends)
+            assert wait_until(lambda: server.clients == 1, timeout=20)
+            with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+                s.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1:%d\r\n\r\n" % port)
+                reply = b""
+                while b"\r\n\r\n" not in reply:
+                    chunk = s.recv(4096)
+                    assert chunk, reply
+                    reply += chunk
+                assert b" 503 " in reply.split(b"\r\n")[0], reply
+                t0 = time.monotonic()
+                closed = False
+                while time.monotonic() - t0 < 30:  # hang guard; the server closes after 2 s at most
+                    try:
+                        s.sendall(b"x")  # the server's close answers these with a reset
+                    except OSError:
+                        closed = True
+                        break
+                    time.sleep(0.1)
+                assert closed, "a refused client that keeps sending is never closed"
+                assert server.clients_refused == 1
+
+
 @pytest.mark.parametrize("url", ["replay://r.h5?speed=1&speed=2", "illumisense://127.0.0.1:1?start_wait=0&start_wait=9",
                                  "synthetic://?frames=3&rate=5&frames=4000"])
 def test_an_option_given_twice_in_a_url_is_one_line_naming_it(url):

@@ -190,8 +190,10 @@ def test_twin_live_through_a_server_that_floods_stalls_and_drops_keeps_every_int
 
     server = ScriptedServer([first, b"".join(recs[50:60])])
     try:
+        # --duration: a hang guard (a frame lost would otherwise wait for ever on the silent third connection,
+        # until pytest's timeout, with no counters to say what was lost)
         code = main(["live", f"illumisense://127.0.0.1:{server.port}?resync_timeout=60", "--frames", "60",
-                     "--json", "--quiet"])
+                     "--duration", "120", "--json", "--quiet"])
     finally:
         server.close()
     out = json.loads(capsys.readouterr().out)

@@ -272,15 +272,19 @@ def _handshake(head: bytes, rest: bytes, client: socket.socket, server: socket.s
 
 def _refuse(conn: socket.socket) -> None:
     """Answer a client over the cap with HTTP 503 after its request (a reply before it, or a close with its
-    request unread, can reach the client as a reset instead of the answer); at most 2 s in all."""
+    request unread, can reach the client as a reset instead of the answer); at most 2 s in all (a deadline, not a
+    timeout per read: a client that keeps sending would otherwise hold this thread for as long as it likes)."""
+    deadline = time.monotonic() + 2.0
     try:
         with contextlib.suppress(OSError, ValueError):
             _read_head(conn, 1.0)
         conn.settimeout(1.0)
         conn.sendall(_REFUSE)
         conn.shutdown(socket.SHUT_WR)
-        while conn.recv(4096):  # until the client closes (or the timeout)
-            pass
+        while (left := deadline - time.monotonic()) > 0:  # until the client closes, or the deadline
+            conn.settimeout(left)
+            if not conn.recv(4096):
+                break
     except OSError:
         pass
     finally:

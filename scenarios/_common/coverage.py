@@ -9,13 +9,14 @@ so the tube is tested as it would be used from an exact base. The truth is inter
 arc lengths with a cubic spline through the rod's vertices (~2 mm apart; a linear one would cut corners by
 h²κ/8, up to 0.03 mm).
 
-The model error is fitted (:func:`twin.uncertainty.fit_model_error`) with a calibration on shapes that
-calibration was not identified on, never on those scored: with the lab calibration on the library's other six
-shapes (:data:`MODEL_ERROR_SHAPES`, held by connect constraints as the bath's helix and static-shapes' library
-are, noise seeds of their own), against their rods' centrelines, cached like the lab calibration;
-``static-shapes`` fits each fold's on the other fold's shapes with the other fold's calibration. On the shapes a
+The model error is fitted (:func:`twin.uncertainty.fit_model_error`) with the calibration the tube is used with,
+never on the shapes scored: with the lab calibration on the library's six shapes it was not identified on
+(:data:`MODEL_ERROR_SHAPES`, held by connect constraints as the bath's helix and static-shapes' library are, noise
+seeds of their own), against their rods' centrelines, cached like the lab calibration. On the shapes a
 calibration was identified on its parameters' error is absorbed (their fit made it small there), so the stated
-1σ of Δθ and g would look over-stated and be scaled down (docs/math.md §8.4). Two of its terms are not fitted to
+1σ of Δθ and g would look over-stated and be scaled down (docs/math.md §8.4); ``static-shapes`` still fits each
+fold's with the fold's own calibration on the other fold's shapes, those it was identified on, the only ones left
+(another fold's calibration does not share its error; docs/math.md §8.4). Two of its terms are not fitted to
 coverage but derived from the rod's exact truth on data other than those scored (docs/math.md §8.4): the
 catheter's unmeasured twist rate (:func:`twist_sigma`: in the fixtures from the fitting shapes themselves, in a
 sheath :data:`SHEATH_TWIST`) and

@@ -52,7 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             help="fit the jig roll to these poses instead of using the calibration's (remounted)")
         parser.add_argument("--no-jig-zero", action="store_true",
                             help="score the curvature change from each rotation's reference as it is, without "
-                            "adding the jig's zero (the flat groove's own curvature) the calibration carries "
+                            "adding the jig's zero (how much less its bent grooves bend the sensor than labelled) the "
+                            "calibration carries "
                             "(docs/jig.md, \"The jig's zero\")")
         parser.add_argument("--max-error", type=float, metavar="1/m",
                             help="exit with status 1 if a curvature error (κ ≥ --min-curvature) exceeds this")
@@ -199,8 +200,8 @@ def _calibrate(args: argparse.Namespace) -> int:
               f"mean over rotations) {', '.join(f'{a:+.3f}/{b:+.3f}' for a, b in nz.reference.mean(axis=0))} 1/m",
               file=out)
     prov = result.calibration.provenance
-    print("\nJig zero (the flat groove's curvature in the jig's frame, along/across the bend, 1/m; median over the "
-          "rotations; added to curvatures zeroed in this jig): "
+    print("\nJig zero (the bent grooves' shortfall from their labels in the jig's frame, along/across the bend, 1/m; "
+          "median over the rotations; added to curvatures zeroed in this jig): "
           + ", ".join(f"grating {int(n)} {a:+.3f}/{b:+.3f}" for n, (a, b) in
                       zip(result.gratings, prov["jig_zero_1_per_m"], strict=True)), file=out)
     for o, row in zip(result.orientations, prov["jig_rotation_zeros_1_per_m"], strict=True):

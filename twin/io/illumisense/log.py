@@ -4,8 +4,8 @@ Nobody publishes a log format; loggers write each record's payload (the text aft
 as one line, so a line is read exactly as a payload (docs/protocols-illumisense.md): date, time, sample
 number, channel blocks, optional sensor blocks, any line ending. The lines are found in one compiled pass and
 decoded a block of lines at a time into arrays (one batch per layout; no object per record), so what reading
-takes beyond the file and its frames is bounded by a block, and a file of junk is refused after its header
-lines without the rest being decoded.
+takes beyond the file, its frames and the message naming each bad line after the first record is bounded by a
+block, and a file of junk is refused after its header lines without the rest being decoded.
 
 - Lines end in LF, CR LF or CR alone, in any mixture; a UTF-8 byte-order mark before the first line is skipped.
   A last line without a line end was cut (the writer was stopped mid-line): it is left out, since its last
@@ -121,7 +121,7 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
     return _arrays(kept, groups, errors, consensus.odd)
 
 
-#: lines decoded at once: bounds the tokenizer's arrays and the refusals held, whatever the file's size
+#: lines decoded at once: bounds the tokenizer's arrays and the block's refusals, whatever the file's size
 _BLOCK_LINES = 1 << 12
 
 
