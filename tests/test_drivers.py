@@ -155,6 +155,71 @@ def test_illumisense_driver_resyncs_reconnects_and_counts():
     assert s["disconnects"] >= 1 and s["reconnects"] >= 1
 
 
+def test_illumisense_reader_away_past_resync_timeout_keeps_the_records_waiting_behind_garbage():
+    """The flaky hostile-stream hang: out of sync, the reader is away longer than ``resync_timeout`` (a first
+    reconstruction compiling for a minute, a starved CPU) while garbage and then intact records wait unread in the
+    socket. The clock ran while nobody read: the driver must read the backlog, not drop the connection with the
+    records in it (it did, and the records were lost)."""
+    import threading
+
+    rec = records(synthetic_frames(10))
+    away, sent, done = threading.Event(), threading.Event(), threading.Event()
+
+    def first(conn: socket.socket) -> None:
+        conn.sendall(b"".join(rec[:5]) + bytes(2000))  # out of sync: the clock starts
+        away.wait(20)
+        # more than one read of garbage (so the first read after the pause is a full one), then the records; small
+        # enough for the loopback buffers, so sendall returns with everything waiting in the reader's socket
+        conn.sendall(bytes(70_000) + b"".join(rec[5:]))
+        sent.set()
+        done.wait(20)  # held open: no end of stream to help the reader
+
+    server = ScriptedServer([first])
+    src = IllumisenseSource("127.0.0.1", server.port, resync_timeout=0.3)
+    got: list = []
+    try:
+        assert wait_until(lambda: bool(got.extend(singles(src.read_batch(timeout=0.05))))
+                          or (len(got) == 5 and not src.decoder.in_sync))
+        away.set()
+        assert sent.wait(20)
+        time.sleep(3 * src.resync_timeout)  # the scenario, not a synchronisation: the reader is busy elsewhere
+        wait_until(lambda: bool(got.extend(singles(src.read_batch(timeout=0.05)))) or len(got) >= 10, timeout=10)
+        stats = src.stats()
+    finally:
+        done.set()
+        src.close()
+        server.close()
+    assert [f.sequence for f in got] == list(range(10)), stats
+    assert stats["disconnects"] == 0 and stats["framing_errors"] == 1, stats
+
+
+def test_illumisense_stream_out_of_sync_past_resync_timeout_reconnects():
+    """A stream that stays garbage while the reader keeps up with it is reconnected after ``resync_timeout``."""
+    import threading
+
+    rec = records(synthetic_frames(10))
+    done = threading.Event()
+
+    def garbage(conn: socket.socket) -> None:
+        conn.sendall(b"".join(rec[:5]))
+        while not done.wait(0.01):  # a trickle: every read takes all there is
+            conn.sendall(b"\x00" * 100)
+
+    server = ScriptedServer([garbage, b"".join(rec[5:])])
+    src = IllumisenseSource("127.0.0.1", server.port, resync_timeout=0.2)
+    got: list = []
+    try:
+        assert wait_until(lambda: bool(got.extend(singles(src.read_batch(timeout=0.05)))) or len(got) >= 10)
+        stats = src.stats()
+    finally:
+        done.set()
+        src.close()
+        server.close()
+    assert [f.sequence for f in got] == list(range(10)), stats
+    # the first connection never ends by itself: only the resync timeout brings the second one's records
+    assert stats["reconnects"] >= 1, stats
+
+
 def test_illumisense_open_errors_name_the_url():
     with socket.create_server(("127.0.0.1", 0)) as s:
         port = s.getsockname()[1]

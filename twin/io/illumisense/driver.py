@@ -1,11 +1,13 @@
 """The ILLumiSense driver: :class:`IllumisenseSource`.
 
 ``illumisense://HOST[:PORT]`` (port 2055): the ILLumiSense TCP stream (docs/protocols.md §1). The stream decoder
-resynchronises by itself after bad bytes; the driver reconnects only when the peer closes, or when the stream
-stays out of sync for ``resync_timeout`` s (default 2). The channel layout is decided by a consensus of the
-first records (records of another layout are counted in ``odd_records``; held records are released after
-``layout_wait`` s at the latest). Options: ``channels=cores|single`` with ``cores=N`` for a fibre whose cores
-are spliced onto one channel, ``max_payload`` (bytes), ``layout_wait`` (s, default 0.25).
+resynchronises by itself after bad bytes; the driver reconnects only when the peer closes, or when the stream stays
+out of sync for ``resync_timeout`` s (default 2), judged on every byte sent until then (a reader that fell behind
+reads what waits first: time spent away from the socket never drops a connection holding unread records). The
+channel layout is decided by a consensus of the first records (records of another layout are counted in
+``odd_records``; held records are released after ``layout_wait`` s at the latest). Options:
+``channels=cores|single`` with ``cores=N`` for a fibre whose cores are spliced onto one channel, ``max_payload``
+(bytes), ``layout_wait`` (s, default 0.25).
 
 Common behaviour (opening, reconnect policy, counters): :mod:`twin.io.drivers`.
 """
@@ -86,7 +88,11 @@ class IllumisenseSource(Driver):
         else:
             now = time.monotonic()
             self._out_of_sync_since = self._out_of_sync_since or now
-            if now - self._out_of_sync_since > self.resync_timeout:
+            # judged only once caught up (a read shorter than asked: nothing more was waiting). Behind — the
+            # reader was away (a first reconstruction compiling, a starved CPU) — the clock ran while the bytes
+            # sat unread, and they may hold the next intact record: dropping the connection would lose them
+            caught_up = len(data) < self._client.recv_size
+            if caught_up and now - self._out_of_sync_since > self.resync_timeout:
                 raise ConnectionLost(f"{self.url}: stream out of sync for {self.resync_timeout:g} s")
 
     def stats(self) -> dict:
