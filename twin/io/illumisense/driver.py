@@ -2,12 +2,12 @@
 
 ``illumisense://HOST[:PORT]`` (port 2055): the ILLumiSense TCP stream (docs/protocols.md §1). The stream decoder
 resynchronises by itself after bad bytes; the driver reconnects only when the peer closes, or when the stream stays
-out of sync for ``resync_timeout`` s (default 2), judged on every byte sent until then (a reader that fell behind
-reads what waits first: time spent away from the socket never drops a connection holding unread records). The
-channel layout is decided by a consensus of the first records (records of another layout are counted in
-``odd_records``; held records are released after ``layout_wait`` s at the latest). Options:
-``channels=cores|single`` with ``cores=N`` for a fibre whose cores are spliced onto one channel, ``max_payload``
-(bytes), ``layout_wait`` (s, default 0.25).
+out of sync for ``resync_timeout`` s (default 2) of reading that keeps up with what arrives (a reader that fell
+behind reads what waits first: time spent away from the socket never drops a connection holding unread records; a
+garbage stream that fills every read is skipped, not reconnected). The channel layout is decided by a consensus of
+the first records (records of another layout are counted in ``odd_records``; held records are released after
+``layout_wait`` s at the latest). Options: ``channels=cores|single`` with ``cores=N`` for a fibre whose cores are
+spliced onto one channel, ``max_payload`` (bytes), ``layout_wait`` (s, default 0.25).
 
 Common behaviour (opening, reconnect policy, counters): :mod:`twin.io.drivers`.
 """
@@ -87,12 +87,14 @@ class IllumisenseSource(Driver):
             self._out_of_sync_since = None
         else:
             now = time.monotonic()
-            self._out_of_sync_since = self._out_of_sync_since or now
-            # judged only once caught up (a read shorter than asked: nothing more was waiting). Behind — the
-            # reader was away (a first reconstruction compiling, a starved CPU) — the clock ran while the bytes
-            # sat unread, and they may hold the next intact record: dropping the connection would lose them
-            caught_up = len(data) < self._client.recv_size
-            if caught_up and now - self._out_of_sync_since > self.resync_timeout:
+            # the clock runs only while the reader keeps up (a read shorter than asked: nothing more waited).
+            # Behind — the reader was away (a first reconstruction compiling, a starved CPU) — the bytes sat
+            # unread and may hold the next intact record, and a sender held back by a full socket sent nothing
+            # new meanwhile: dropping the connection would lose records, so the clock starts again
+            behind = len(data) >= self._client.recv_size
+            if behind or self._out_of_sync_since is None:
+                self._out_of_sync_since = now
+            elif now - self._out_of_sync_since > self.resync_timeout:
                 raise ConnectionLost(f"{self.url}: stream out of sync for {self.resync_timeout:g} s")
 
     def stats(self) -> dict:
