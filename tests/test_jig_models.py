@@ -297,6 +297,12 @@ def test_score_difference_and_its_range_over_clusters():
     none = difference(np.array([2.0, 3.0]), a_rms[:, :, 1:], a_mean[:, :, 1:], a_rms[:, :, 1:], b_mean[:, :, 1:],
                       CLINICAL)
     assert none.magnitude is None and none.direction is None and none.magnitude_range is None
+    # a cell one calibration did not score is left out of both: b's missing 0.4 must not leave a's 0.4 in its
+    # median (a's median alone would be 0.15, b's over the other five 0.25 + 0.05: a difference of −0.15)
+    b_rms = a_rms + 0.05
+    b_rms[0, 0, 2] = np.nan
+    d = difference(levels, a_rms, a_mean, b_rms, b_mean, ALL_LEVELS)
+    assert d.magnitude == pytest.approx(-0.05)
 
 
 def test_coverage_of_known_gaussian_errors():

@@ -340,3 +340,24 @@ def test_fourth_difference_of_the_spline_term_is_exact_on_a_quartic(lost):
     np.testing.assert_allclose(sigma, expected, rtol=1e-9, atol=0.0)
     with pytest.raises(ValueError, match="order must be 2 or 4"):
         ModelError(interpolation=0.05).interpolation_sigma(k, s_n, valid, order=3)
+
+
+def test_the_default_tube_says_when_the_calibration_states_no_parameter_errors():
+    """The twin's default model error scales the calibration's stated 1σ of Δθ and g; without them the tube
+    holds noise and interpolation only, and says so (the live loop's ``tube_caveat``)."""
+    from twin import Frame
+    from twin.reference_errors import TubeFigures
+    from twin.uncertainty import TWIN_MODEL_ERROR
+
+    bare = Uncertainty(Reconstructor(FIBER, Calibration()))
+    assert bare.caveat is not None and "delta_theta" in bare.caveat
+    stated = Calibration(delta_theta=nominal_delta_theta(FIBER), gain=nominal_gain(FIBER), delta_theta_std=1e-3,
+                         gain_std=1e-2 * nominal_gain(FIBER))
+    assert Uncertainty(Reconstructor(FIBER, stated)).caveat is None
+    # a model error chosen by the caller is the caller's statement
+    assert Uncertainty(Reconstructor(FIBER, Calibration()), model_error=TWIN_MODEL_ERROR).caveat is None
+    figures = TubeFigures(bare, per_second=None)
+    w = wavelengths("arc")[None]
+    figures(Frame(wavelengths=w, timestamp=np.zeros(1), sequence=np.zeros(1, dtype=np.int64)),
+            bare.reconstructor(w), None)
+    assert figures.as_dict()["tube_caveat"] == bare.caveat

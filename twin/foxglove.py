@@ -150,7 +150,7 @@ class FoxgloveServer:
             pair = (conn, inner)
             with self._lock:
                 self._pairs[self._pairs.index((conn,))] = pair
-            _handshake(head, rest, conn, inner)
+            _handshake(head, rest, conn, inner, self.handshake_timeout)
         except (OSError, ValueError):
             self._drop(pair)
             return
@@ -258,13 +258,13 @@ def _headers(head: bytes) -> dict[str, str]:
     return out
 
 
-def _handshake(head: bytes, rest: bytes, client: socket.socket, server: socket.socket) -> None:
+def _handshake(head: bytes, rest: bytes, client: socket.socket, server: socket.socket, timeout: float) -> None:
     """Pass the WebSocket opening handshake (the client's ``head`` and what followed it) between a client and
     the SDK's server, letting a client that asks for the specification's subprotocol name have it (the SDK
     answers to its own name for the same protocol; the accept key does not depend on the subprotocol)."""
     head, asked_spec = _swap_protocol(head, SPEC_SUBPROTOCOL, SDK_SUBPROTOCOL)
     server.sendall(head + rest)
-    reply, rest = _read_head(server, 5.0)
+    reply, rest = _read_head(server, timeout)
     if asked_spec:
         reply, _ = _swap_protocol(reply, SDK_SUBPROTOCOL, SPEC_SUBPROTOCOL)
     client.sendall(reply + rest)

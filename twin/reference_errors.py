@@ -363,7 +363,8 @@ class TubeFigures:
     def as_dict(self) -> dict:
         """``tube_frames``, ``mean_sigma_mm`` (mean 1σ lateral radius over their points with s > 0) and, over
         those carrying a truth, ``tube_truth_frames`` and ``coverage_95`` (fraction of the true points inside
-        the 95 % tube); empty when no frame was taken."""
+        the 95 % tube); ``tube_note`` why coverage was skipped, ``tube_caveat`` the uncertainty's
+        (:attr:`twin.uncertainty.Uncertainty.caveat`); empty when no frame was taken."""
         if not self._sigma:
             return {}
         out = {"tube_frames": self.frames, "mean_sigma_mm": _mm(np.concatenate(self._sigma).sum() / self._points)}
@@ -373,6 +374,8 @@ class TubeFigures:
                         f"coverage_{round(self.level * 100)}": round(float(n.sum()) / self._truth_points, 4)})
         if self.note is not None:
             out["tube_note"] = self.note
+        if self.uncertainty.caveat:
+            out["tube_caveat"] = self.uncertainty.caveat
         return out
 
 

@@ -260,6 +260,14 @@ class Uncertainty:
         self._design = cal.design_for(fiber)  # (n_g, n_c, 3)
         self._var_e = (sigma / cal.reference_for(fiber)) ** 2  # (n_g, n_c): variance of the optical strain
         self._dd, self._par_sd = self._parameter_terms(cal) if parameters else (None, np.zeros(0))
+        #: why this tube is narrower than its errors are likely to be, or None: the twin's default model error is
+        #: a multiple of the calibration's stated 1σ of Δθ and g, so without them it carries noise and
+        #: interpolation only
+        self.caveat: str | None = None
+        if model_error is None and self.model_error.parameter_scale and not self._par_sd.size:
+            self.caveat = ("the calibration states no 1σ of delta_theta or gain, which the default model error "
+                           "scales: the tube carries the wavelength noise and the interpolation only (fit the "
+                           "sensor's own: twin.uncertainty.fit_model_error)")
         self._ck_table, self._sens_table = self._peak_tables()
         self._bases: dict[bytes, np.ndarray] = {}
         self._quad = _quadrature(rec)

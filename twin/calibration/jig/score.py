@@ -207,9 +207,14 @@ def difference(levels, a_rms, a_mean, b_rms, b_mean, bands: Bands = CLINICAL) ->
     """
     a_rms, a_mean, b_rms, b_mean = (np.asarray(x, dtype=np.float64) for x in (a_rms, a_mean, b_rms, b_mean))
 
+    # only cells both calibrations scored: medians over different cells would compare different poses
+    rms_both = np.isfinite(a_rms) & np.isfinite(b_rms)
+    mean_both = np.isfinite(a_mean) & np.isfinite(b_mean)
+
     def diff(keep):
-        sa = score(levels, np.where(keep, a_rms, np.nan), np.where(keep, a_mean, np.nan), bands)
-        sb = score(levels, np.where(keep, b_rms, np.nan), np.where(keep, b_mean, np.nan), bands)
+        kr, km = keep & rms_both, keep & mean_both
+        sa = score(levels, np.where(kr, a_rms, np.nan), np.where(km, a_mean, np.nan), bands)
+        sb = score(levels, np.where(kr, b_rms, np.nan), np.where(km, b_mean, np.nan), bands)
         return tuple(None if x is None or y is None else x - y for x, y in
                      ((sa.magnitude_error, sb.magnitude_error), (sa.direction_error, sb.direction_error)))
 
