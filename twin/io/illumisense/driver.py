@@ -38,7 +38,7 @@ class IllumisenseSource(Driver):
     connect_timeout : float
         s.
     resync_timeout : float
-        Reconnect when the stream stays out of sync this long, s.
+        Reconnect when the stream stays out of sync this long while the reader keeps up with it, s.
     url, wait, retry_for, backoff
         See :class:`Driver`.
     """
