@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 import socket
+import threading
 import time
 
 import numpy as np
@@ -155,13 +156,16 @@ def test_illumisense_driver_resyncs_reconnects_and_counts():
     assert s["disconnects"] >= 1 and s["reconnects"] >= 1
 
 
+def read_into(got: list, src, until, timeout: float = 20.0) -> bool:
+    """Append what ``src`` delivers to ``got`` until ``until()`` holds (False after ``timeout`` s: a hang guard)."""
+    return wait_until(lambda: bool(got.extend(singles(src.read_batch(timeout=0.05)))) or until(), timeout)
+
+
 def test_illumisense_reader_away_past_resync_timeout_keeps_the_records_waiting_behind_garbage():
     """The flaky hostile-stream hang: out of sync, the reader is away longer than ``resync_timeout`` (a first
     reconstruction compiling for a minute, a starved CPU) while garbage and then intact records wait unread in the
     socket. The clock ran while nobody read: the driver must read the backlog, not drop the connection with the
     records in it (it did, and the records were lost)."""
-    import threading
-
     rec = records(synthetic_frames(10))
     away, sent, done = threading.Event(), threading.Event(), threading.Event()
 
@@ -178,12 +182,11 @@ def test_illumisense_reader_away_past_resync_timeout_keeps_the_records_waiting_b
     src = IllumisenseSource("127.0.0.1", server.port, resync_timeout=0.3)
     got: list = []
     try:
-        assert wait_until(lambda: bool(got.extend(singles(src.read_batch(timeout=0.05))))
-                          or (len(got) == 5 and not src.decoder.in_sync))
+        assert read_into(got, src, lambda: len(got) == 5 and not src.decoder.in_sync)
         away.set()
         assert sent.wait(20)
         time.sleep(3 * src.resync_timeout)  # the scenario, not a synchronisation: the reader is busy elsewhere
-        wait_until(lambda: bool(got.extend(singles(src.read_batch(timeout=0.05)))) or len(got) >= 10, timeout=10)
+        read_into(got, src, lambda: len(got) >= 10, timeout=10)
         stats = src.stats()
     finally:
         done.set()
@@ -195,8 +198,6 @@ def test_illumisense_reader_away_past_resync_timeout_keeps_the_records_waiting_b
 
 def test_illumisense_stream_out_of_sync_past_resync_timeout_reconnects():
     """A stream that stays garbage while the reader keeps up with it is reconnected after ``resync_timeout``."""
-    import threading
-
     rec = records(synthetic_frames(10))
     done = threading.Event()
 
@@ -209,7 +210,7 @@ def test_illumisense_stream_out_of_sync_past_resync_timeout_reconnects():
     src = IllumisenseSource("127.0.0.1", server.port, resync_timeout=0.2)
     got: list = []
     try:
-        assert wait_until(lambda: bool(got.extend(singles(src.read_batch(timeout=0.05)))) or len(got) >= 10)
+        assert read_into(got, src, lambda: len(got) >= 10)
         stats = src.stats()
     finally:
         done.set()
