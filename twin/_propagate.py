@@ -56,9 +56,11 @@ def pack(quad: dict, grating_s: np.ndarray, lam0: np.ndarray, window: float | No
                    interpolation, base_var, ck_table.shape[1], quad["h"][0])
     header[12:14] = (twist, order)
     start, weights = _stencils(np.asarray(grating_s, dtype=np.float64), order)
-    parts = (header, grating_s, lam0, ck_table, sens_table, par_sd, quad["breaks"], quad["points"],
-             quad["interval"], _hermite_weights(quad), quad["first"], quad["half_points"], start, weights)
-    return np.concatenate([np.asarray(a, dtype=np.float64).ravel() for a in parts])
+    parts = [header, grating_s, lam0, ck_table, sens_table, par_sd, quad["breaks"], quad["points"],
+             quad["interval"], _hermite_weights(quad), quad["first"], quad["half_points"], start, weights]
+    parts = [np.asarray(a, dtype=np.float64).ravel() for a in parts]
+    parts[0][14] = sum(a.size for a in parts[:-2])  # where the stencils start: _unpack_stencils reads it, not recounts
+    return np.concatenate(parts)
 
 
 def _stencils(s: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
@@ -129,10 +131,7 @@ def _unpack(const):  # pragma: no cover (compiled)
 def _unpack_stencils(const):  # pragma: no cover (compiled)
     """The intact pattern's interpolation stencils of :func:`pack` (:func:`_stencils`): start (n_g,) int64,
     weights (n_g, order + 1)."""
-    n_g, n_c, n_p, n_b, n_par = int(const[0]), int(const[1]), int(const[2]), int(const[3]), int(const[4])
-    n_codes, order = int(const[10]), int(const[13])
-    o = _HEADER + n_g + n_g * n_c + n_g * n_codes * 4 * (1 + n_par) + n_par + n_b + (n_b - 1) * 3 + n_p \
-        + 4 * n_p + 9 + 3
+    n_g, order, o = int(const[0]), int(const[13]), int(const[14])
     start = const[o:o + n_g].astype(np.int64)
     o += n_g
     return start, const[o:o + n_g * (order + 1)].reshape((n_g, order + 1))
