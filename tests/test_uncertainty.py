@@ -356,6 +356,7 @@ def test_the_default_tube_says_when_the_calibration_states_no_parameter_errors()
     assert Uncertainty(Reconstructor(FIBER, stated)).caveat is None
     # a model error chosen by the caller is the caller's statement
     assert Uncertainty(Reconstructor(FIBER, Calibration()), model_error=TWIN_MODEL_ERROR).caveat is None
+    assert bare.with_model_error(TWIN_MODEL_ERROR).caveat is None
     figures = TubeFigures(bare, per_second=None)
     w = wavelengths("arc")[None]
     figures(Frame(wavelengths=w, timestamp=np.zeros(1), sequence=np.zeros(1, dtype=np.int64)),

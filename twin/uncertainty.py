@@ -279,6 +279,7 @@ class Uncertainty:
         """The same propagation with another model error (cheap: everything else is shared)."""
         other = copy.copy(self)
         other.model_error = model_error
+        other.caveat = None  # a model error the caller chose is the caller's statement
         return other
 
     # ------------------------------------------------------------------ the call
