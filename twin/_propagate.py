@@ -744,12 +744,6 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
     for b in range(1, n_b + 1):
         ybb, zbb = yb[b], zb[b]
         if b < n_b:  # the running integrals at breakpoint b: piece b − 1's rule added
-            g0, g1, g2 = g[b - 1, 0], g[b - 1, 1], g[b - 1, 2]
-            for n in range(n_g):
-                w0, w1, w2 = wb[0, b - 1, n], wb[1, b - 1, n], wb[2, b - 1, n]
-                xr = xn[n]
-                for i in range(12 * L):
-                    xr[i] += w0 * g0[i] + w1 * g1[i] + w2 * g2[i]
             zbb[:] = zb[b - 1]
             for e in range(3):
                 _shared(g[b - 1, e], wsq[b - 1, e], zbb, n_sh)
@@ -758,15 +752,33 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
             for e in range(3):
                 _shared(gh[e], wsqh[e], zbb, n_sh)
         ybb[:] = 0.0
-        for n in range(n_g):
-            if b < n_b:
+        if b < n_b:
+            # two gratings at a time: X_n and X_m updated in one pass over the piece's integrand, then both
+            # added into Y(b) in one pass over it (Y's rows are loaded and stored once per pair: the update is
+            # bound by the first-level cache's stores, not by its arithmetic)
+            g0, g1, g2 = g[b - 1, 0], g[b - 1, 1], g[b - 1, 2]
+            for n in range(0, n_g - 1, 2):
+                w0, w1, w2 = wb[0, b - 1, n], wb[1, b - 1, n], wb[2, b - 1, n]
+                u0, u1, u2 = wb[0, b - 1, n + 1], wb[1, b - 1, n + 1], wb[2, b - 1, n + 1]
+                xr, xs = xn[n], xn[n + 1]
+                for i in range(12 * L):
+                    a0, a1, a2 = g0[i], g1[i], g2[i]
+                    xr[i] += w0 * a0 + w1 * a1 + w2 * a2
+                    xs[i] += u0 * a0 + u1 * a1 + u2 * a2
+                _accumulate2(xr, xs, vrep[n], vrep[n + 1], ybb)
+            if n_g % 2:
+                n = n_g - 1
+                w0, w1, w2 = wb[0, b - 1, n], wb[1, b - 1, n], wb[2, b - 1, n]
                 xr = xn[n]
-            else:
-                xr = xm
+                for i in range(12 * L):
+                    xr[i] += w0 * g0[i] + w1 * g1[i] + w2 * g2[i]
+                _accumulate(xr, vrep[n], ybb)
+        else:
+            for n in range(n_g):
                 w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
                 for i in range(12 * L):
-                    xr[i] = w0 * gh[0, i] + w1 * gh[1, i] + w2 * gh[2, i]
-            _accumulate(xr, vrep[n], ybb)
+                    xm[i] = w0 * gh[0, i] + w1 * gh[1, i] + w2 * gh[2, i]
+                _accumulate(xm, vrep[n], ybb)
     # into the layout of _c_and_dc
     t = 0
     for r in range(6):
@@ -874,6 +886,85 @@ def _accumulate(x, v, yb):  # pragma: no cover (compiled)
         yb[18 * L + ll] += u40 * x8 + u41 * x9
         yb[19 * L + ll] += u40 * x10 + u41 * x11
         yb[20 * L + ll] += u50 * x10 + u51 * x11
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _accumulate2(x, xb, v, vb, yb):  # pragma: no cover (compiled)
+    """:func:`_accumulate` for two gratings at once: Y += X V Xᵀ + X_b V_b X_bᵀ, each row of ``yb`` loaded and
+    stored once."""
+    L = LANES
+    for ll in range(L):
+        x0 = x[0 * L + ll]
+        x1 = x[1 * L + ll]
+        x2 = x[2 * L + ll]
+        x3 = x[3 * L + ll]
+        x4 = x[4 * L + ll]
+        x5 = x[5 * L + ll]
+        x6 = x[6 * L + ll]
+        x7 = x[7 * L + ll]
+        x8 = x[8 * L + ll]
+        x9 = x[9 * L + ll]
+        x10 = x[10 * L + ll]
+        x11 = x[11 * L + ll]
+        v0, v1, v2 = v[ll], v[L + ll], v[2 * L + ll]
+        u00 = x0 * v0 + x1 * v1
+        u01 = x0 * v1 + x1 * v2
+        u10 = x2 * v0 + x3 * v1
+        u11 = x2 * v1 + x3 * v2
+        u20 = x4 * v0 + x5 * v1
+        u21 = x4 * v1 + x5 * v2
+        u30 = x6 * v0 + x7 * v1
+        u31 = x6 * v1 + x7 * v2
+        u40 = x8 * v0 + x9 * v1
+        u41 = x8 * v1 + x9 * v2
+        u50 = x10 * v0 + x11 * v1
+        u51 = x10 * v1 + x11 * v2
+        bx0 = xb[0 * L + ll]
+        bx1 = xb[1 * L + ll]
+        bx2 = xb[2 * L + ll]
+        bx3 = xb[3 * L + ll]
+        bx4 = xb[4 * L + ll]
+        bx5 = xb[5 * L + ll]
+        bx6 = xb[6 * L + ll]
+        bx7 = xb[7 * L + ll]
+        bx8 = xb[8 * L + ll]
+        bx9 = xb[9 * L + ll]
+        bx10 = xb[10 * L + ll]
+        bx11 = xb[11 * L + ll]
+        bv0, bv1, bv2 = vb[ll], vb[L + ll], vb[2 * L + ll]
+        bu00 = bx0 * bv0 + bx1 * bv1
+        bu01 = bx0 * bv1 + bx1 * bv2
+        bu10 = bx2 * bv0 + bx3 * bv1
+        bu11 = bx2 * bv1 + bx3 * bv2
+        bu20 = bx4 * bv0 + bx5 * bv1
+        bu21 = bx4 * bv1 + bx5 * bv2
+        bu30 = bx6 * bv0 + bx7 * bv1
+        bu31 = bx6 * bv1 + bx7 * bv2
+        bu40 = bx8 * bv0 + bx9 * bv1
+        bu41 = bx8 * bv1 + bx9 * bv2
+        bu50 = bx10 * bv0 + bx11 * bv1
+        bu51 = bx10 * bv1 + bx11 * bv2
+        yb[0 * L + ll] += (u00 * x0 + u01 * x1) + (bu00 * bx0 + bu01 * bx1)
+        yb[1 * L + ll] += (u00 * x2 + u01 * x3) + (bu00 * bx2 + bu01 * bx3)
+        yb[2 * L + ll] += (u00 * x4 + u01 * x5) + (bu00 * bx4 + bu01 * bx5)
+        yb[3 * L + ll] += (u00 * x6 + u01 * x7) + (bu00 * bx6 + bu01 * bx7)
+        yb[4 * L + ll] += (u00 * x8 + u01 * x9) + (bu00 * bx8 + bu01 * bx9)
+        yb[5 * L + ll] += (u00 * x10 + u01 * x11) + (bu00 * bx10 + bu01 * bx11)
+        yb[6 * L + ll] += (u10 * x2 + u11 * x3) + (bu10 * bx2 + bu11 * bx3)
+        yb[7 * L + ll] += (u10 * x4 + u11 * x5) + (bu10 * bx4 + bu11 * bx5)
+        yb[8 * L + ll] += (u10 * x6 + u11 * x7) + (bu10 * bx6 + bu11 * bx7)
+        yb[9 * L + ll] += (u10 * x8 + u11 * x9) + (bu10 * bx8 + bu11 * bx9)
+        yb[10 * L + ll] += (u10 * x10 + u11 * x11) + (bu10 * bx10 + bu11 * bx11)
+        yb[11 * L + ll] += (u20 * x4 + u21 * x5) + (bu20 * bx4 + bu21 * bx5)
+        yb[12 * L + ll] += (u20 * x6 + u21 * x7) + (bu20 * bx6 + bu21 * bx7)
+        yb[13 * L + ll] += (u20 * x8 + u21 * x9) + (bu20 * bx8 + bu21 * bx9)
+        yb[14 * L + ll] += (u20 * x10 + u21 * x11) + (bu20 * bx10 + bu21 * bx11)
+        yb[15 * L + ll] += (u30 * x6 + u31 * x7) + (bu30 * bx6 + bu31 * bx7)
+        yb[16 * L + ll] += (u30 * x8 + u31 * x9) + (bu30 * bx8 + bu31 * bx9)
+        yb[17 * L + ll] += (u30 * x10 + u31 * x11) + (bu30 * bx10 + bu31 * bx11)
+        yb[18 * L + ll] += (u40 * x8 + u41 * x9) + (bu40 * bx8 + bu41 * bx9)
+        yb[19 * L + ll] += (u40 * x10 + u41 * x11) + (bu40 * bx10 + bu41 * bx11)
+        yb[20 * L + ll] += (u50 * x10 + u51 * x11) + (bu50 * bx10 + bu51 * bx11)
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
