@@ -644,11 +644,12 @@ def _block_arrays(n_g, n_b, n_sh, L):  # pragma: no cover (compiled)
     p and t (2, 3, K), A Y and A' Y (2, 3, 6, K), C and C' (2, 3, 3, K); one point's work (48 · LANES: its
     piece's coefficients 36, its position 3, its covariance 9); the shared columns' curvature error
     interpolated to the rule's points, times the rule's weights, per piece (n_b − 1, 3, 2 · n_sh · LANES) and to
-    the first piece's middle point (3, 2 · n_sh · LANES), row q·2 + c."""
+    the first piece's middle point (3, 2 · n_sh · LANES), row q·2 + c; V_n's Cholesky factor (n_g, 3 · LANES: l00,
+    l10, l11)."""
     kb = (n_b + 1) * L
     sizes = (3 * n_g * L, 2 * n_g * n_sh * L, 36 * (n_b - 1) * L, 36 * L, 12 * n_g * L, 12 * L,
              21 * kb, 6 * n_sh * kb, 36 * kb, 6 * n_sh * kb, 6 * kb, 36 * kb, 18 * kb, 48 * L,
-             6 * n_sh * (n_b - 1) * L, 6 * n_sh * L)
+             6 * n_sh * (n_b - 1) * L, 6 * n_sh * L, 3 * n_g * L)
     # one allocation (empty for a call without lanes)
     o = np.zeros(len(sizes) + 1, np.int64)
     for i in range(len(sizes)):
@@ -661,7 +662,8 @@ def _block_arrays(n_g, n_b, n_sh, L):  # pragma: no cover (compiled)
             buf[o[8]:o[9]].reshape((6, 6, kb)), buf[o[9]:o[10]].reshape((6, n_sh, kb)),
             buf[o[10]:o[11]].reshape((2, 3, kb)), buf[o[11]:o[12]].reshape((2, 3, 6, kb)),
             buf[o[12]:o[13]].reshape((2, 3, 3, kb)), buf[o[13]:o[14]],
-            buf[o[14]:o[15]].reshape((n_b - 1, 3, 2 * n_sh * L)), buf[o[15]:o[16]].reshape((3, 2 * n_sh * L)))
+            buf[o[14]:o[15]].reshape((n_b - 1, 3, 2 * n_sh * L)), buf[o[15]:o[16]].reshape((3, 2 * n_sh * L)),
+            buf[o[16]:o[17]].reshape((n_g, 3 * L)))
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
@@ -677,7 +679,7 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
     weights, ``wh`` (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s.
     Lanes beyond ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never
     written out."""
-    vrep, sprep, g, gh, xn, xm, yb, zb, y, z, pt, m, cb, fw, wsq, wsqh = arrs
+    vrep, sprep, g, gh, xn, xm, yb, zb, y, z, pt, m, cb, fw, wsq, wsqh, lrep = arrs
     L = LANES
     n_g = vrep.shape[0]
     n_b = breaks.size
@@ -738,6 +740,16 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
             w, dst = wh[e, n], wsqh[e]
             for i in range(nw):
                 dst[i] += w * sn[i]
+    # V_n = L Lᵀ per grating and frame, L = ((l00, 0), (l10, l11)) (V_n is a covariance: l00 = 0 only where
+    # v00 = 0, and then v01 = 0; the clamp keeps a rounding below zero out of the root)
+    for n in range(n_g):
+        vr, lr = vrep[n], lrep[n]
+        for ll in range(L):
+            l00 = np.sqrt(vr[ll])
+            l10 = vr[L + ll] / l00 if l00 > 0.0 else 0.0
+            lr[ll] = l00
+            lr[L + ll] = l10
+            lr[2 * L + ll] = np.sqrt(max(vr[2 * L + ll] - l10 * l10, 0.0))
     xn[:] = 0.0
     yb[0] = 0.0
     zb[0] = 0.0
@@ -765,20 +777,20 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
                     a0, a1, a2 = g0[i], g1[i], g2[i]
                     xr[i] += w0 * a0 + w1 * a1 + w2 * a2
                     xs[i] += u0 * a0 + u1 * a1 + u2 * a2
-                _accumulate2(xr, xs, vrep[n], vrep[n + 1], ybb)
+                _accumulate2(xr, xs, lrep[n], lrep[n + 1], ybb)
             if n_g % 2:
                 n = n_g - 1
                 w0, w1, w2 = wb[0, b - 1, n], wb[1, b - 1, n], wb[2, b - 1, n]
                 xr = xn[n]
                 for i in range(12 * L):
                     xr[i] += w0 * g0[i] + w1 * g1[i] + w2 * g2[i]
-                _accumulate(xr, vrep[n], ybb)
+                _accumulate(xr, lrep[n], ybb)
         else:
             for n in range(n_g):
                 w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
                 for i in range(12 * L):
                     xm[i] = w0 * gh[0, i] + w1 * gh[1, i] + w2 * gh[2, i]
-                _accumulate(xm, vrep[n], ybb)
+                _accumulate(xm, lrep[n], ybb)
     # into the layout of _c_and_dc
     t = 0
     for r in range(6):
@@ -834,137 +846,139 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
-def _accumulate(x, v, yb):  # pragma: no cover (compiled)
-    """Y += X V Xᵀ (upper triangle, row-major) for one grating and LANES frames, every array 1-D with rows of
-    LANES frames: ``x`` (12 rows) X_n, row r·2 + c; ``v`` (3 rows) V_n (v00, v01, v11); ``yb`` (21 rows).
-    Written out at constant offsets: a few vector instructions per row."""
+def _accumulate(x, l, yb):  # pragma: no cover (compiled)
+    """Y += X V Xᵀ (upper triangle, row-major) for one grating and LANES frames as W Wᵀ, W = X L with L the
+    lower Cholesky factor of V_n (V_n = L Lᵀ; 18 multiply-adds for W and 42 for its 21 products where X V and
+    (X V) Xᵀ take 24 and 42, and 12 values live per grating instead of 24); every array 1-D with rows of LANES
+    frames: ``x`` (12 rows) X_n, row r·2 + c; ``l`` (3 rows) (l00, l10, l11); ``yb`` (21 rows). Written out at
+    constant offsets: a few vector instructions per row."""
     L = LANES
     for ll in range(L):
-        x0 = x[0 * L + ll]
-        x1 = x[1 * L + ll]
-        x2 = x[2 * L + ll]
-        x3 = x[3 * L + ll]
-        x4 = x[4 * L + ll]
-        x5 = x[5 * L + ll]
-        x6 = x[6 * L + ll]
-        x7 = x[7 * L + ll]
-        x8 = x[8 * L + ll]
-        x9 = x[9 * L + ll]
-        x10 = x[10 * L + ll]
-        x11 = x[11 * L + ll]
-        v0, v1, v2 = v[ll], v[L + ll], v[2 * L + ll]
-        u00 = x0 * v0 + x1 * v1
-        u01 = x0 * v1 + x1 * v2
-        u10 = x2 * v0 + x3 * v1
-        u11 = x2 * v1 + x3 * v2
-        u20 = x4 * v0 + x5 * v1
-        u21 = x4 * v1 + x5 * v2
-        u30 = x6 * v0 + x7 * v1
-        u31 = x6 * v1 + x7 * v2
-        u40 = x8 * v0 + x9 * v1
-        u41 = x8 * v1 + x9 * v2
-        u50 = x10 * v0 + x11 * v1
-        u51 = x10 * v1 + x11 * v2
-        yb[0 * L + ll] += u00 * x0 + u01 * x1
-        yb[1 * L + ll] += u00 * x2 + u01 * x3
-        yb[2 * L + ll] += u00 * x4 + u01 * x5
-        yb[3 * L + ll] += u00 * x6 + u01 * x7
-        yb[4 * L + ll] += u00 * x8 + u01 * x9
-        yb[5 * L + ll] += u00 * x10 + u01 * x11
-        yb[6 * L + ll] += u10 * x2 + u11 * x3
-        yb[7 * L + ll] += u10 * x4 + u11 * x5
-        yb[8 * L + ll] += u10 * x6 + u11 * x7
-        yb[9 * L + ll] += u10 * x8 + u11 * x9
-        yb[10 * L + ll] += u10 * x10 + u11 * x11
-        yb[11 * L + ll] += u20 * x4 + u21 * x5
-        yb[12 * L + ll] += u20 * x6 + u21 * x7
-        yb[13 * L + ll] += u20 * x8 + u21 * x9
-        yb[14 * L + ll] += u20 * x10 + u21 * x11
-        yb[15 * L + ll] += u30 * x6 + u31 * x7
-        yb[16 * L + ll] += u30 * x8 + u31 * x9
-        yb[17 * L + ll] += u30 * x10 + u31 * x11
-        yb[18 * L + ll] += u40 * x8 + u41 * x9
-        yb[19 * L + ll] += u40 * x10 + u41 * x11
-        yb[20 * L + ll] += u50 * x10 + u51 * x11
+        l0, l1, l2 = l[ll], l[L + ll], l[2 * L + ll]
+        ea = x[0 * L + ll]
+        eb = x[1 * L + ll]
+        w00 = ea * l0 + eb * l1
+        w01 = eb * l2
+        ea = x[2 * L + ll]
+        eb = x[3 * L + ll]
+        w10 = ea * l0 + eb * l1
+        w11 = eb * l2
+        ea = x[4 * L + ll]
+        eb = x[5 * L + ll]
+        w20 = ea * l0 + eb * l1
+        w21 = eb * l2
+        ea = x[6 * L + ll]
+        eb = x[7 * L + ll]
+        w30 = ea * l0 + eb * l1
+        w31 = eb * l2
+        ea = x[8 * L + ll]
+        eb = x[9 * L + ll]
+        w40 = ea * l0 + eb * l1
+        w41 = eb * l2
+        ea = x[10 * L + ll]
+        eb = x[11 * L + ll]
+        w50 = ea * l0 + eb * l1
+        w51 = eb * l2
+        yb[0 * L + ll] += w00 * w00 + w01 * w01
+        yb[1 * L + ll] += w00 * w10 + w01 * w11
+        yb[2 * L + ll] += w00 * w20 + w01 * w21
+        yb[3 * L + ll] += w00 * w30 + w01 * w31
+        yb[4 * L + ll] += w00 * w40 + w01 * w41
+        yb[5 * L + ll] += w00 * w50 + w01 * w51
+        yb[6 * L + ll] += w10 * w10 + w11 * w11
+        yb[7 * L + ll] += w10 * w20 + w11 * w21
+        yb[8 * L + ll] += w10 * w30 + w11 * w31
+        yb[9 * L + ll] += w10 * w40 + w11 * w41
+        yb[10 * L + ll] += w10 * w50 + w11 * w51
+        yb[11 * L + ll] += w20 * w20 + w21 * w21
+        yb[12 * L + ll] += w20 * w30 + w21 * w31
+        yb[13 * L + ll] += w20 * w40 + w21 * w41
+        yb[14 * L + ll] += w20 * w50 + w21 * w51
+        yb[15 * L + ll] += w30 * w30 + w31 * w31
+        yb[16 * L + ll] += w30 * w40 + w31 * w41
+        yb[17 * L + ll] += w30 * w50 + w31 * w51
+        yb[18 * L + ll] += w40 * w40 + w41 * w41
+        yb[19 * L + ll] += w40 * w50 + w41 * w51
+        yb[20 * L + ll] += w50 * w50 + w51 * w51
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
-def _accumulate2(x, xb, v, vb, yb):  # pragma: no cover (compiled)
-    """:func:`_accumulate` for two gratings at once: Y += X V Xᵀ + X_b V_b X_bᵀ, each row of ``yb`` loaded and
-    stored once."""
+def _accumulate2(x, xb, l, lb, yb):  # pragma: no cover (compiled)
+    """:func:`_accumulate` for two gratings at once: Y += W Wᵀ + W_b W_bᵀ, each row of ``yb`` loaded and stored
+    once."""
     L = LANES
     for ll in range(L):
-        x0 = x[0 * L + ll]
-        x1 = x[1 * L + ll]
-        x2 = x[2 * L + ll]
-        x3 = x[3 * L + ll]
-        x4 = x[4 * L + ll]
-        x5 = x[5 * L + ll]
-        x6 = x[6 * L + ll]
-        x7 = x[7 * L + ll]
-        x8 = x[8 * L + ll]
-        x9 = x[9 * L + ll]
-        x10 = x[10 * L + ll]
-        x11 = x[11 * L + ll]
-        v0, v1, v2 = v[ll], v[L + ll], v[2 * L + ll]
-        u00 = x0 * v0 + x1 * v1
-        u01 = x0 * v1 + x1 * v2
-        u10 = x2 * v0 + x3 * v1
-        u11 = x2 * v1 + x3 * v2
-        u20 = x4 * v0 + x5 * v1
-        u21 = x4 * v1 + x5 * v2
-        u30 = x6 * v0 + x7 * v1
-        u31 = x6 * v1 + x7 * v2
-        u40 = x8 * v0 + x9 * v1
-        u41 = x8 * v1 + x9 * v2
-        u50 = x10 * v0 + x11 * v1
-        u51 = x10 * v1 + x11 * v2
-        bx0 = xb[0 * L + ll]
-        bx1 = xb[1 * L + ll]
-        bx2 = xb[2 * L + ll]
-        bx3 = xb[3 * L + ll]
-        bx4 = xb[4 * L + ll]
-        bx5 = xb[5 * L + ll]
-        bx6 = xb[6 * L + ll]
-        bx7 = xb[7 * L + ll]
-        bx8 = xb[8 * L + ll]
-        bx9 = xb[9 * L + ll]
-        bx10 = xb[10 * L + ll]
-        bx11 = xb[11 * L + ll]
-        bv0, bv1, bv2 = vb[ll], vb[L + ll], vb[2 * L + ll]
-        bu00 = bx0 * bv0 + bx1 * bv1
-        bu01 = bx0 * bv1 + bx1 * bv2
-        bu10 = bx2 * bv0 + bx3 * bv1
-        bu11 = bx2 * bv1 + bx3 * bv2
-        bu20 = bx4 * bv0 + bx5 * bv1
-        bu21 = bx4 * bv1 + bx5 * bv2
-        bu30 = bx6 * bv0 + bx7 * bv1
-        bu31 = bx6 * bv1 + bx7 * bv2
-        bu40 = bx8 * bv0 + bx9 * bv1
-        bu41 = bx8 * bv1 + bx9 * bv2
-        bu50 = bx10 * bv0 + bx11 * bv1
-        bu51 = bx10 * bv1 + bx11 * bv2
-        yb[0 * L + ll] += (u00 * x0 + u01 * x1) + (bu00 * bx0 + bu01 * bx1)
-        yb[1 * L + ll] += (u00 * x2 + u01 * x3) + (bu00 * bx2 + bu01 * bx3)
-        yb[2 * L + ll] += (u00 * x4 + u01 * x5) + (bu00 * bx4 + bu01 * bx5)
-        yb[3 * L + ll] += (u00 * x6 + u01 * x7) + (bu00 * bx6 + bu01 * bx7)
-        yb[4 * L + ll] += (u00 * x8 + u01 * x9) + (bu00 * bx8 + bu01 * bx9)
-        yb[5 * L + ll] += (u00 * x10 + u01 * x11) + (bu00 * bx10 + bu01 * bx11)
-        yb[6 * L + ll] += (u10 * x2 + u11 * x3) + (bu10 * bx2 + bu11 * bx3)
-        yb[7 * L + ll] += (u10 * x4 + u11 * x5) + (bu10 * bx4 + bu11 * bx5)
-        yb[8 * L + ll] += (u10 * x6 + u11 * x7) + (bu10 * bx6 + bu11 * bx7)
-        yb[9 * L + ll] += (u10 * x8 + u11 * x9) + (bu10 * bx8 + bu11 * bx9)
-        yb[10 * L + ll] += (u10 * x10 + u11 * x11) + (bu10 * bx10 + bu11 * bx11)
-        yb[11 * L + ll] += (u20 * x4 + u21 * x5) + (bu20 * bx4 + bu21 * bx5)
-        yb[12 * L + ll] += (u20 * x6 + u21 * x7) + (bu20 * bx6 + bu21 * bx7)
-        yb[13 * L + ll] += (u20 * x8 + u21 * x9) + (bu20 * bx8 + bu21 * bx9)
-        yb[14 * L + ll] += (u20 * x10 + u21 * x11) + (bu20 * bx10 + bu21 * bx11)
-        yb[15 * L + ll] += (u30 * x6 + u31 * x7) + (bu30 * bx6 + bu31 * bx7)
-        yb[16 * L + ll] += (u30 * x8 + u31 * x9) + (bu30 * bx8 + bu31 * bx9)
-        yb[17 * L + ll] += (u30 * x10 + u31 * x11) + (bu30 * bx10 + bu31 * bx11)
-        yb[18 * L + ll] += (u40 * x8 + u41 * x9) + (bu40 * bx8 + bu41 * bx9)
-        yb[19 * L + ll] += (u40 * x10 + u41 * x11) + (bu40 * bx10 + bu41 * bx11)
-        yb[20 * L + ll] += (u50 * x10 + u51 * x11) + (bu50 * bx10 + bu51 * bx11)
+        l0, l1, l2 = l[ll], l[L + ll], l[2 * L + ll]
+        ea = x[0 * L + ll]
+        eb = x[1 * L + ll]
+        w00 = ea * l0 + eb * l1
+        w01 = eb * l2
+        ea = x[2 * L + ll]
+        eb = x[3 * L + ll]
+        w10 = ea * l0 + eb * l1
+        w11 = eb * l2
+        ea = x[4 * L + ll]
+        eb = x[5 * L + ll]
+        w20 = ea * l0 + eb * l1
+        w21 = eb * l2
+        ea = x[6 * L + ll]
+        eb = x[7 * L + ll]
+        w30 = ea * l0 + eb * l1
+        w31 = eb * l2
+        ea = x[8 * L + ll]
+        eb = x[9 * L + ll]
+        w40 = ea * l0 + eb * l1
+        w41 = eb * l2
+        ea = x[10 * L + ll]
+        eb = x[11 * L + ll]
+        w50 = ea * l0 + eb * l1
+        w51 = eb * l2
+        bl0, bl1, bl2 = lb[ll], lb[L + ll], lb[2 * L + ll]
+        bea = xb[0 * L + ll]
+        beb = xb[1 * L + ll]
+        bw00 = bea * bl0 + beb * bl1
+        bw01 = beb * bl2
+        bea = xb[2 * L + ll]
+        beb = xb[3 * L + ll]
+        bw10 = bea * bl0 + beb * bl1
+        bw11 = beb * bl2
+        bea = xb[4 * L + ll]
+        beb = xb[5 * L + ll]
+        bw20 = bea * bl0 + beb * bl1
+        bw21 = beb * bl2
+        bea = xb[6 * L + ll]
+        beb = xb[7 * L + ll]
+        bw30 = bea * bl0 + beb * bl1
+        bw31 = beb * bl2
+        bea = xb[8 * L + ll]
+        beb = xb[9 * L + ll]
+        bw40 = bea * bl0 + beb * bl1
+        bw41 = beb * bl2
+        bea = xb[10 * L + ll]
+        beb = xb[11 * L + ll]
+        bw50 = bea * bl0 + beb * bl1
+        bw51 = beb * bl2
+        yb[0 * L + ll] += (w00 * w00 + w01 * w01) + (bw00 * bw00 + bw01 * bw01)
+        yb[1 * L + ll] += (w00 * w10 + w01 * w11) + (bw00 * bw10 + bw01 * bw11)
+        yb[2 * L + ll] += (w00 * w20 + w01 * w21) + (bw00 * bw20 + bw01 * bw21)
+        yb[3 * L + ll] += (w00 * w30 + w01 * w31) + (bw00 * bw30 + bw01 * bw31)
+        yb[4 * L + ll] += (w00 * w40 + w01 * w41) + (bw00 * bw40 + bw01 * bw41)
+        yb[5 * L + ll] += (w00 * w50 + w01 * w51) + (bw00 * bw50 + bw01 * bw51)
+        yb[6 * L + ll] += (w10 * w10 + w11 * w11) + (bw10 * bw10 + bw11 * bw11)
+        yb[7 * L + ll] += (w10 * w20 + w11 * w21) + (bw10 * bw20 + bw11 * bw21)
+        yb[8 * L + ll] += (w10 * w30 + w11 * w31) + (bw10 * bw30 + bw11 * bw31)
+        yb[9 * L + ll] += (w10 * w40 + w11 * w41) + (bw10 * bw40 + bw11 * bw41)
+        yb[10 * L + ll] += (w10 * w50 + w11 * w51) + (bw10 * bw50 + bw11 * bw51)
+        yb[11 * L + ll] += (w20 * w20 + w21 * w21) + (bw20 * bw20 + bw21 * bw21)
+        yb[12 * L + ll] += (w20 * w30 + w21 * w31) + (bw20 * bw30 + bw21 * bw31)
+        yb[13 * L + ll] += (w20 * w40 + w21 * w41) + (bw20 * bw40 + bw21 * bw41)
+        yb[14 * L + ll] += (w20 * w50 + w21 * w51) + (bw20 * bw50 + bw21 * bw51)
+        yb[15 * L + ll] += (w30 * w30 + w31 * w31) + (bw30 * bw30 + bw31 * bw31)
+        yb[16 * L + ll] += (w30 * w40 + w31 * w41) + (bw30 * bw40 + bw31 * bw41)
+        yb[17 * L + ll] += (w30 * w50 + w31 * w51) + (bw30 * bw50 + bw31 * bw51)
+        yb[18 * L + ll] += (w40 * w40 + w41 * w41) + (bw40 * bw40 + bw41 * bw41)
+        yb[19 * L + ll] += (w40 * w50 + w41 * w51) + (bw40 * bw50 + bw41 * bw51)
+        yb[20 * L + ll] += (w50 * w50 + w51 * w51) + (bw50 * bw50 + bw51 * bw51)
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
