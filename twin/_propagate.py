@@ -8,7 +8,8 @@ C' = A' Y Aᵀ + A Y A'ᵀ, and fills C in between by cubic Hermite interpolatio
 piece). One frame (:func:`_frame`) keeps the breakpoints along the last axis of every array, so the work per
 grating is a handful of element-wise loops over ~20 breakpoints that the compiler turns into vector
 instructions; a batch's complete frames go LANES at a time (:func:`_lanes_block`) with the frames along the
-last axis, breakpoint by breakpoint. No reduction across lanes, nothing allocated per frame.
+last axis, breakpoint by breakpoint, two gratings at a time, X_n V_n X_nᵀ as W Wᵀ with W = X_n L (L the
+Cholesky factor of V_n). No reduction across lanes, nothing allocated per frame.
 
 :func:`propagate` also forms the per-grating covariance itself (the noise of the inversion for the frame's peak
 pattern, looked up in a table of every pattern; the model error's white and interpolation parts; the
@@ -258,9 +259,10 @@ def _sums(xs, vs, y, z, b):  # pragma: no cover (compiled)
     """Y[:, :, b] (upper triangle) = Σ_n X_n V_n X_nᵀ and Z[:, :, b] = Σ_n X_n S_n over the gratings, the last
     axis of ``xs`` (12, n_g) X_n (row r·2 + c) and ``vs`` (3 + 2 n_par, n_g) V_n (v00, v01, v11) and S_n (row
     3 + q·2 + c). One loop along the gratings with the 21 sums of Y side by side (in registers, one reduction
-    each at its end), then one per shared column with its six. The arithmetic is :func:`_accumulate`'s (there
-    per frame into rows of lanes, here into sums over the gratings): written out in both, since the compiler
-    vectorises each loop only when its body is straight-line code on its own operands."""
+    each at its end), then one per shared column with its six. :func:`_accumulate` does the same per frame into
+    rows of lanes, there as W Wᵀ with V_n's Cholesky factor (equal to rounding; a one-frame call is not bound by
+    the stores that form saves): written out in both, since the compiler vectorises each loop only when its body
+    is straight-line code on its own operands."""
     n_g, n_par = xs.shape[1], z.shape[1]
     y00 = 0.0
     y01 = 0.0
@@ -675,8 +677,10 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
     step is a short loop over them at constant offsets that the compiler turns into vector instructions; the
     running integrals go breakpoint by breakpoint (each grating's X_n updated in place, then added into that
     breakpoint's Y and Z at once), so that Y and Z are touched once per breakpoint and grating in the first-level
-    cache instead of in a pass over every breakpoint per grating. ``wb`` (3, n_b − 1, n_g) the pattern's piece
-    weights, ``wh`` (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s.
+    cache instead of in a pass over every breakpoint per grating; two gratings at a time, so that Y's rows are
+    loaded and stored once per pair (:func:`_accumulate2`). ``wb`` (3, n_b − 1, n_g) the pattern's piece
+    weights, ``wh`` (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s
+    but for X_n V_n X_nᵀ, formed as W Wᵀ with W = X_n L (L V_n's Cholesky factor): equal to rounding.
     Lanes beyond ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never
     written out."""
     vrep, sprep, g, gh, xn, xm, yb, zb, y, z, pt, m, cb, fw, wsq, wsqh, lrep = arrs
