@@ -221,11 +221,11 @@ def test_every_model_on_both_needles_as_documented():
 
     documented = {  # (with the jig's zero: |Δκ|, |Δdir|), (without)
         "needle_3CH_4AA_v2": {"linear": ((0.127, 5.99), (0.129, 5.98)), "physical": ((0.117, 5.92), (0.134, 5.28)),
-                              "matrix": ((0.103, 5.74), (0.133, 5.47)), "nuisance": ((0.105, 5.34), (0.166, 5.15))},
+                              "matrix": ((0.103, 5.74), (0.133, 5.47)), "nuisance": ((0.105, 5.33), (0.166, 5.15))},
         "needle_3CH_3AA": {"linear": ((0.265, 3.17), (0.270, 3.47)), "physical": ((0.224, 3.50), (0.246, 3.68)),
                            "matrix": ((0.227, 3.60), (0.253, 3.68)), "nuisance": ((0.198, 3.36), (0.259, 3.11))},
     }
-    coverage = {"needle_3CH_4AA_v2": (0.995, 0.995), "needle_3CH_3AA": (0.942, 0.920)}
+    coverage = {"needle_3CH_4AA_v2": (0.986, 0.986), "needle_3CH_3AA": (0.920, 0.899)}
     for table, rows in documented.items():
         scores = {r["variant"]: r for r in model_scores(*REAL_TABLES[table], variants=VARIANTS[:4])}
         for variant, figures in rows.items():
@@ -279,11 +279,11 @@ def test_nuisance_against_linear_resolved_on_one_needle_not_the_other():
     """docs/jig.md, "Two real needles, every model": the nuisance model's score minus the linear map's, all levels
     with the jig's zero, and its range over leaving one rotation × grating out. needle_3CH_4AA_v2: −0.023 1/m
     (−0.034 … −0.011) and −0.66° (−0.99 … −0.53), resolved; needle_3CH_3AA: −0.066 1/m (−0.067 … −0.030), resolved,
-    and +0.19° (−1.48 … +2.34), not."""
+    and +0.20° (−1.48 … +2.34), not."""
     from scenarios.real_jig import REAL_TABLES, VARIANTS, model_scores
 
-    documented = {"needle_3CH_4AA_v2": ((-0.0227, -0.0336, -0.0107), (-0.66, -0.99, -0.53)),
-                  "needle_3CH_3AA": ((-0.0663, -0.0672, -0.0304), (0.19, -1.48, 2.34))}
+    documented = {"needle_3CH_4AA_v2": ((-0.0229, -0.0339, -0.0108), (-0.66, -0.99, -0.53)),
+                  "needle_3CH_3AA": ((-0.0664, -0.0672, -0.0304), (0.198, -1.48, 2.34))}
     for table, (kappa, direction) in documented.items():
         rows = {r["variant"]: r for r in model_scores(*REAL_TABLES[table], variants=(VARIANTS[0], VARIANTS[3]))}
         d = rows["nuisance"]["loro_all_vs_first"]
