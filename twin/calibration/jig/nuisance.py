@@ -31,8 +31,10 @@ gratings), and re-estimates the covariances from the residuals each time, until 
 The fitted error model predicts how far a new pose's curvature is from the jig's label (the 95 % intervals of
 :func:`twin.calibration.jig.validate`): the jig's zero (the bent grooves' shortfall from their labels, docs/jig.md)
 as a bias unless it is added to the curvature; Σ_pose + Σ_seat through the calibration's map; the scatter of the
-rotations' zeros along and across the bend, and the jig zero's own error; κ² times the seatings' roll and gain
-variances (shared, and per grating); and the parameters' own covariance. The variances at the rotation level rest
+rotations' zeros along and across the bend, and the jig zero's own error (:func:`median_variance`); κ² times the
+seatings' shared roll and gain variances, and for the per-grating ones (κ − κ̄)² for the pose's own seating (each
+rotation's zero holds its slope at the grooves' mean curvature κ̄) plus κ²/n for the map's, inherited from the n
+fitted rotations on the pose's axis; and the parameters' own covariance. The variances at the rotation level rest
 on 1–3 degrees of freedom and are pooled with the error budget as a prior.
 """
 
