@@ -206,7 +206,7 @@ def _local_slopes(resid: np.ndarray, kap: np.ndarray, s_group: np.ndarray, used:
     Returns
     -------
     slope : ndarray, shape (G, O, D)
-        Per m⁻¹; 0 where a rotation has fewer than two distinct grooves at a grating.
+        Residual per unit of κ (strain · m); 0 where a rotation has fewer than two distinct grooves at a grating.
     centred : ndarray, shape (G, S)
         κ − κ̄_o of each groove (0 where unused).
     has : ndarray of bool, shape (G, O)
