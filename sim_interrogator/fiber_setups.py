@@ -268,17 +268,13 @@ class FiberSheathCycle(_FiberMixin, SheathCycle):
         dof = int(model.jnt_dofadr[slide])
         hub = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "hub")
 
-        # views of ``data``'s arrays taken once (MuJoCo keeps them where they are): both functions run before every
-        # physics step, where fetching mjData's arrays anew cost ≈ 10 µs a call after the step
-        qacc, axis, force = data.qacc, data.xmat[hub, 2::3], data.actuator_force
-
         def carrier(data):  # the hub slides along its own z axis (the sheath's guide)
-            return qacc[dof] * axis
+            return data.qacc[dof] * data.xmat[hub].reshape(3, 3)[:, 2]
 
-        act, tension, share = self._act[0], self.fiber.lead_tension, self.fiber.hub_share
+        act, f = self._act[0], self.fiber
 
         def traction(data):  # the lead's pull, less the hub's push's share (pushing in slackens the lead)
-            return tension - share * force[act]
+            return f.lead_tension - f.hub_share * data.actuator_force[act]
 
         self._install(model, data, carrier, traction)
         return model, data
