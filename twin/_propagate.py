@@ -840,13 +840,20 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
             fw[37 * L + ll] = pos[f, j, 1]
             fw[38 * L + ll] = pos[f, j, 2]
         _fill_point(fw, hw[j, 0], hw[j, 1], hw[j, 2], hw[j, 3], base_var)
-        for ll in range(n_l):
-            f = fidx[ll]
-            for r in range(3):
-                for c in range(r, 3):
-                    val = fw[(39 + r * 3 + c) * L + ll]
-                    out[f, j, r, c] = val
-                    out[f, j, c, r] = val
+        for ll in range(n_l):  # nine stores a point (the upper triangle mirrored, each diagonal element once)
+            o = out[fidx[ll], j]
+            o[0, 0] = fw[39 * L + ll]
+            o[1, 1] = fw[43 * L + ll]
+            o[2, 2] = fw[47 * L + ll]
+            val = fw[40 * L + ll]
+            o[0, 1] = val
+            o[1, 0] = val
+            val = fw[41 * L + ll]
+            o[0, 2] = val
+            o[2, 0] = val
+            val = fw[44 * L + ll]
+            o[1, 2] = val
+            o[2, 1] = val
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
