@@ -92,7 +92,8 @@ class ReplaySummary(Counts):
 def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration: Calibration | None = None,
               method: str = "material", register: str = "kabsch", compare_rate: float | None = 10.0,
               channels_as: str = "cores", n_cores: int | None = None, batch: int = 512,
-              salvage: bool = False, handle_signals: bool = False, tube: bool = False) -> ReplaySummary:
+              salvage: bool = False, handle_signals: bool = False, tube: bool = False,
+              twist: float = 0.0) -> ReplaySummary:
     """Reconstruct a recording through the live loop and summarise it.
 
     Parameters
@@ -117,6 +118,9 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
     tube : bool
         Also the confidence tube's figures on the compared frames (:class:`twin.reference_errors.TubeFigures`,
         the twin's default model error; a propagation per compared frame), for the methods it covers.
+    twist : float
+        The tube's model error's twist term, 1σ of the catheter's unmeasured twist rate, rad/m
+        (:func:`twin.reference_errors.tube_figures`; ``--twist``).
 
     Raises
     ------
@@ -147,7 +151,7 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
     rec = Reconstructor(fiber, calibration, method=method)
     truth, vendor = TruthError(register, per_second=compare_rate), VendorDistance(per_second=compare_rate)
     sinks: list = [truth, vendor]
-    tubes = tube_figures(rec, per_second=compare_rate) if tube else None
+    tubes = tube_figures(rec, per_second=compare_rate, twist=twist) if tube else None
     if tubes is not None:
         sinks.append(tubes)
     loop = LiveLoop(source, rec, sinks, max_batch=batch, realtime=False, quiet=True)
