@@ -74,6 +74,8 @@ def test_live_over_a_recording_and_replay_report_the_same_figures(recording, suf
     # a key both print means the same on both paths: only the wall-clock throughput may differ
     common = (set(a) & set(b)) - {"reconstruct_frames_per_s"}
     assert {k: a[k] for k in common} == {k: b[k] for k in common}
+    # the source rate over the last 2 s of timestamps (no gap there), and the whole recording's under its own name
+    assert a["rate_hz"] == 100.0 and b["recorded_rate_hz"] == round(299 / 3.09, 3) and "rate_hz" not in b
     assert a["frames"] == 300 and a["lost_samples"] == 10 and a["frames_partial"] > 0
     # one frame per 0.1 s of the recording's 3.1 s (less the 0.1 s gap): about 30, the same on both paths
     assert a["truth"] == b["truth"] and 25 <= a["truth"]["frames_compared"] <= 32
@@ -94,7 +96,7 @@ def test_live_over_a_recording_and_replay_report_the_same_figures(recording, suf
     if suffix == ".mcap":
         other = json.loads(subprocess.run([*TWIN, "replay", str(recording), "--json"], capture_output=True,
                                           text=True, env=ENV, timeout=300).stdout)  # the HDF5 recording's
-        figures = (*COUNTS, "truth", *vendor, "time_span", "rate_hz")
+        figures = (*COUNTS, "truth", *vendor, "time_span", "recorded_rate_hz")
         assert {k: b[k] for k in figures} == {k: other[k] for k in figures}
 
 

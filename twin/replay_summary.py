@@ -44,8 +44,9 @@ class ReplaySummary(Counts):
         Frames the file says it holds.
     time_span : float or None
         Last minus first finite timestamp, s.
-    rate_hz : float or None
-        (frames − 1) / time_span: the recorded sampling rate, Hz.
+    recorded_rate_hz : float or None
+        (frames − 1) / time_span over the whole recording, Hz (docs/figures.md; not ``rate_hz``, the live loop's
+        source rate over the last 2 s of timestamps, which ``twin live`` reports).
     reconstruct_frames_per_s : float or None
         Reconstruction throughput of this run: frames / wall time spent in the loop's processing (docs/figures.md;
         not a benchmark: ``twin bench``).
@@ -70,7 +71,7 @@ class ReplaySummary(Counts):
     fiber: str
     frames_recorded: int
     time_span: float | None
-    rate_hz: float | None
+    recorded_rate_hz: float | None
     reconstruct_frames_per_s: float | None
     skipped_lines: int
     damage: tuple[str, ...] = ()
@@ -197,7 +198,7 @@ def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth:
         fiber=fiber.name,
         frames_recorded=max(n, info["frames_recorded"]),
         time_span=None if span is None else round(span, 6),
-        rate_hz=round((n - 1) / span, 3) if span is not None and span > 0 and n >= 2 else None,
+        recorded_rate_hz=round((n - 1) / span, 3) if span is not None and span > 0 and n >= 2 else None,
         **vars(c.counts()),
         reconstruct_frames_per_s=None if rfs is None else round(rfs, 1),
         skipped_lines=info["skipped_lines"],

@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
 def format_summary(s: ReplaySummary) -> str:
     """The summary as a few human lines (lengths in mm)."""
     span = "?" if s.time_span is None else f"{s.time_span:.2f} s"
-    rate = "" if s.rate_hz is None else f" ({s.rate_hz:.1f} Hz)"
+    rate = "" if s.recorded_rate_hz is None else f" ({s.recorded_rate_hz:.1f} Hz)"
     state = ""
     if s.damaged:
         state = f", DAMAGED: {s.frames} of {s.frames_recorded} frames readable"

@@ -58,7 +58,7 @@ class RateMeter:
                              f"{hold}")
         self.nominal = None if nominal is None else float(nominal)
         self.window, self.slow, self.hold = float(window), float(slow), float(hold)
-        self._stamped: deque[tuple[float, float, int]] = deque()  # (first, last timestamp, frames) per batch
+        self._stamped: deque[np.ndarray] = deque()  # each batch's timestamps (finite, ordered)
         self._stamped_n = 0
         self._arrived: deque[tuple[float, int]] = deque()  # (wall time, frames) per batch
         self._arrived_n = 0
@@ -86,14 +86,14 @@ class RateMeter:
             usable = math.isfinite(first)
         else:
             usable = _finite_and_ordered(ts)
-        if not usable or (stamped and first < stamped[-1][1]):
+        if not usable or (stamped and first < stamped[-1][-1]):
             stamped.clear()
             self._stamped_n = 0
         if usable:
-            stamped.append((first, last, n))
+            stamped.append(ts)
             self._stamped_n += n
-            while len(stamped) > 1 and stamped[0][1] < last - self.window:
-                self._stamped_n -= stamped.popleft()[2]
+            while len(stamped) > 1 and stamped[0][-1] < last - self.window:
+                self._stamped_n -= stamped.popleft().size
         # the wall clock
         arrived = self._arrived
         arrived.append((now, n))
@@ -105,12 +105,19 @@ class RateMeter:
 
     @property
     def stamped_rate(self) -> float | None:
-        """Frames per second of the source's clock over the window, Hz (None without usable timestamps)."""
+        """Frames per second of the source's clock over the window, Hz (None without usable timestamps): over the
+        frames within the last ``window`` s of the newest, also those of a batch that straddles the window's start
+        (a file read at full speed comes in batches longer than the window)."""
         s = self._stamped
         if self._stamped_n < 2:
             return None
-        span = s[-1][1] - s[0][0]
-        return (self._stamped_n - 1) / span if span > 0 else None
+        newest, oldest = s[-1][-1], s[0]
+        skip = 0
+        if oldest[0] < newest - self.window:  # the oldest batch reaches back past the window (never one frame)
+            skip = int(np.searchsorted(oldest, newest - self.window, side="left"))
+        n = self._stamped_n - skip
+        span = newest - oldest[skip]
+        return (n - 1) / span if n >= 2 and span > 0 else None
 
     @property
     def arrival_rate(self) -> float:
