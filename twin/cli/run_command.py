@@ -2,10 +2,11 @@
 
 ``--viewer [--viewer-rate HZ] [--keep-open]`` (before or among the scenario's options: declared on both parsers
 by :func:`add_viewer_arguments`) opens a browser view (:class:`twin.viewer.Viewer`; the URL is printed on stderr)
-and hands it to the scenario as ``args.viewer`` (None without the flag), the only one of them its ``args`` keep. Scenarios draw as they go with
-``viewer = getattr(args, "viewer", None)`` then ``viewer.show(shape, truth, label=…)`` (``getattr``: the same
-``run(args)`` also serves the scenario's own ``__main__``, whose parser has no viewer). A scenario that does not
-draw still runs; the viewer's server stops when the scenario returns, or with ``--keep-open`` stays until Ctrl-C.
+and hands it to the scenario as ``args.viewer`` (None without the flag), the only one of them its ``args``
+keep. Scenarios draw as they go with ``viewer = getattr(args, "viewer", None)`` then ``viewer.show(shape, truth,
+label=…)`` (``getattr``: the same ``run(args)`` also serves the scenario's own ``__main__``, whose parser has no
+viewer). A scenario that does not draw still runs; the viewer's server stops when the scenario returns, or with
+``--keep-open`` stays until Ctrl-C.
 
 A scenario is a bounded run: Ctrl-C ends it with ``twin run: interrupted`` and exit status 130 (``twin.cli``);
 Ctrl-C on a page kept open after a finished run exits with the scenario's own status.
