@@ -47,7 +47,7 @@ class ReplaySummary(Counts):
     recorded_rate_hz : float or None
         (frames − 1) / time_span over the whole recording, Hz (docs/figures.md; not ``rate_hz``, the live loop's
         source rate over the last 2 s of timestamps, which ``twin live`` reports).
-    reconstruct_frames_per_s : float or None
+    processing_frames_per_s : float or None
         Reconstruction throughput of this run: frames / wall time spent in the loop's processing (docs/figures.md;
         not a benchmark: ``twin bench``).
     skipped_lines : int
@@ -72,7 +72,7 @@ class ReplaySummary(Counts):
     frames_recorded: int
     time_span: float | None
     recorded_rate_hz: float | None
-    reconstruct_frames_per_s: float | None
+    processing_frames_per_s: float | None
     skipped_lines: int
     damage: tuple[str, ...] = ()
     truth: TruthErrors | None = None
@@ -188,7 +188,7 @@ def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth:
         notes.append("the recording was not closed cleanly (killed writer, or still being written)")
     span = c.time_span
     n = st.frames
-    rfs = run.reconstruct_frames_per_s
+    rfs = run.processing_frames_per_s
     return ReplaySummary(
         file=str(path),
         kind=info["kind"],
@@ -200,7 +200,7 @@ def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth:
         time_span=None if span is None else round(span, 6),
         recorded_rate_hz=round((n - 1) / span, 3) if span is not None and span > 0 and n >= 2 else None,
         **vars(c.counts()),
-        reconstruct_frames_per_s=None if rfs is None else round(rfs, 1),
+        processing_frames_per_s=None if rfs is None else round(rfs, 1),
         skipped_lines=info["skipped_lines"],
         damage=tuple(info["damage"]),
         truth=result,

@@ -103,8 +103,8 @@ def format_summary(s: ReplaySummary) -> str:
         f"with missing peaks {s.frames_missing_peaks}; invalid nodes {s.invalid_nodes}; peaks outside their window "
         f"{s.peaks_outside_window}",
     ]
-    if s.reconstruct_frames_per_s:
-        lines.append(f"  reconstruction throughput {s.reconstruct_frames_per_s:.0f} frames/s (frames ÷ wall time "
+    if s.processing_frames_per_s:
+        lines.append(f"  reconstruction throughput {s.processing_frames_per_s:.0f} frames/s (frames ÷ wall time "
                      "spent reconstructing in this run, first-call compilation included; speed: twin bench)")
     if s.truth is not None:
         lines.append("  " + s.truth.line())
