@@ -58,7 +58,9 @@ class RateMeter:
                              f"{hold}")
         self.nominal = None if nominal is None else float(nominal)
         self.window, self.slow, self.hold = float(window), float(slow), float(hold)
-        self._stamped: deque[np.ndarray] = deque()  # each batch's timestamps (finite, ordered)
+        # per batch: first and last timestamp, frames, and (batches of more than one frame) the timestamps, to count
+        # those of a batch that straddles the window's start
+        self._stamped: deque[tuple[float, float, int, np.ndarray | None]] = deque()
         self._stamped_n = 0
         self._arrived: deque[tuple[float, int]] = deque()  # (wall time, frames) per batch
         self._arrived_n = 0
@@ -86,14 +88,15 @@ class RateMeter:
             usable = math.isfinite(first)
         else:
             usable = _finite_and_ordered(ts)
-        if not usable or (stamped and first < stamped[-1][-1]):
+        if not usable or (stamped and first < stamped[-1][1]):
             stamped.clear()
             self._stamped_n = 0
         if usable:
-            stamped.append(ts)
+            # a copy: a view would keep its batch's whole buffer alive for the window
+            stamped.append((first, last, n, ts.copy() if n > 1 else None))
             self._stamped_n += n
-            while len(stamped) > 1 and stamped[0][-1] < last - self.window:
-                self._stamped_n -= stamped.popleft().size
+            while len(stamped) > 1 and stamped[0][1] < last - self.window:
+                self._stamped_n -= stamped.popleft()[2]
         # the wall clock
         arrived = self._arrived
         arrived.append((now, n))
@@ -111,12 +114,14 @@ class RateMeter:
         s = self._stamped
         if self._stamped_n < 2:
             return None
-        newest, oldest = s[-1][-1], s[0]
+        newest = s[-1][1]
+        oldest, _, _, times = s[0]
         skip = 0
-        if oldest[0] < newest - self.window:  # the oldest batch reaches back past the window (never one frame)
-            skip = int(np.searchsorted(oldest, newest - self.window, side="left"))
+        if oldest < newest - self.window:  # the oldest batch reaches back past the window (never a single frame)
+            skip = int(np.searchsorted(times, newest - self.window, side="left"))
+            oldest = float(times[skip])
         n = self._stamped_n - skip
-        span = newest - oldest[skip]
+        span = newest - oldest
         return (n - 1) / span if n >= 2 and span > 0 else None
 
     @property
