@@ -14,32 +14,23 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["add_twist_argument", "check_twist", "twist_rate"]
+__all__ = ["add_twist_argument", "check_twist"]
 
 HELP = ("1σ of the catheter's twist rate that the fibre does not measure, rad/m (default 0; 0.82 is the twin's "
         "sheath): the confidence tube's model error carries it (--json: tube_twist_rad_per_m)")
 
 
-def twist_rate(text: str) -> float:
-    """``--twist``'s value: a finite number of rad/m >= 0, else one line saying what is expected (argparse's
-    ``type``, so every command that takes the option reads it the same way)."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a twist rate in rad/m, a finite number >= 0 (0.82: the twin's "
-                                         f"sheath), got {text!r}")
-    return value
-
-
 def add_twist_argument(parser: argparse.ArgumentParser) -> None:
     """Declare ``--twist RATE`` (rad/m, default 0) on a command's parser."""
-    parser.add_argument("--twist", type=twist_rate, default=0.0, metavar="RATE", help=HELP)
+    parser.add_argument("--twist", type=float, default=0.0, metavar="RATE", help=HELP)
 
 
 def check_twist(args: argparse.Namespace) -> None:
-    """Refuse ``--twist`` where there is no confidence tube to carry it (the paper's method), in one line."""
+    """Refuse, in one line (the commands' check of their numbers, before any source opens), a ``--twist`` that is
+    not a finite number of rad/m >= 0, or that has no confidence tube to widen (the paper's method)."""
+    if not (math.isfinite(args.twist) and args.twist >= 0):  # NaN too
+        raise ValueError(f"--twist must be a finite twist rate in rad/m >= 0 (0.82: the twin's sheath), got "
+                         f"{args.twist}")
     if args.twist and args.method != "material":
         raise ValueError(f"--twist {args.twist:g}: the confidence tube it widens covers the material method only, "
                          f"not --method {args.method}")
