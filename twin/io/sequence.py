@@ -9,10 +9,10 @@ The rule, number by number:
   reset, not loss;
 - a backward or repeated number is a reset (a restarted acquisition, a counter that wrapped), not loss;
 - look-back: when the number after a jump or reset continues the run *before* it (forward, within
-  :data:`MAX_LOST`) more closely than it continues the jump, the jump was one corrupt number — 10, 2**62, 12 is one corrupt record
-  (``sequence_corrupt``), no loss and no reset: what the jump booked is taken back, the corrupt record stands
-  for sample 11, and losses are counted from there. A jump followed by numbers continuing it stands (a genuine
-  restart or gap);
+  :data:`MAX_LOST`) more closely than it continues the jump, the jump was one corrupt number — 10, 2**62, 12 is
+  one corrupt record (``sequence_corrupt``), no loss and no reset: what the jump booked is taken back, the
+  corrupt record stands for sample 11, and losses are counted from there. A jump followed by numbers
+  continuing it stands (a genuine restart or gap);
 - a negative number means "unknown" and is skipped (it neither counts nor moves the reference), and so is a
   number beyond int64.
 
