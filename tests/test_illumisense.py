@@ -631,9 +631,7 @@ def test_a_long_bogus_prefix_is_refused_by_the_line_end_inside_it():
 
 def test_lost_samples_never_wrap_and_do_not_depend_on_chunking():
     """Issue 23 B2: gaps of 2**63 - 2 samples each summed in int64 wrapped to a negative count."""
-    from twin.io.sequence import SequenceCounter
-
-    from twin.io.sequence import MAX_LOST
+    from twin.io.sequence import MAX_LOST, SequenceCounter
 
     # the longest gaps counted as loss (a longer jump is a reset since the look-back rule, twin/io/sequence.py)
     top = MAX_LOST + 1

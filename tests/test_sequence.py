@@ -22,11 +22,11 @@ def _books(seqs) -> tuple[int, int, int, int]:
 def test_one_absurd_number_amid_a_run_is_one_corrupt_record_not_lost_samples():
     run = list(range(10, 21))
     # the defect: 2**62 booked 2**62 - 21 lost samples (≈ 4.6e18), then a reset
-    assert _books(run + [2**62] + list(range(22, 30))) == (0, 0, 0, 1)  # it stood for sample 21
-    assert _books(run + [2**62, 21, 22]) == (0, 0, 0, 1)  # an extra record: still no loss
-    assert _books(run + [2**62, 25, 26]) == (3, 1, 0, 1)  # it stood for 21; 22–24 lost
-    assert _books(run + [0, 22, 23]) == (0, 0, 0, 1)  # backwards and back: corrupt too
-    assert _books(run + [52, 22, 23]) == (0, 0, 0, 1)  # a plausible jump the next number refutes
+    assert _books([*run, 2 ** 62, *list(range(22, 30))]) == (0, 0, 0, 1)  # it stood for sample 21
+    assert _books([*run, 2 ** 62, 21, 22]) == (0, 0, 0, 1)  # an extra record: still no loss
+    assert _books([*run, 2 ** 62, 25, 26]) == (3, 1, 0, 1)  # it stood for 21; 22–24 lost
+    assert _books([*run, 0, 22, 23]) == (0, 0, 0, 1)  # backwards and back: corrupt too
+    assert _books([*run, 52, 22, 23]) == (0, 0, 0, 1)  # a plausible jump the next number refutes
     assert _books([5, 2**63 - 1, 7]) == (0, 0, 0, 1)
 
 
