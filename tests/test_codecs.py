@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 import re
 import struct
+import warnings
 
 import numpy as np
 import pytest
@@ -699,8 +700,15 @@ def test_hyperion_stream_that_ends_inside_a_frame_is_one_framing_error():
     clean.feed(good)
     clean.finish()  # ended between frames: nothing to count
     assert clean.framing_errors == 0
-    # a u64 serial number beyond int64 is delivered as it is and counted as "unknown" (by the driver's counter),
-    # not a crash
-    (top,) = hyperion.PeakStreamDecoder().feed(hyperion.encode_stream_frame(f, serial_number=2**64 - 1))
-    assert top.sequence == 2**64 - 1
-    assert SequenceCounter().count(top.sequence) == 0
+    # a u64 serial number beyond int64 is taken as 2**63 − 1 (it stacked into a batch as a float cast to int64
+    # with a warning, rounding the other frames' numbers), and judged as one corrupt number amid its run
+    tops = hyperion.PeakStreamDecoder().feed(b"".join(
+        hyperion.encode_stream_frame(f, serial_number=s) for s in (2**62 + 1, 2**64 - 1, 2**62 + 3)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        batch = Frame.stack(tops)
+    assert batch.sequence.dtype == np.int64 and batch.sequence.tolist() == [2**62 + 1, 2**63 - 1, 2**62 + 3]
+    c = SequenceCounter()
+    c.count_many(batch.sequence)
+    assert (c.lost_samples, c.sequence_corrupt) == (0, 1)
+    assert SequenceCounter().count_many([5, 2**64 - 1, 7]).tolist() == [0, 0, 0]

@@ -13,8 +13,9 @@ The rule, number by number:
   one corrupt record (``sequence_corrupt``), no loss and no reset: what the jump booked is taken back, the
   corrupt record stands for sample 11, and losses are counted from there. A jump followed by numbers
   continuing it stands (a genuine restart or gap);
-- a negative number means "unknown" and is skipped (it neither counts nor moves the reference), and so is a
-  number beyond int64.
+- a negative number means "unknown" and is skipped (it neither counts nor moves the reference); a number
+  beyond int64 (a u64 serial number of 2**63 or more: 29 million years at 10 kHz) is taken as 2**63 − 1, as
+  absurd as it was, and judged by the rule like any other (:data:`INT64_MAX`).
 
 Each decision depends only on the numbers so far, never on how they were batched, so a stream counted live and
 the same frames replayed from a recording give the same figures; a jump is booked when it arrives and taken back
@@ -26,7 +27,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["MAX_LOST", "SequenceCounter", "lost_before"]
+__all__ = ["INT64_MAX", "MAX_LOST", "SequenceCounter", "clamp", "lost_before"]
+
+INT64_MAX = 2**63 - 1
 
 #: longest gap counted as lost samples: 2**32 samples, 5 days at 10 kHz (the fastest interrogator here samples
 #: at 5 kHz); a longer forward jump is a reset (a re-seeded or corrupt counter)
@@ -37,6 +40,12 @@ MAX_LOST = 2**32
 # the samples it booked lost)
 _LAST, _OPEN, _CAND_REF, _CAND_KIND, _CAND_LOST = range(5)
 _GAP, _RESET = 1, 2
+
+
+def clamp(sequence: int) -> int:
+    """A sample number as the books take it: one beyond int64 (a u64 counter's 2**63 or more) is 2**63 − 1 (the
+    decoders of unsigned counters call this, so that a batch of frames holds int64 numbers)."""
+    return min(int(sequence), INT64_MAX)
 
 
 class SequenceCounter:
@@ -80,11 +89,8 @@ class SequenceCounter:
         """
         try:
             seq = np.asarray(sequences, dtype=np.int64).reshape(-1)
-        except OverflowError:
-            # a number beyond int64 (a u64 serial number of 2**63 or more: 29 million years at 10 kHz) is
-            # corrupt, not a count: unknown
-            seq = np.array([s if -(2**63) <= s < 2**63 else -1 for s in np.asarray(sequences, dtype=object).ravel()],
-                           dtype=np.int64)
+        except OverflowError:  # a number beyond int64: as absurd as it was (module docstring)
+            seq = np.array([clamp(s) for s in np.asarray(sequences, dtype=object).ravel()], dtype=np.int64)
         lost, *books = lost_before(seq, self.state)
         self.book(*books)
         return lost

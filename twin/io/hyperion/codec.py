@@ -23,7 +23,8 @@ Decisions where docs/protocols.md is silent:
   wavelength, not here. Encoding drops NaN peaks for the same reason: a Frame with a gap in the middle of a
   core comes back compacted, which is what a real instrument would send.
 - **Serial number** in the peak header counts acquisitions (Luna's stream example asserts it increments by
-  one), so it carries :attr:`Frame.sequence`; timestamp = seconds + nanoseconds·1e-9.
+  one), so it carries :attr:`Frame.sequence` (a u64: one of 2**63 or more is taken as 2**63 − 1, so that frames
+  stack as int64, :func:`twin.io.sequence.clamp`); timestamp = seconds + nanoseconds·1e-9.
 - **Version** 1 in the peak header (only echoed). **Response type** 0 (only echoed).
 - **A frame is checked whole before any of it is used** (:func:`decode_peaks`): header length against the
   content, the peak counts against the bytes that follow, and every wavelength finite and within
@@ -58,6 +59,7 @@ import numpy as np
 
 from twin.frames import Frame, PeakStatus
 from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
+from twin.io.sequence import clamp
 
 __all__ = [
     "COMMAND_PORT",
@@ -567,7 +569,7 @@ def decode_peaks(content: bytes, *, n_gratings: int | None = None, max_channels:
     return Frame(
         wavelengths=np.ascontiguousarray(lam.T),
         timestamp=h.timestamp,
-        sequence=h.serial_number,
+        sequence=clamp(h.serial_number),  # a u64 beyond int64 → 2**63 − 1 (twin.io.sequence)
         status=np.ascontiguousarray(st.T),
     )
 
