@@ -101,3 +101,38 @@ def test_live_and_replay_print_the_same_figures_over_a_corrupt_number(tmp_path):
     assert {k: live[k] for k in COUNTS} == {k: replay[k] for k in COUNTS}
     assert (live["lost_samples"], live["sequence_gaps"], live["sequence_resets"], live["sequence_corrupt"]) == (
         0, 0, 0, 1)
+
+
+def test_one_corrupt_counter_is_one_corrupt_record_on_every_protocol(tmp_path):
+    """The same frames, one of which carries a counter beyond int64 (20 digits on ILLumiSense, a u64 on Hyperion):
+    every protocol delivers every frame and books one corrupt number, no loss (an ILLumiSense record with such a
+    sample number was refused whole, its frame lost and counted as a lost sample)."""
+    from twin.frames import Frame
+    from twin.io import hyperion, illumisense
+    from twin.io.illumisense.log import read_log
+
+    big = 2**64 - 1
+    frames = [Frame(np.full((3, 2), 1550.0 + 0.01 * s), 1.7e9 + s, s) for s in range(10, 20)]
+    records = [illumisense.encode_record(f) for f in frames]
+    payload = records[5][4:].replace(b"\t15\t", f"\t{big}\t".encode(), 1)
+    records[5] = len(payload).to_bytes(4, "big") + payload
+    books = {}
+    dec = illumisense.StreamDecoder(layout_quorum=0)
+    books["illumisense stream"] = ([f.sequence for f in dec.feed(b"".join(records))], dec.sequence)
+    log = tmp_path / "log.txt"
+    log.write_bytes(b"".join(r[4:] for r in records))
+    c = SequenceCounter()
+    seq = read_log(log).sequences
+    c.count_many(seq)
+    books["illumisense log"] = (seq.tolist(), c)
+    stream = b"".join(hyperion.encode_stream_frame(f, serial_number=big if f.sequence == 15 else None)
+                      for f in frames)
+    c = SequenceCounter()
+    got = hyperion.PeakStreamDecoder().feed(stream)
+    c.count_many([f.sequence for f in got])
+    books["hyperion"] = ([f.sequence for f in got], c)
+    want = [*range(10, 15), 2**63 - 1, *range(16, 20)]
+    for name, (sequences, counter) in books.items():
+        assert sequences == want, name
+        assert counter.as_dict() == {"sequence_gaps": 0, "lost_samples": 0, "sequence_resets": 0,
+                                     "sequence_corrupt": 1}, name

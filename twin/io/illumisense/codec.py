@@ -71,6 +71,7 @@ import numpy as np
 from twin.frames import VENDOR_SHAPE_SPACING, Frame, PeakStatus, VendorArrays, VendorSensor
 from twin.io.errors import FramingError, TruncatedFrameError
 from twin.io.illumisense import scan as _scan
+from twin.io.sequence import clamp
 
 __all__ = [
     "ANGLE_LABEL",
@@ -415,6 +416,8 @@ class _Tokens:
             if not (body.isdigit() and body.isascii()) or j != 2:  # only the sample number may exceed 15 digits
                 self.fail(j, f"{name} {tok[:20]!r} is not an integer", "a decimal integer")
             v = int(tok)
+            if j == 2:  # a sample number beyond int64 is as absurd as it was, not a bad record (twin.io.sequence)
+                v = clamp(v) if v >= 0 else v if v >= lo else -1  # below int64: unknown, as any negative
         if not lo <= v <= hi:
             self.fail(j, f"{name} {v} is out of range", f"{lo} to {hi}")
         return v
