@@ -27,6 +27,7 @@ A connection that ends inside a frame is one framing error (:meth:`PeakStreamDec
 from __future__ import annotations
 
 import struct
+from collections import deque
 
 import numpy as np
 
@@ -106,17 +107,17 @@ class PeakStreamDecoder:
         buf += data
         out: list[Frame] = []
         pos = 0
-        cands: list[int] = []
+        cands: deque[int] = deque()
         while pos < len(buf):
             if not self.in_sync:
                 if not cands:
-                    cands = self._candidates(pos)
+                    cands = deque(self._candidates(pos))
                     if not cands:  # keep only what may still be the start of a candidate
                         keep = max(pos, len(buf) - (_FIXED - 1))
                         self.bytes_discarded += keep - pos
                         pos = keep
                         break
-                p = cands.pop(0)
+                p = cands.popleft()
                 self.bytes_discarded += p - pos
                 pos = p
             end, err = self._check(pos)
@@ -125,7 +126,7 @@ class PeakStreamDecoder:
                     self.framing_errors += 1
                     self.last_error = err
                     self.in_sync = False
-                    cands = []
+                    cands.clear()
                 self.bytes_discarded += 1
                 pos += 1
                 continue
@@ -133,7 +134,7 @@ class PeakStreamDecoder:
                 break
             out.append(self._decode(pos, end))
             self.in_sync = True
-            cands = []
+            cands.clear()
             pos = end
         del buf[:pos]
         self._base += pos
