@@ -35,8 +35,9 @@ Decisions where docs/protocols.md is silent:
   such as 3.9e-305 nm).
 - The reserved byte of both headers must be 0 and a timestamp's nanoseconds must be below 1e9: on a binary
   stream without a sync marker those checks and the wavelength range are the only way to notice lost framing.
-- A connection that closes inside a frame is one framing error (:meth:`ResponseDecoder.finish`), as on the
-  ILLumiSense stream: one meaning per counter across drivers.
+- A connection that closes inside a frame is one framing error (:meth:`ResponseDecoder.finish`,
+  :meth:`twin.io.hyperion.stream.PeakStreamDecoder.finish`), as on the ILLumiSense stream: one meaning per
+  counter across drivers.
 
 **Resynchronisation**: the peak stream's decoder resynchronises after bad bytes, on the constraints of a frame's
 fixed fields (:mod:`twin.io.hyperion.stream`). The command port's decoders (one request, one response) attempt
@@ -282,7 +283,7 @@ def decode_response(data: bytes, *, max_content: int = DEFAULT_MAX_CONTENT) -> R
 
 
 class _Incremental:
-    """Shared machinery of the two stream decoders (length-prefixed by an 8-byte header, no resync)."""
+    """Shared machinery of the command port's two decoders (length-prefixed by an 8-byte header, no resync)."""
 
     def __init__(self) -> None:
         self._buf = bytearray()

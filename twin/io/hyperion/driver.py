@@ -159,8 +159,7 @@ class HyperionSource(Driver):
         if not data:
             return
         frames = [self._map(f) for f in self._decoder.feed(data)]
-        # gaps are counted here rather than by the per-connection decoder, so that samples lost across a
-        # reconnect count too
+        # gaps are counted here, by the rule every source shares (twin.io.sequence), across reconnects
         if frames:
             self._sequence.count_many([f.sequence for f in frames])
             self.counters.update(self._sequence.as_dict())

@@ -724,8 +724,8 @@ def _decode_general(data: bytes, buf: np.ndarray, starts: np.ndarray, ends: np.n
             done[sel[ok]] = True
         rest = todo[~done]
         # the rest matched no known layout: walked one by one, until one teaches a new layout, which the records
-        # after it are matched against first (matching them all again after each bad line made a block of bad
-        # lines cost its square: 45 µs a line)
+        # after it are matched against first (matching the rest again after a bad line, with no new layout to
+        # match, was numpy work over the whole block per bad line)
         todo = rest[:0]
         for k, r in enumerate(rest.tolist()):
             a, b = counts[r], counts[r + 1]
