@@ -342,22 +342,23 @@ class LiveSummary:
         return self.status.frames / self.duration if self.duration > 0 else 0.0
 
     @property
-    def reconstruct_frames_per_s(self) -> float | None:
+    def processing_frames_per_s(self) -> float | None:
         """Frames reconstructed per second spent in the loop's processing (window check, reconstruction and
-        books; first-call compilation included), Hz: the throughput, not the arrival rate. None before any."""
+        books; first-call compilation included), Hz: the throughput, not the arrival rate, nor `twin bench`'s
+        ``reconstruct_frames_per_s`` (the reconstruction alone, compiled, best window). None before any."""
         c = self.counters
         if c is None or c.process_s <= 0 or not self.status.frames:
             return None
         return self.status.frames / c.process_s
 
     def as_dict(self) -> dict:
-        rfs = self.reconstruct_frames_per_s
+        rfs = self.processing_frames_per_s
         span = None if self.counters is None else self.counters.time_span
         return {
             "reason": self.reason,
             "duration": round(self.duration, 6),
             "frames_per_s": round(self.frames_per_s, 3),
-            "reconstruct_frames_per_s": None if rfs is None else round(rfs, 1),
+            "processing_frames_per_s": None if rfs is None else round(rfs, 1),
             "time_span": None if span is None else round(span, 6),
             **self.status.as_dict(),
             "sink_errors": list(self.sink_errors),
