@@ -284,7 +284,8 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
         f"twin live: {summary.duration:.1f} s, {s.frames} frames (arrived at {summary.frames_per_s:.1f} frames/s), "
         f"ended: {summary.reason}",
         f"  lost samples {s.lost_samples} in {s.sequence_gaps} gaps, sequence resets {s.sequence_resets}, "
-        f"framing errors {s.framing_errors}, disconnects {s.disconnects}, reconnects {s.reconnects}, "
+        f"corrupt sequence numbers {s.sequence_corrupt}, framing errors {s.framing_errors}, "
+        f"disconnects {s.disconnects}, reconnects {s.reconnects}, "
         f"stale {s.stale_events} times",
         f"  frames complete {s.frames_complete}, partial {s.frames_partial}, unusable {s.frames_unusable}, "
         f"with missing peaks {s.frames_missing_peaks}, rejected {s.frames_rejected}; invalid nodes "

@@ -98,7 +98,8 @@ def format_summary(s: ReplaySummary) -> str:
         state = ", NOT closed cleanly"
     lines = [
         f"{s.file}: {s.kind}, {s.frames} frames over {span}{rate}{state}",
-        f"  lost samples {s.lost_samples} in {s.sequence_gaps} gaps, sequence resets {s.sequence_resets}",
+        f"  lost samples {s.lost_samples} in {s.sequence_gaps} gaps, sequence resets {s.sequence_resets}, "
+        f"corrupt sequence numbers {s.sequence_corrupt}",
         f"  frames complete {s.frames_complete}, partial {s.frames_partial}, unusable {s.frames_unusable}, "
         f"with missing peaks {s.frames_missing_peaks}; invalid nodes {s.invalid_nodes}; peaks outside their window "
         f"{s.peaks_outside_window}",
