@@ -136,3 +136,15 @@ def test_one_corrupt_counter_is_one_corrupt_record_on_every_protocol(tmp_path):
         assert sequences == want, name
         assert counter.as_dict() == {"sequence_gaps": 0, "lost_samples": 0, "sequence_resets": 0,
                                      "sequence_corrupt": 1}, name
+
+
+def test_numbers_beyond_int64_are_judged_the_same_however_they_come():
+    """2**63 or more is taken as 2**63 − 1 whether it comes as a Python int or in an unsigned array (which would
+    otherwise wrap to a negative number, "unknown", and book the run's next number as a gap); below −2**63 is
+    unknown like any negative number (it raised OverflowError)."""
+    want = (0, 0, 0, 1)
+    assert _books([10, 2**63, 12]) == want
+    assert _books(np.array([10, 2**63, 12], np.uint64)) == want
+    assert _books(np.array([10, 2**64 - 1, 12], np.uint64)) == want
+    assert _books([10, 11, -(2**64), 12]) == (0, 0, 0, 0)
+    assert _books(np.array([10, 11, 12], np.uint32)) == (0, 0, 0, 0)

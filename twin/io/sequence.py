@@ -87,10 +87,15 @@ class SequenceCounter:
         ndarray of int64, shape (n,)
             0 for a number that follows its predecessor, for a reset and for an unknown (negative) number.
         """
-        try:
-            seq = np.asarray(sequences, dtype=np.int64).reshape(-1)
-        except OverflowError:  # a number beyond int64: as absurd as it was (module docstring)
-            seq = np.array([clamp(s) for s in np.asarray(sequences, dtype=object).ravel()], dtype=np.int64)
+        if isinstance(sequences, np.ndarray) and sequences.dtype.kind == "u":
+            # an unsigned counter's 2**63 or more would wrap to a negative number, "unknown": clamped instead
+            seq = np.minimum(sequences, np.uint64(INT64_MAX)).astype(np.int64).reshape(-1)
+        else:
+            try:
+                seq = np.asarray(sequences, dtype=np.int64).reshape(-1)
+            except OverflowError:  # beyond int64: above, as absurd as it was; below, unknown as any negative
+                seq = np.array([clamp(s) if s >= 0 else max(int(s), -1)
+                                for s in np.asarray(sequences, dtype=object).ravel()], dtype=np.int64)
         lost, *books = lost_before(seq, self.state)
         self.book(*books)
         return lost
