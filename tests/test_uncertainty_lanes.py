@@ -17,19 +17,19 @@ FIBER = FiberModel.paper()
 RTOL = 1e-12
 
 
-def uncertainty() -> Uncertainty:
-    g = nominal_gain(FIBER)
-    cal = Calibration(delta_theta=nominal_delta_theta(FIBER), gain=g, delta_theta_std=2e-3, gain_std=0.01 * g)
+def uncertainty(fiber: FiberModel = FIBER) -> Uncertainty:
+    g = nominal_gain(fiber)
+    cal = Calibration(delta_theta=nominal_delta_theta(fiber), gain=g, delta_theta_std=2e-3, gain_std=0.01 * g)
     me = ModelError(curvature=0.03, relative=0.02, interpolation=0.134, base_angle=5e-4, twist=0.4)
-    return Uncertainty(Reconstructor(FIBER, cal), model_error=me)
+    return Uncertainty(Reconstructor(fiber, cal), model_error=me)
 
 
-def wavelengths(n: int, seed: int) -> np.ndarray:
+def wavelengths(n: int, seed: int, fiber: FiberModel = FIBER) -> np.ndarray:
     """``n`` frames of three library shapes scaled at random, with noise."""
     rng = np.random.default_rng(seed)
     names = ["helix", "s-curve", "rotating-bend"]
-    k = np.stack([shapes.get(names[i % 3]).curvature(FIBER.grating_s) * rng.uniform(0.3, 1.2) for i in range(n)])
-    w = strain.forward(FIBER, k)
+    k = np.stack([shapes.get(names[i % 3]).curvature(fiber.grating_s) * rng.uniform(0.3, 1.2) for i in range(n)])
+    w = strain.forward(fiber, k)
     return w + 2e-3 * rng.standard_normal(w.shape)
 
 
@@ -38,7 +38,7 @@ def one_at_a_time(unc: Uncertainty, shape, w) -> np.ndarray:
     n_f, n_p = w.shape[0], shape.positions.shape[-2]
     vf = np.ascontiguousarray(shape.valid)
     bases, which = unc._patterns(vf)
-    cov, ck = np.empty((n_f, n_p, 3, 3)), np.empty((n_f, FIBER.n_gratings, 2, 2))
+    cov, ck = np.empty((n_f, n_p, 3, 3)), np.empty((n_f, unc.reconstructor.fiber.n_gratings, 2, 2))
     propagate(unc._const(), np.ascontiguousarray(shape.positions), np.ascontiguousarray(shape.frames),
               np.ascontiguousarray(shape.curvature), vf, w, bases, which, cov, ck)
     return cov
@@ -61,6 +61,19 @@ def test_complete_frames_on_lanes_equal_one_frame_at_a_time(n):
     w[::4, 5, 2] = np.nan  # a missing peak: the grating still solved, from three cores
     shape = unc.reconstructor(w)
     assert shape.valid.all()
+    check(unc.propagate(shape, w).covariance, one_at_a_time(unc, shape, w))
+
+
+@pytest.mark.parametrize("n_gratings", [17, 3])
+def test_an_odd_grating_count_takes_its_last_grating_alone(n_gratings):
+    """The lanes take gratings two at a time; with an odd count the last goes alone (`_lanes_block`'s
+    ``n_g % 2`` branch): the paper's fibre cut to 17 gratings (and to 3) equals the one-frame route."""
+    fiber = FIBER.replace(grating_s=FIBER.grating_s[:n_gratings], lambda0=FIBER.lambda0[:n_gratings],
+                          length=float(FIBER.grating_s[n_gratings - 1]) + 0.01)
+    unc = uncertainty(fiber)
+    w = wavelengths(LANES + 3, seed=n_gratings, fiber=fiber)
+    shape = unc.reconstructor(w)
+    assert shape.valid.all() and fiber.n_gratings % 2 == 1
     check(unc.propagate(shape, w).covariance, one_at_a_time(unc, shape, w))
 
 
