@@ -749,7 +749,7 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
     for n in range(n_g):
         vr, lr = vrep[n], lrep[n]
         for ll in range(L):
-            l00 = np.sqrt(vr[ll])
+            l00 = np.sqrt(max(vr[ll], 0.0))
             l10 = vr[L + ll] / l00 if l00 > 0.0 else 0.0
             lr[ll] = l00
             lr[L + ll] = l10
