@@ -35,11 +35,10 @@ def warm_up() -> None:
     """Run a short `twin live` over ``synthetic://`` and ILLumiSense records through the live loop (module
     docstring): every kernel they call is compiled, or loaded from the cache."""
     from twin.cli import live_command
-    from twin.frames import Frame
     from twin.io import illumisense
-    from twin.io.source import SourceClosed
     from twin.live import LiveLoop
     from twin.reconstruct import Reconstructor
+    from twin.stream_bench import RecordPieces
     from twin.synthetic import SyntheticSource
 
     parser = argparse.ArgumentParser()
@@ -54,32 +53,8 @@ def warm_up() -> None:
     source = SyntheticSource(pace=False, frames=_FRAMES, cores=7, gratings=18, noise=0.001, truth=False)
     frames, fiber = list(source), source.fiber
     stream = b"".join(illumisense.encode_record(f) for f in frames)
-
-    class _Records:
-        """The records in pieces as a socket returns them, through the driver's decoder (a Source)."""
-
-        url, rate, fiber = "warm-up://illumisense", None, source.fiber
-
-        def __init__(self) -> None:
-            self._decoder = illumisense.StreamDecoder()
-            self._pieces = iter([stream[i:i + 4096] for i in range(0, len(stream), 4096)])
-
-        def read_batch(self, max_frames: int = 1024, timeout: float | None = None):
-            for piece in self._pieces:
-                if items := self._decoder.feed_batch(piece):
-                    return Frame.stack(items)
-            raise SourceClosed("warm-up: end of the records")
-
-        def stats(self) -> dict:
-            return {}
-
-        def describe(self) -> dict:
-            return {"url": self.url}
-
-        def close(self) -> None:
-            pass
-
-    summary = LiveLoop(_Records(), Reconstructor(fiber), []).run(handle_signals=False)
+    pieces = [stream[i:i + 4096] for i in range(0, len(stream), 4096)]  # as a socket returns them
+    summary = LiveLoop(RecordPieces(pieces, fiber), Reconstructor(fiber), []).run(handle_signals=False)
     if summary.status.frames != len(frames):
         raise RuntimeError(f"warm-up: {summary.status.frames} of {len(frames)} ILLumiSense records reconstructed")
 
