@@ -221,11 +221,11 @@ def test_every_model_on_both_needles_as_documented():
 
     documented = {  # (with the jig's zero: |Δκ|, |Δdir|), (without)
         "needle_3CH_4AA_v2": {"linear": ((0.127, 5.99), (0.129, 5.98)), "physical": ((0.117, 5.92), (0.134, 5.28)),
-                              "matrix": ((0.103, 5.74), (0.133, 5.47)), "nuisance": ((0.105, 5.34), (0.166, 5.15))},
+                              "matrix": ((0.103, 5.74), (0.133, 5.47)), "nuisance": ((0.105, 5.33), (0.166, 5.15))},
         "needle_3CH_3AA": {"linear": ((0.265, 3.17), (0.270, 3.47)), "physical": ((0.224, 3.50), (0.246, 3.68)),
                            "matrix": ((0.227, 3.60), (0.253, 3.68)), "nuisance": ((0.198, 3.36), (0.259, 3.11))},
     }
-    coverage = {"needle_3CH_4AA_v2": (0.995, 0.995), "needle_3CH_3AA": (0.942, 0.920)}
+    coverage = {"needle_3CH_4AA_v2": (0.986, 0.986), "needle_3CH_3AA": (0.920, 0.899)}
     for table, rows in documented.items():
         scores = {r["variant"]: r for r in model_scores(*REAL_TABLES[table], variants=VARIANTS[:4])}
         for variant, figures in rows.items():
@@ -257,6 +257,31 @@ def test_twin_jig_zero_is_the_simulated_grooves_shortfall():
     assert np.abs(np.median(bends, axis=0)).max() < 0.03
 
 
+def test_twin_local_seating_gain_and_twist_are_recovered():
+    """On the twin, each rotation × grating follows 1 + N(0, 4.5 %) of every groove (AMIRO.conformity_std) and is
+    twisted by N(0, 1.2°) (seat_twist_deg). The nuisance fit's local gain and roll, the budget's prior taken back
+    out, recover them: median over 10 sessions within [3.0, 6.5] % and [0.8, 1.7]° (each session rests on 6 degrees
+    of freedom, ≈ 30 % relative scatter of a standard deviation; the median of 10, ≈ 11 %, and the grooves' own
+    scatter biases it up). Measured through the origin, as before session 7, they read about a fifth of that
+    (0.9 %, 0.24°), which this test tells apart."""
+    from twin.calibration.jig.nuisance import BUDGET, PRIOR_DOF
+
+    def data_part(pooled, prior, dof):
+        return np.sqrt(max(((dof + PRIOR_DOF) * pooled**2 - PRIOR_DOF * prior**2) / dof, 0.0))
+
+    fiber = amiro_fiber()
+    gains, rolls = [], []
+    for seed in range(10):
+        poses, truth = simulate(replace(AMIRO, seed=seed), fiber)
+        nz = jig.fit(fiber, poses, model="nuisance", gratings=truth["gratings_in_groove"]).nuisance
+        dof = 0.5 * 4 * len(truth["gratings_in_groove"])  # 2 rotations per axis keep half of each slope
+        gains.append(data_part(nz.local_gain_std, BUDGET["local_gain"], dof))
+        rolls.append(data_part(nz.local_roll_std, BUDGET["local_roll"], dof))
+    assert AMIRO.conformity_std == 0.045 and AMIRO.seat_twist_deg == 1.2
+    assert 0.030 <= np.median(gains) <= 0.065
+    assert 0.8 <= np.rad2deg(np.median(rolls)) <= 1.7
+
+
 def test_real_references_are_not_bent_by_the_jig():
     """docs/jig.md, "The jig's zero": on both real tables the references' absolute wavelengths, read through the
     nuisance calibration, hold no bend fixed in the jig's frame beyond 0.07 1/m per component (0.03 along the bend),
@@ -279,11 +304,11 @@ def test_nuisance_against_linear_resolved_on_one_needle_not_the_other():
     """docs/jig.md, "Two real needles, every model": the nuisance model's score minus the linear map's, all levels
     with the jig's zero, and its range over leaving one rotation × grating out. needle_3CH_4AA_v2: −0.023 1/m
     (−0.034 … −0.011) and −0.66° (−0.99 … −0.53), resolved; needle_3CH_3AA: −0.066 1/m (−0.067 … −0.030), resolved,
-    and +0.19° (−1.48 … +2.34), not."""
+    and +0.20° (−1.48 … +2.34), not."""
     from scenarios.real_jig import REAL_TABLES, VARIANTS, model_scores
 
-    documented = {"needle_3CH_4AA_v2": ((-0.0227, -0.0336, -0.0107), (-0.66, -0.99, -0.53)),
-                  "needle_3CH_3AA": ((-0.0663, -0.0672, -0.0304), (0.19, -1.48, 2.34))}
+    documented = {"needle_3CH_4AA_v2": ((-0.0229, -0.0339, -0.0108), (-0.66, -0.99, -0.53)),
+                  "needle_3CH_3AA": ((-0.0664, -0.0672, -0.0304), (0.198, -1.48, 2.34))}
     for table, (kappa, direction) in documented.items():
         rows = {r["variant"]: r for r in model_scores(*REAL_TABLES[table], variants=(VARIANTS[0], VARIANTS[3]))}
         d = rows["nuisance"]["loro_all_vs_first"]

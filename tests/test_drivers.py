@@ -318,7 +318,7 @@ def test_hyperion_assigns_peaks_to_gratings_by_wavelength():
     np.testing.assert_array_equal(w, [1509.9, np.nan])
 
 
-def test_hyperion_driver_reconnects_after_a_corrupt_stream():
+def test_hyperion_driver_resynchronises_after_a_corrupt_frame():
     fiber = multicore_fiber(4, 18)
     frames = synthetic_frames(6, fiber=fiber)
     good = [hyperion.encode_stream_frame(f) for f in frames]
@@ -334,8 +334,8 @@ def test_hyperion_driver_reconnects_after_a_corrupt_stream():
         corrupt[8] = 0xFF  # the peak header's length (24 + 2·channels) becomes 255: inconsistent
         conn.sendall(good[0] + good[1] + bytes(corrupt))
         time.sleep(0.3)
-        conn.sendall(good[3])  # the driver must not trust the stream any more: it reconnects
-        time.sleep(5.0)
+        conn.sendall(good[3])  # the decoder skips the corrupt frame and finds this one: no reconnect
+        time.sleep(0.3)  # then the server closes: a reconnect, counted
 
     def stream_good(conn):
         conn.sendall(good[4] + good[5])
@@ -345,15 +345,46 @@ def test_hyperion_driver_reconnects_after_a_corrupt_stream():
     stream_server = ScriptedServer([stream_bad, stream_good])
     src = HyperionSource("127.0.0.1", cmd_server.port, stream_port=stream_server.port, fiber=fiber)
     try:
-        got = read_n(src, 4, timeout=20)
+        got = read_n(src, 5, timeout=20)
     finally:
         src.close()
         cmd_server.close()
         stream_server.close()
-    assert [f.sequence for f in got] == [0, 1, 4, 5]
+    assert [f.sequence for f in got] == [0, 1, 3, 4, 5]
     s = src.stats()
-    assert s["framing_errors"] == 1 and s["reconnects"] == 1
-    assert s["lost_samples"] == 2 and s["sequence_gaps"] == 1  # frames 2 and 3, across the reconnect
+    assert s["framing_errors"] == 1 and s["bytes_discarded"] == len(good[2]) and s["reconnects"] == 1
+    assert s["lost_samples"] == 1 and s["sequence_gaps"] == 1  # frame 2, refused
+
+
+def test_hyperion_driver_keeps_every_intact_frame_around_garbage_from_the_simulated_server():
+    """Garbage, a frame cut short, a header announcing 16 MiB and a flood of NUL bytes, each pushed between the
+    simulated instrument's frames on its real peak stream: each is one framing error, skipped without a
+    reconnect and without buffering what it announces, and no intact frame is lost (sequence numbers run on)."""
+    fiber = multicore_fiber(4, 18)
+    rng = np.random.default_rng(7)
+    cut = hyperion.encode_stream_frame(synthetic_frames(1, fiber=fiber)[0], serial_number=10**9)
+    injections = [rng.bytes(5000), cut[: len(cut) // 2], b"\x00\x00\x00\x00" + (1 << 24).to_bytes(4, "little"),
+                  bytes(100_000)]
+    with HyperionServer(SyntheticSource(rate=200, fiber=fiber), port=0) as server:
+        (host, port), sport = server.address, server.stream_address[1]
+        src = HyperionSource(host, port, stream_port=sport, fiber=fiber)
+        got, pending = [], []
+        try:
+            got += read_n(src, 5)
+            for junk in injections:
+                server.stream.publish(junk)  # whole, between two frames of the pump
+                seen = len(got)
+                got += read_n(src, 10)
+                assert len(got) == seen + 10
+                pending.append(src._decoder.pending)
+        finally:
+            src.close()
+    seq = [f.sequence for f in got]
+    assert seq == list(range(seq[0], seq[0] + len(seq)))  # every frame, in order
+    s = src.stats()
+    assert s["framing_errors"] == len(injections) and s["reconnects"] == 0 and s["lost_samples"] == 0
+    assert s["bytes_discarded"] == sum(map(len, injections))
+    assert max(pending) < 65536  # nothing of the 16 MiB announced nor of the flood is held
 
 
 def recv_all(sock: socket.socket, timeout: float = 5.0) -> bytes:

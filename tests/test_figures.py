@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import subprocess
 import sys
 
@@ -56,11 +57,11 @@ def recording(tmp_path_factory):
     return path
 
 
-def _live_and_replay(path) -> tuple[dict, dict]:
-    live = subprocess.run([*TWIN, "live", f"replay://{path}?speed=max", "--json", "--quiet"],
+def _live_and_replay(path, *options: str) -> tuple[dict, dict]:
+    live = subprocess.run([*TWIN, "live", f"replay://{path}?speed=max", "--json", "--quiet", *options],
                           capture_output=True, text=True, env=ENV, timeout=300)
-    replay = subprocess.run([*TWIN, "replay", str(path), "--json"], capture_output=True, text=True, env=ENV,
-                            timeout=300)
+    replay = subprocess.run([*TWIN, "replay", str(path), "--json", *options], capture_output=True, text=True,
+                            env=ENV, timeout=300)
     assert live.returncode == 0 and replay.returncode == 0, live.stderr + replay.stderr
     return json.loads(live.stdout), json.loads(replay.stdout)
 
@@ -71,6 +72,17 @@ def test_live_over_a_recording_and_replay_report_the_same_figures(recording, suf
     (their frames being the same) with the other file's."""
     a, b = _live_and_replay(recording.with_suffix(suffix))
     assert {k: a[k] for k in COUNTS} == {k: b[k] for k in COUNTS}
+    # a key both print means the same on both paths: only the wall-clock throughput may differ
+    common = (set(a) & set(b)) - {"processing_frames_per_s"}
+    assert {k: a[k] for k in common} == {k: b[k] for k in common}
+    # no key names another command's different figure: `twin bench`'s stream figures (the live path's speed,
+    # compiled, best window) are not this run's (first-call compilation and the machine's load included)
+    import twin.stream_bench
+
+    bench = set(re.findall(r"``(\w+_per_s)``", twin.stream_bench.__doc__))
+    assert "reconstruct_frames_per_s" in bench and not bench & (set(a) | set(b))
+    # the source rate over the last 2 s of timestamps (no gap there), and the whole recording's under its own name
+    assert a["rate_hz"] == 100.0 and b["recorded_rate_hz"] == round(299 / 3.09, 3) and "rate_hz" not in b
     assert a["frames"] == 300 and a["lost_samples"] == 10 and a["frames_partial"] > 0
     # one frame per 0.1 s of the recording's 3.1 s (less the 0.1 s gap): about 30, the same on both paths
     assert a["truth"] == b["truth"] and 25 <= a["truth"]["frames_compared"] <= 32
@@ -78,10 +90,11 @@ def test_live_over_a_recording_and_replay_report_the_same_figures(recording, suf
     assert {k: a[k] for k in vendor} == {k: b[k] for k in vendor}
     assert 0.05 < a["vendor_distance_max_mm"] < 0.5 and a["vendor_frames_compared"] >= 20
     # the confidence tube on the same frames, the same on both paths (docs/figures.md)
-    tube = ("tube_frames", "mean_sigma_mm", "tube_truth_frames", "coverage_95")
+    tube = ("tube_frames", "mean_sigma_mm", "tube_truth_frames", "coverage_95", "tube_twist_rad_per_m", "tube_caveat")
     assert {k: a[k] for k in tube} == {k: b[k] for k in tube}
     assert 25 <= a["tube_frames"] <= 32 and a["tube_truth_frames"] == a["tube_frames"]
     assert a["mean_sigma_mm"] > 0 and 0.0 <= a["coverage_95"] <= 1.0
+    assert a["tube_twist_rad_per_m"] == 0.0 and "states no 1σ" in a["tube_caveat"]  # no calibration recorded
     # the text says what its frames/s measure (docs/figures.md)
     text = subprocess.run([*TWIN, "replay", str(recording.with_suffix(suffix))], capture_output=True, text=True,
                           env=ENV, timeout=300)
@@ -90,7 +103,7 @@ def test_live_over_a_recording_and_replay_report_the_same_figures(recording, suf
     if suffix == ".mcap":
         other = json.loads(subprocess.run([*TWIN, "replay", str(recording), "--json"], capture_output=True,
                                           text=True, env=ENV, timeout=300).stdout)  # the HDF5 recording's
-        figures = (*COUNTS, "truth", *vendor, "time_span", "rate_hz")
+        figures = (*COUNTS, "truth", *vendor, "time_span", "recorded_rate_hz")
         assert {k: b[k] for k in figures} == {k: other[k] for k in figures}
 
 
@@ -179,3 +192,49 @@ def test_the_tube_figures_are_what_their_definitions_say(recording):
     assert got[0]["tube_frames"] == first.size
     assert got[0]["mean_sigma_mm"] == pytest.approx(out.sigma[:, distal].mean() * 1e3, abs=1e-4)
     assert got[0]["coverage_95"] == pytest.approx(inside(out, truth)[:, distal].mean(), abs=1e-4)
+
+
+def test_twist_states_the_unmeasured_twist_of_the_tube_on_both_paths(recording):
+    """``--twist RATE`` sets the tube's model error's twist term, rad/m: shown as ``tube_twist_rad_per_m``, the
+    same tube on both paths, as wide as Uncertainty.with_twist makes it (wider than without: the arcs bend), and
+    the calibration's caveat kept (the rest of the model error is still the default's)."""
+    a, b = _live_and_replay(recording, "--twist", "0.82")
+    tube = ("tube_frames", "mean_sigma_mm", "tube_truth_frames", "coverage_95", "tube_twist_rad_per_m", "tube_caveat")
+    assert {k: a[k] for k in tube} == {k: b[k] for k in tube}
+    assert a["tube_twist_rad_per_m"] == 0.82 and "states no 1σ" in a["tube_caveat"]
+    sink = TubeFigures(Uncertainty(Reconstructor(FIBER)).with_twist(0.82))
+    LiveLoop(open_source(f"replay://{recording}?speed=max"), Reconstructor(FIBER), [sink]).run(handle_signals=False)
+    assert a["mean_sigma_mm"] == sink.as_dict()["mean_sigma_mm"]
+    plain = json.loads(subprocess.run([*TWIN, "replay", str(recording), "--json"], capture_output=True, text=True,
+                                      env=ENV, timeout=300).stdout)
+    assert a["mean_sigma_mm"] > 1.5 * plain["mean_sigma_mm"]
+
+
+@pytest.mark.parametrize("command", ["live", "replay"])
+@pytest.mark.parametrize(("options", "says"), [
+    (["--twist", "-1"], "--twist must be a finite twist rate in rad/m >= 0 (0.82: the twin's sheath), got -1.0"),
+    (["--twist", "nan"], "--twist must be a finite twist rate in rad/m >= 0 (0.82: the twin's sheath), got nan"),
+    (["--twist", "inf"], "--twist must be a finite twist rate in rad/m >= 0 (0.82: the twin's sheath), got inf"),
+    (["--twist", "1", "--method", "paper"],
+     "--twist 1: the confidence tube it widens covers the material method only, not --method paper"),
+])
+def test_a_bad_twist_is_one_clear_line(recording, command, options, says):
+    where = f"replay://{recording}?speed=max" if command == "live" else str(recording)
+    quiet = ["--quiet"] if command == "live" else []
+    out = subprocess.run([*TWIN, command, where, "--json", *quiet, *options],
+                         capture_output=True, text=True, env=ENV, timeout=300)
+    assert out.returncode == 2 and not out.stdout
+    assert out.stderr.strip() == f"twin {command}: error: {says}"
+    # not a number: argparse's own message for every number option, naming the option
+    out = subprocess.run([*TWIN, command, where, "--json", *quiet, "--twist", "fast"], capture_output=True, text=True,
+                         env=ENV, timeout=300)
+    assert out.returncode == 2 and out.stderr.strip().splitlines()[-1] == (
+        f"twin {command}: error: argument --twist: invalid float value: 'fast'")
+
+
+def test_twist_on_replay_without_json_is_refused(recording):
+    """Without --json twin replay computes no tube: a --twist there would be ignored, so it is an error."""
+    out = subprocess.run([*TWIN, "replay", str(recording), "--twist", "0.5"], capture_output=True, text=True,
+                         env=ENV, timeout=300)
+    assert out.returncode == 2 and out.stderr.strip() == (
+        "twin replay: error: --twist 0.5: the confidence tube it widens is reported with --json only")

@@ -145,12 +145,12 @@ def test_a_log_of_random_bytes_is_refused_in_one_line_in_bounded_memory(tmp_path
 
 def test_a_log_longer_than_a_block_keeps_every_intact_record_once_and_names_each_bad_line(tmp_path):
     """40,000 records across ten blocks of lines, a junk line, a cut record and a blank line in each block:
-    every intact record read once, in order; every bad line reported by its number."""
+    every intact record read once, in order; every bad line counted, the first ones reported by their number."""
     import numpy as np
 
     from twin.frames import Frame
     from twin.io.illumisense import codec
-    from twin.io.illumisense.log import _BLOCK_LINES, read_log
+    from twin.io.illumisense.log import _BLOCK_LINES, MAX_EXAMPLES, read_log
 
     n = 40_000
     rng = np.random.default_rng(4)
@@ -171,4 +171,37 @@ def test_a_log_longer_than_a_block_keeps_every_intact_record_once_and_names_each
     log = read_log(path)
     assert np.array_equal(log.sequences, np.arange(n))
     np.testing.assert_allclose(log.wavelengths, lam, atol=5e-5, rtol=0)
-    assert [int(e.split(":")[0].split()[1]) for e in log.errors] == bad
+    assert log.skipped_lines == len(bad) and len(bad) > MAX_EXAMPLES
+    assert [int(e.split(":")[0].split()[1]) for e in log.errors] == bad[:MAX_EXAMPLES]  # the first, named
+
+
+@pytest.mark.timeout(300)  # hang guard
+def test_a_log_of_many_bad_lines_keeps_a_count_and_a_few_examples_not_a_message_each(tmp_path):
+    """Defect: every bad line after the first record kept its own message (memory grew with the bad input: a
+    million lines held ~150 MB of strings). Now: counted, the first ten named, in bounded memory, and reported."""
+    import subprocess
+    import sys
+
+    from twin.frames import Frame
+    from twin.io.illumisense import codec
+    from twin.io.illumisense.log import MAX_EXAMPLES, read_log
+    from twin.io.record import open_recording
+
+    lam0 = FiberModel.paper().lambda0  # what `twin replay` assumes without --fiber
+    good = b"".join(codec.encode_payload(Frame(lam0 + 0.001 * i, 1.7e9 + i, i)) for i in range(5))
+    n_bad = 50_000
+    path = tmp_path / "bad.txt"
+    path.write_bytes(good + b"not\ta\trecord\n" * n_bad + good)
+    read_log(path)  # the compiled passes loaded before measuring
+    log, peak = _peak(lambda: read_log(path))
+    assert log.skipped_lines == n_bad and len(log.errors) == MAX_EXAMPLES
+    assert [int(e.split(":")[0].split()[1]) for e in log.errors] == list(range(6, 6 + MAX_EXAMPLES))
+    assert len(log.sequences) == 10
+    size = path.stat().st_size
+    # the file, the lines' bounds (3 int64 a line) and one block of lines; a message a line took ~12× the file
+    assert peak < 2 * size + 24 * (n_bad + 10) + (16 << 20), f"peak {peak / 2**20:.0f} MiB for {size >> 20} MiB"
+    with open_recording(path) as r:
+        assert r.skipped_lines == n_bad and len(r.errors) == MAX_EXAMPLES
+    out = subprocess.run([sys.executable, "-m", "twin.cli", "replay", str(path)], capture_output=True, text=True,
+                         timeout=240)
+    assert f"{n_bad} line(s) skipped, first: line 6:" in out.stderr, out.stderr

@@ -17,7 +17,7 @@ from twin.calibration.jig import (
     validate,
     write_poses,
 )
-from twin.calibration.jig.nuisance import DEFAULT_TERMS, TERMS
+from twin.calibration.jig.nuisance import BUDGET, DEFAULT_TERMS, PRIOR_DOF, TERMS, median_variance
 from twin.calibration.jig.score import ALL_LEVELS, CLINICAL, Z95, cells, coverage, difference, score
 from twin.cli import main
 
@@ -146,6 +146,84 @@ def test_nuisance_terms_are_checked_and_the_gain_term_finds_a_rotation_gain():
     assert gains[1] / gains[3] == pytest.approx(0.95, abs=1e-6)
     assert gains[0] / gains[2] == pytest.approx(1.0, abs=1e-6)
     assert np.mean(np.log(gains)) == pytest.approx(0.0, abs=1e-12)
+
+
+def following(true, deficit, seed=0):
+    """Noise-free poses of a sensor that follows a fraction 1 + deficit[o, n] of every groove at rotation o and
+    grating n (a seating's local gain), references straight."""
+    poses = session(true, seed=seed)
+    frac = 1.0 + np.asarray(deficit)[poses.orientation_index]  # (P, G)
+    k = jig_curvature(poses.orientation, poses.curvature, ROLL)[:, None, :] * frac[..., None]
+    return JigPoses(poses.orientation, poses.curvature, strain.forward(true, k))
+
+
+def test_local_gain_is_measured_about_the_grooves_mean_curvature():
+    """Each rotation's zero is free, so it takes a seating's local gain δ at the grooves' mean curvature κ̄ and the
+    residuals keep (κ − κ̄)·δ; the map takes the mean δ of the two rotations on an axis. Noise-free poses with a
+    known δ per rotation and grating: the fit's local gain is the budget's prior pooled with exactly
+    Σ(δ − δ̄_axis)²/(1 + δ̄_axis)² / Σ(1 − 1/2) (to 1e-6 relative); a slope through the origin would read
+    Σ(κ − κ̄)²/Σκ² = 0.37 of each δ here. What the slopes explain is not left in the per-groove covariance, and
+    κ̄ is the bent grooves' mean."""
+    true = as_built()
+    deficit = np.array([[0.04, -0.02, 0.03, 0.00], [-0.03, 0.05, -0.01, 0.02],
+                        [-0.02, 0.01, 0.02, -0.04], [0.03, -0.04, 0.00, 0.03]])  # (O, G)
+    nz = fit(NEEDLE, following(true, deficit), model="nuisance").nuisance
+    bent = np.array(LEVELS[1:])
+    assert nz.mean_curvature == pytest.approx(bent.mean(), rel=1e-12)
+    axis_mean = 0.5 * (deficit + np.roll(deficit, 2, axis=0))  # 0° with 180°, 90° with 270°
+    slope = (deficit - axis_mean) / (1.0 + axis_mean)
+    dof = deficit.size * 0.5
+    expected = np.sqrt((np.sum(slope**2) + PRIOR_DOF * BUDGET["local_gain"] ** 2) / (dof + PRIOR_DOF))
+    assert nz.local_gain_std == pytest.approx(expected, rel=1e-6)
+    # the through-origin regression would have read this fraction of every slope: the test can tell them apart
+    assert np.sum((bent - bent.mean()) ** 2) / np.sum(bent**2) == pytest.approx(0.366, abs=1e-3)
+    floor = (1e-5 / 1550.0) ** 2
+    assert np.max(np.einsum("gcc->g", nz.strain_cov_seat)) < 10 * floor
+
+
+def test_median_variance_is_exact_for_few_rotations():
+    """The variance of the median of n standard normals: 1, 1/2 (the mean of two), 1 − √3/π for n = 3 (to 1e-9);
+    below the asymptotic π/2n for the few rotations of a jig and within 0.5 % of it at n = 101."""
+    assert median_variance(1) == pytest.approx(1.0, abs=1e-9)
+    assert median_variance(2) == pytest.approx(0.5, abs=1e-9)
+    assert median_variance(3) == pytest.approx(1.0 - np.sqrt(3.0) / np.pi, abs=1e-9)
+    for n in range(2, 10):
+        assert median_variance(n) < np.pi / (2 * n)
+        assert median_variance(n + 1) < median_variance(n)
+    assert median_variance(101) == pytest.approx(np.pi / 202, rel=0.005)
+    with pytest.raises(ValueError, match="at least 1"):
+        median_variance(0)
+
+
+def test_interval_terms_of_a_known_error_model():
+    """Exact poses (k̂ = the label) through a calibration whose error model is set by hand, one term at a time:
+    σ² = (1 + v_3)·σ_along² for a rotation's zero (v_3 = 1 − √3/π, the median of the 3 fitted zeros), and
+    ((κ − κ̄)² + κ²/n)·σ_gain,n² for the seatings' local gain (n = 1 fitted rotation on the held-out axis), to
+    1e-9 1/m."""
+    from dataclasses import replace
+
+    true = as_built()
+    poses = session(true)
+    held = np.isclose(poses.orientation, ORIENTATIONS[3])
+    cal = fit(true, poses.select(~held), model="nuisance").calibration
+    prov = dict(cal.provenance)
+    n_g = len(prov["jig_gratings"])
+    quiet = {"jig_error_strain_cov": np.zeros((n_g, 3, 3)).tolist(),
+             "jig_positions_cov_m2": np.zeros((n_g, 6, 6)).tolist(),
+             "jig_reseat_roll_std_rad": 0.0, "jig_reseat_gain_std": 0.0,
+             "jig_local_roll_std_rad": 0.0, "jig_local_gain_std": 0.0,
+             "jig_reference_std_1_per_m": np.zeros((n_g, 2)).tolist(), "jig_mean_curvature_1_per_m": 1.3}
+    exact = session(true, trials=1, seed=5).select(np.isclose(session(true, trials=1, seed=5).orientation,
+                                                              ORIENTATIONS[3]))
+    kappa = np.abs(exact.curvature[~exact.is_reference])[:, None]
+    zero = replace(cal, provenance={**prov, **quiet, "jig_reference_std_1_per_m": np.tile([0.1, 0.3], (n_g, 1))
+                                    .tolist()})
+    sigma = validate(zero, exact).magnitude_sigma
+    np.testing.assert_allclose(sigma, np.full(sigma.shape, 0.1 * np.sqrt(2.0 - np.sqrt(3.0) / np.pi)), atol=1e-9)
+    gain = replace(cal, provenance={**prov, **quiet, "jig_local_gain_std": 0.05})
+    sigma = validate(gain, exact).magnitude_sigma
+    np.testing.assert_allclose(sigma, np.broadcast_to(0.05 * np.sqrt((kappa - 1.3) ** 2 + kappa**2), sigma.shape),
+                               atol=1e-9)
 
 
 def test_nuisance_calibration_saves_its_error_model(tmp_path):

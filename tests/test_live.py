@@ -734,3 +734,23 @@ def test_the_rate_meters_compiled_timestamp_check_equals_numpys():
             ts[rng.integers(ts.size)] = rng.choice([np.nan, np.inf, -np.inf])
         want = bool(np.isfinite(ts).all()) and bool((ts[1:] >= ts[:-1]).all())
         assert _finite_and_ordered(ts) == want
+
+
+@pytest.mark.parametrize("batch", [1, 7, 150, 300])
+def test_the_source_rate_is_over_the_last_window_whatever_the_batching(batch):
+    """rate_hz is (frames − 1) / (newest − oldest timestamp) over the frames within the last ``window`` s of the
+    newest (docs/figures.md), also when a batch straddles the window's start (a file read at full speed comes in
+    batches of hundreds): 100 Hz with 10 samples lost 1 s in, over 3.1 s — the last 2 s hold no gap, so 100 Hz
+    however the frames were batched (counting a whole straddling batch gave 299 / 3.09 s = 96.8 Hz)."""
+    from twin.io.rate import RateMeter
+
+    ts = np.delete(np.arange(310) * 0.01, np.s_[100:110])
+    meter = RateMeter(window=2.0)
+    for i in range(0, ts.size, batch):
+        meter.add(ts[i : i + batch], now=0.0)
+    assert meter.stamped_rate == pytest.approx(100.0, rel=1e-9)
+    # a window that reaches back over the gap: 2.5 s back from 3.09 s holds 250 frames − the 10 lost
+    wide = RateMeter(window=2.5)
+    for i in range(0, ts.size, batch):
+        wide.add(ts[i : i + batch], now=0.0)
+    assert wide.stamped_rate == pytest.approx((ts[ts >= ts[-1] - 2.5].size - 1) / (ts[-1] - ts[ts >= ts[-1] - 2.5][0]))

@@ -21,8 +21,9 @@ PACKAGES = ("twin", "models", "sim_interrogator", "scenarios")
 #: file names that may repeat because they are the same role in parallel packages: a package's ``__init__`` and
 #: ``__main__``, and ``bench.py``, a package's part of `twin bench` (twin/bench.py: the runner and the
 #: ``reconstruct`` section; sim_interrogator/bench.py: the ``sim`` section), and a protocol package's ``codec.py`` and
-#: ``driver.py`` (twin/io/illumisense/, hyperion/, fispec/)
-SHARED_ROLES = {"__init__.py", "__main__.py", "bench.py", "codec.py", "driver.py"}
+#: ``driver.py`` (twin/io/illumisense/, hyperion/, fispec/) and its ``stream.py`` (the stream decoder that
+#: resynchronises: illumisense/, hyperion/)
+SHARED_ROLES = {"__init__.py", "__main__.py", "bench.py", "codec.py", "driver.py", "stream.py"}
 
 
 def _modules():

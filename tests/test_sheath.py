@@ -50,6 +50,24 @@ def test_motion_profile():
         Motion(np.array([0.0, 0.0]), 0.0, 0.0)
 
 
+def test_motion_at_one_time_equals_the_array_path():
+    """The float path of Motion.at (each physics step's actuate) gives the array path's doubles bit for bit: over
+    dense times through every phase (ramp up, cruise, ramp down, hold), at the waypoints, before and after."""
+    rng = np.random.default_rng(3)
+    for accel in (0.05, 0.2, 0.3, 0.5):
+        m = Motion(np.cumsum(np.r_[0.0, rng.uniform(0.1, 2.0, 6)]), rng.normal(0.0, 0.05, 7),
+                   rng.normal(0.0, 1.0, 7), accel=accel)
+        t = np.r_[np.linspace(-0.5, m.duration + 0.5, 20001), m.times, np.nextafter(m.times, np.inf),
+                  np.nextafter(m.times, -np.inf), rng.uniform(0.0, m.duration, 5000)]
+        d, r = m.at(t)
+        one = np.array([m.at(float(x)) for x in t])
+        assert all(type(v) is float for v in m.at(float(t[7])))
+        np.testing.assert_array_equal(one[:, 0], d)
+        np.testing.assert_array_equal(one[:, 1], r)
+    still = Motion(np.array([0.0]), 0.02, 0.1)
+    assert still.at(3.0) == (0.02, 0.1)
+
+
 def test_hub_must_stay_in_the_guide():
     with pytest.raises(ValueError, match="straight guide"):
         SheathPath(start=0.2, travel=0.1)

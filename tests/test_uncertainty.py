@@ -362,3 +362,24 @@ def test_the_default_tube_says_when_the_calibration_states_no_parameter_errors()
     figures(Frame(wavelengths=w, timestamp=np.zeros(1), sequence=np.zeros(1, dtype=np.int64)),
             bare.reconstructor(w), None)
     assert figures.as_dict()["tube_caveat"] == bare.caveat
+
+
+def test_with_twist_sets_only_the_twist_term_and_keeps_the_caveat():
+    """Uncertainty.with_twist(τ) is the propagation with TWIN_MODEL_ERROR.replace(twist=τ) (the same covariance
+    to rounding), and, the rest of the model error being still the default's, keeps its caveat; τ = 0 is the
+    default's tube."""
+    from twin.uncertainty import TWIN_MODEL_ERROR
+
+    rec = Reconstructor(FIBER, Calibration())
+    bare = Uncertainty(rec)
+    w = wavelengths("arc")[None]
+    twisted = bare.with_twist(0.82)
+    assert twisted.model_error == TWIN_MODEL_ERROR.replace(twist=0.82) and twisted.caveat == bare.caveat
+    assert bare.model_error.twist == 0.0  # the original is unchanged
+    explicit = Uncertainty(rec, model_error=TWIN_MODEL_ERROR.replace(twist=0.82))
+    np.testing.assert_allclose(twisted(w).covariance, explicit(w).covariance, rtol=1e-12, atol=1e-18)
+    # the arc bends, so an unmeasured twist widens its tube; none leaves the default's
+    assert (twisted(w).sigma[..., 1:] > bare(w).sigma[..., 1:]).all()
+    np.testing.assert_array_equal(bare.with_twist(0.0)(w).covariance, bare(w).covariance)
+    with pytest.raises(ValueError, match="ModelError.twist"):
+        bare.with_twist(-1.0)

@@ -677,18 +677,46 @@ def test_sink_in_the_live_loop_at_1_khz_draws_at_most_its_rate(make_viewer):
 
 
 # ------------------------------------------------------------------------------------------------ command line
-def test_take_viewer_options_anywhere_among_the_scenario_options():
-    from twin.cli.run_command import take_viewer_options
+def test_the_viewer_options_are_read_by_argparse_anywhere_among_the_scenario_options(monkeypatch, capsys):
+    """`twin run NAME`'s viewer options are declared on the scenario's parser as on `twin run`'s (one parser, no
+    hand-made second one): anywhere among the scenario's options, ``=`` or not, listed in the scenario's --help
+    with their help, bad values one line; the scenario's args keep only ``viewer``."""
+    from twin import cli, registry
 
-    assert take_viewer_options(["--shapes", "arc", "--viewer", "--json"]) == (["--shapes", "arc", "--json"],
-                                                                             True, None, False)
-    assert take_viewer_options(["--viewer-rate", "12", "-x"]) == (["-x"], True, 12.0, False)
-    assert take_viewer_options(["--viewer-rate=5", "--keep-open"]) == ([], True, 5.0, True)
-    assert take_viewer_options(["--json"]) == (["--json"], False, None, False)
-    assert take_viewer_options(["--", "--viewer"]) == (["--", "--viewer"], False, None, False)
-    for bad in (["--viewer-rate"], ["--viewer-rate", "fast"], ["--viewer-rate", "0"]):
-        with pytest.raises(ValueError, match="viewer-rate"):
-            take_viewer_options(bad)
+    seen = {}
+    probe = types.ModuleType("_viewer_options_probe")
+    probe.__doc__ = "probe"
+    probe.add_arguments = lambda parser: parser.add_argument("--n", type=int, default=0)
+
+    def run(args):
+        seen.update(vars(args))
+        seen["fps"] = None if args.viewer is None else args.viewer.config.max_fps
+        return 0
+
+    probe.run = run
+    monkeypatch.setitem(sys.modules, "_viewer_options_probe", probe)
+    registry.register("twin.scenarios", "viewer-options-probe", "_viewer_options_probe")
+    try:
+        for options, fps in ((["--n", "3", "--viewer-rate", "12"], 12.0), (["--viewer-rate=5", "--n", "3"], 5.0),
+                             (["--n", "3", "--viewer"], 30.0), (["--n", "3"], None)):
+            seen.clear()
+            assert cli.main(["run", "viewer-options-probe", *options]) == 0
+            assert seen["fps"] == fps and seen["n"] == 3 and set(seen) == {"n", "viewer", "fps"}, options
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as help_exit:
+            cli.main(["run", "viewer-options-probe", "--help"])
+        assert help_exit.value.code == 0
+        text = " ".join(capsys.readouterr().out.split())
+        assert "--viewer-rate HZ most frames the viewer draws per second" in text and "--keep-open" in text
+        assert cli.main(["run", "viewer-options-probe", "--viewer-rate", "0"]) == 2
+        assert capsys.readouterr().err.strip() == ("twin run: error: --viewer-rate must be a positive number of "
+                                                   "frames per second, got 0.0")
+        for bad in (["--viewer-rate"], ["--viewer-rate", "fast"]):
+            with pytest.raises(SystemExit) as bad_exit:
+                cli.main(["run", "viewer-options-probe", *bad])
+            assert bad_exit.value.code == 2 and "argument --viewer-rate" in capsys.readouterr().err
+    finally:
+        registry.unregister("twin.scenarios", "viewer-options-probe")
 
 
 def test_twin_run_passes_a_viewer_to_the_scenario(monkeypatch, capsys):

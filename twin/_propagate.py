@@ -8,7 +8,8 @@ C' = A' Y Aᵀ + A Y A'ᵀ, and fills C in between by cubic Hermite interpolatio
 piece). One frame (:func:`_frame`) keeps the breakpoints along the last axis of every array, so the work per
 grating is a handful of element-wise loops over ~20 breakpoints that the compiler turns into vector
 instructions; a batch's complete frames go LANES at a time (:func:`_lanes_block`) with the frames along the
-last axis, breakpoint by breakpoint. No reduction across lanes, nothing allocated per frame.
+last axis, breakpoint by breakpoint, two gratings at a time, X_n V_n X_nᵀ as W Wᵀ with W = X_n L (L the
+Cholesky factor of V_n). No reduction across lanes, nothing allocated per frame.
 
 :func:`propagate` also forms the per-grating covariance itself (the noise of the inversion for the frame's peak
 pattern, looked up in a table of every pattern; the model error's white and interpolation parts; the
@@ -258,9 +259,10 @@ def _sums(xs, vs, y, z, b):  # pragma: no cover (compiled)
     """Y[:, :, b] (upper triangle) = Σ_n X_n V_n X_nᵀ and Z[:, :, b] = Σ_n X_n S_n over the gratings, the last
     axis of ``xs`` (12, n_g) X_n (row r·2 + c) and ``vs`` (3 + 2 n_par, n_g) V_n (v00, v01, v11) and S_n (row
     3 + q·2 + c). One loop along the gratings with the 21 sums of Y side by side (in registers, one reduction
-    each at its end), then one per shared column with its six. The arithmetic is :func:`_accumulate`'s (there
-    per frame into rows of lanes, here into sums over the gratings): written out in both, since the compiler
-    vectorises each loop only when its body is straight-line code on its own operands."""
+    each at its end), then one per shared column with its six. :func:`_accumulate` does the same per frame into
+    rows of lanes, there as W Wᵀ with V_n's Cholesky factor (equal to rounding; a one-frame call is not bound by
+    the stores that form saves): written out in both, since the compiler vectorises each loop only when its body
+    is straight-line code on its own operands."""
     n_g, n_par = xs.shape[1], z.shape[1]
     y00 = 0.0
     y01 = 0.0
@@ -644,11 +646,12 @@ def _block_arrays(n_g, n_b, n_sh, L):  # pragma: no cover (compiled)
     p and t (2, 3, K), A Y and A' Y (2, 3, 6, K), C and C' (2, 3, 3, K); one point's work (48 · LANES: its
     piece's coefficients 36, its position 3, its covariance 9); the shared columns' curvature error
     interpolated to the rule's points, times the rule's weights, per piece (n_b − 1, 3, 2 · n_sh · LANES) and to
-    the first piece's middle point (3, 2 · n_sh · LANES), row q·2 + c."""
+    the first piece's middle point (3, 2 · n_sh · LANES), row q·2 + c; V_n's Cholesky factor (n_g, 3 · LANES: l00,
+    l10, l11)."""
     kb = (n_b + 1) * L
     sizes = (3 * n_g * L, 2 * n_g * n_sh * L, 36 * (n_b - 1) * L, 36 * L, 12 * n_g * L, 12 * L,
              21 * kb, 6 * n_sh * kb, 36 * kb, 6 * n_sh * kb, 6 * kb, 36 * kb, 18 * kb, 48 * L,
-             6 * n_sh * (n_b - 1) * L, 6 * n_sh * L)
+             6 * n_sh * (n_b - 1) * L, 6 * n_sh * L, 3 * n_g * L)
     # one allocation (empty for a call without lanes)
     o = np.zeros(len(sizes) + 1, np.int64)
     for i in range(len(sizes)):
@@ -661,7 +664,8 @@ def _block_arrays(n_g, n_b, n_sh, L):  # pragma: no cover (compiled)
             buf[o[8]:o[9]].reshape((6, 6, kb)), buf[o[9]:o[10]].reshape((6, n_sh, kb)),
             buf[o[10]:o[11]].reshape((2, 3, kb)), buf[o[11]:o[12]].reshape((2, 3, 6, kb)),
             buf[o[12]:o[13]].reshape((2, 3, 3, kb)), buf[o[13]:o[14]],
-            buf[o[14]:o[15]].reshape((n_b - 1, 3, 2 * n_sh * L)), buf[o[15]:o[16]].reshape((3, 2 * n_sh * L)))
+            buf[o[14]:o[15]].reshape((n_b - 1, 3, 2 * n_sh * L)), buf[o[15]:o[16]].reshape((3, 2 * n_sh * L)),
+            buf[o[16]:o[17]].reshape((n_g, 3 * L)))
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
@@ -673,11 +677,13 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
     step is a short loop over them at constant offsets that the compiler turns into vector instructions; the
     running integrals go breakpoint by breakpoint (each grating's X_n updated in place, then added into that
     breakpoint's Y and Z at once), so that Y and Z are touched once per breakpoint and grating in the first-level
-    cache instead of in a pass over every breakpoint per grating. ``wb`` (3, n_b − 1, n_g) the pattern's piece
-    weights, ``wh`` (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s.
+    cache instead of in a pass over every breakpoint per grating; two gratings at a time, so that Y's rows are
+    loaded and stored once per pair (:func:`_accumulate2`). ``wb`` (3, n_b − 1, n_g) the pattern's piece
+    weights, ``wh`` (3, n_g) those of the first piece's middle point. Each frame's arithmetic is :func:`_frame`'s
+    but for X_n V_n X_nᵀ, formed as W Wᵀ with W = X_n L (L V_n's Cholesky factor): equal to rounding.
     Lanes beyond ``n_l`` (none: :func:`propagate` hands over full blocks) would compute on stale data, never
     written out."""
-    vrep, sprep, g, gh, xn, xm, yb, zb, y, z, pt, m, cb, fw, wsq, wsqh = arrs
+    vrep, sprep, g, gh, xn, xm, yb, zb, y, z, pt, m, cb, fw, wsq, wsqh, lrep = arrs
     L = LANES
     n_g = vrep.shape[0]
     n_b = breaks.size
@@ -738,18 +744,22 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
             w, dst = wh[e, n], wsqh[e]
             for i in range(nw):
                 dst[i] += w * sn[i]
+    # V_n = L Lᵀ per grating and frame, L = ((l00, 0), (l10, l11)) (V_n is a covariance: l00 = 0 only where
+    # v00 = 0, and then v01 = 0; the clamp keeps a rounding below zero out of the root)
+    for n in range(n_g):
+        vr, lr = vrep[n], lrep[n]
+        for ll in range(L):
+            l00 = np.sqrt(vr[ll])
+            l10 = vr[L + ll] / l00 if l00 > 0.0 else 0.0
+            lr[ll] = l00
+            lr[L + ll] = l10
+            lr[2 * L + ll] = np.sqrt(max(vr[2 * L + ll] - l10 * l10, 0.0))
     xn[:] = 0.0
     yb[0] = 0.0
     zb[0] = 0.0
     for b in range(1, n_b + 1):
         ybb, zbb = yb[b], zb[b]
         if b < n_b:  # the running integrals at breakpoint b: piece b − 1's rule added
-            g0, g1, g2 = g[b - 1, 0], g[b - 1, 1], g[b - 1, 2]
-            for n in range(n_g):
-                w0, w1, w2 = wb[0, b - 1, n], wb[1, b - 1, n], wb[2, b - 1, n]
-                xr = xn[n]
-                for i in range(12 * L):
-                    xr[i] += w0 * g0[i] + w1 * g1[i] + w2 * g2[i]
             zbb[:] = zb[b - 1]
             for e in range(3):
                 _shared(g[b - 1, e], wsq[b - 1, e], zbb, n_sh)
@@ -758,15 +768,33 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
             for e in range(3):
                 _shared(gh[e], wsqh[e], zbb, n_sh)
         ybb[:] = 0.0
-        for n in range(n_g):
-            if b < n_b:
+        if b < n_b:
+            # two gratings at a time: X_n and X_m updated in one pass over the piece's integrand, then both
+            # added into Y(b) in one pass over it (Y's rows are loaded and stored once per pair: the update is
+            # bound by the first-level cache's stores, not by its arithmetic)
+            g0, g1, g2 = g[b - 1, 0], g[b - 1, 1], g[b - 1, 2]
+            for n in range(0, n_g - 1, 2):
+                w0, w1, w2 = wb[0, b - 1, n], wb[1, b - 1, n], wb[2, b - 1, n]
+                u0, u1, u2 = wb[0, b - 1, n + 1], wb[1, b - 1, n + 1], wb[2, b - 1, n + 1]
+                xr, xs = xn[n], xn[n + 1]
+                for i in range(12 * L):
+                    a0, a1, a2 = g0[i], g1[i], g2[i]
+                    xr[i] += w0 * a0 + w1 * a1 + w2 * a2
+                    xs[i] += u0 * a0 + u1 * a1 + u2 * a2
+                _accumulate2(xr, xs, lrep[n], lrep[n + 1], ybb)
+            if n_g % 2:
+                n = n_g - 1
+                w0, w1, w2 = wb[0, b - 1, n], wb[1, b - 1, n], wb[2, b - 1, n]
                 xr = xn[n]
-            else:
-                xr = xm
+                for i in range(12 * L):
+                    xr[i] += w0 * g0[i] + w1 * g1[i] + w2 * g2[i]
+                _accumulate(xr, lrep[n], ybb)
+        else:
+            for n in range(n_g):
                 w0, w1, w2 = wh[0, n], wh[1, n], wh[2, n]
                 for i in range(12 * L):
-                    xr[i] = w0 * gh[0, i] + w1 * gh[1, i] + w2 * gh[2, i]
-            _accumulate(xr, vrep[n], ybb)
+                    xm[i] = w0 * gh[0, i] + w1 * gh[1, i] + w2 * gh[2, i]
+                _accumulate(xm, lrep[n], ybb)
     # into the layout of _c_and_dc
     t = 0
     for r in range(6):
@@ -812,68 +840,156 @@ def _lanes_block(arrs, pos, fr, fidx, n_l, base_var, h0, wb, wh, breaks, points,
             fw[37 * L + ll] = pos[f, j, 1]
             fw[38 * L + ll] = pos[f, j, 2]
         _fill_point(fw, hw[j, 0], hw[j, 1], hw[j, 2], hw[j, 3], base_var)
-        for ll in range(n_l):
-            f = fidx[ll]
-            for r in range(3):
-                for c in range(r, 3):
-                    val = fw[(39 + r * 3 + c) * L + ll]
-                    out[f, j, r, c] = val
-                    out[f, j, c, r] = val
+        for ll in range(n_l):  # nine stores a point (the upper triangle mirrored, each diagonal element once)
+            o = out[fidx[ll], j]
+            o[0, 0] = fw[39 * L + ll]
+            o[1, 1] = fw[43 * L + ll]
+            o[2, 2] = fw[47 * L + ll]
+            val = fw[40 * L + ll]
+            o[0, 1] = val
+            o[1, 0] = val
+            val = fw[41 * L + ll]
+            o[0, 2] = val
+            o[2, 0] = val
+            val = fw[44 * L + ll]
+            o[1, 2] = val
+            o[2, 1] = val
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
-def _accumulate(x, v, yb):  # pragma: no cover (compiled)
-    """Y += X V Xᵀ (upper triangle, row-major) for one grating and LANES frames, every array 1-D with rows of
-    LANES frames: ``x`` (12 rows) X_n, row r·2 + c; ``v`` (3 rows) V_n (v00, v01, v11); ``yb`` (21 rows).
-    Written out at constant offsets: a few vector instructions per row."""
+def _accumulate(x, l, yb):  # pragma: no cover (compiled)
+    """Y += X V Xᵀ (upper triangle, row-major) for one grating and LANES frames as W Wᵀ, W = X L with L the
+    lower Cholesky factor of V_n (V_n = L Lᵀ; 18 multiply-adds for W and 42 for its 21 products where X V and
+    (X V) Xᵀ take 24 and 42, and 12 values live per grating instead of 24); every array 1-D with rows of LANES
+    frames: ``x`` (12 rows) X_n, row r·2 + c; ``l`` (3 rows) (l00, l10, l11); ``yb`` (21 rows). Written out at
+    constant offsets: a few vector instructions per row."""
     L = LANES
     for ll in range(L):
-        x0 = x[0 * L + ll]
-        x1 = x[1 * L + ll]
-        x2 = x[2 * L + ll]
-        x3 = x[3 * L + ll]
-        x4 = x[4 * L + ll]
-        x5 = x[5 * L + ll]
-        x6 = x[6 * L + ll]
-        x7 = x[7 * L + ll]
-        x8 = x[8 * L + ll]
-        x9 = x[9 * L + ll]
-        x10 = x[10 * L + ll]
-        x11 = x[11 * L + ll]
-        v0, v1, v2 = v[ll], v[L + ll], v[2 * L + ll]
-        u00 = x0 * v0 + x1 * v1
-        u01 = x0 * v1 + x1 * v2
-        u10 = x2 * v0 + x3 * v1
-        u11 = x2 * v1 + x3 * v2
-        u20 = x4 * v0 + x5 * v1
-        u21 = x4 * v1 + x5 * v2
-        u30 = x6 * v0 + x7 * v1
-        u31 = x6 * v1 + x7 * v2
-        u40 = x8 * v0 + x9 * v1
-        u41 = x8 * v1 + x9 * v2
-        u50 = x10 * v0 + x11 * v1
-        u51 = x10 * v1 + x11 * v2
-        yb[0 * L + ll] += u00 * x0 + u01 * x1
-        yb[1 * L + ll] += u00 * x2 + u01 * x3
-        yb[2 * L + ll] += u00 * x4 + u01 * x5
-        yb[3 * L + ll] += u00 * x6 + u01 * x7
-        yb[4 * L + ll] += u00 * x8 + u01 * x9
-        yb[5 * L + ll] += u00 * x10 + u01 * x11
-        yb[6 * L + ll] += u10 * x2 + u11 * x3
-        yb[7 * L + ll] += u10 * x4 + u11 * x5
-        yb[8 * L + ll] += u10 * x6 + u11 * x7
-        yb[9 * L + ll] += u10 * x8 + u11 * x9
-        yb[10 * L + ll] += u10 * x10 + u11 * x11
-        yb[11 * L + ll] += u20 * x4 + u21 * x5
-        yb[12 * L + ll] += u20 * x6 + u21 * x7
-        yb[13 * L + ll] += u20 * x8 + u21 * x9
-        yb[14 * L + ll] += u20 * x10 + u21 * x11
-        yb[15 * L + ll] += u30 * x6 + u31 * x7
-        yb[16 * L + ll] += u30 * x8 + u31 * x9
-        yb[17 * L + ll] += u30 * x10 + u31 * x11
-        yb[18 * L + ll] += u40 * x8 + u41 * x9
-        yb[19 * L + ll] += u40 * x10 + u41 * x11
-        yb[20 * L + ll] += u50 * x10 + u51 * x11
+        l0, l1, l2 = l[ll], l[L + ll], l[2 * L + ll]
+        ea = x[0 * L + ll]
+        eb = x[1 * L + ll]
+        w00 = ea * l0 + eb * l1
+        w01 = eb * l2
+        ea = x[2 * L + ll]
+        eb = x[3 * L + ll]
+        w10 = ea * l0 + eb * l1
+        w11 = eb * l2
+        ea = x[4 * L + ll]
+        eb = x[5 * L + ll]
+        w20 = ea * l0 + eb * l1
+        w21 = eb * l2
+        ea = x[6 * L + ll]
+        eb = x[7 * L + ll]
+        w30 = ea * l0 + eb * l1
+        w31 = eb * l2
+        ea = x[8 * L + ll]
+        eb = x[9 * L + ll]
+        w40 = ea * l0 + eb * l1
+        w41 = eb * l2
+        ea = x[10 * L + ll]
+        eb = x[11 * L + ll]
+        w50 = ea * l0 + eb * l1
+        w51 = eb * l2
+        yb[0 * L + ll] += w00 * w00 + w01 * w01
+        yb[1 * L + ll] += w00 * w10 + w01 * w11
+        yb[2 * L + ll] += w00 * w20 + w01 * w21
+        yb[3 * L + ll] += w00 * w30 + w01 * w31
+        yb[4 * L + ll] += w00 * w40 + w01 * w41
+        yb[5 * L + ll] += w00 * w50 + w01 * w51
+        yb[6 * L + ll] += w10 * w10 + w11 * w11
+        yb[7 * L + ll] += w10 * w20 + w11 * w21
+        yb[8 * L + ll] += w10 * w30 + w11 * w31
+        yb[9 * L + ll] += w10 * w40 + w11 * w41
+        yb[10 * L + ll] += w10 * w50 + w11 * w51
+        yb[11 * L + ll] += w20 * w20 + w21 * w21
+        yb[12 * L + ll] += w20 * w30 + w21 * w31
+        yb[13 * L + ll] += w20 * w40 + w21 * w41
+        yb[14 * L + ll] += w20 * w50 + w21 * w51
+        yb[15 * L + ll] += w30 * w30 + w31 * w31
+        yb[16 * L + ll] += w30 * w40 + w31 * w41
+        yb[17 * L + ll] += w30 * w50 + w31 * w51
+        yb[18 * L + ll] += w40 * w40 + w41 * w41
+        yb[19 * L + ll] += w40 * w50 + w41 * w51
+        yb[20 * L + ll] += w50 * w50 + w51 * w51
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _accumulate2(x, xb, l, lb, yb):  # pragma: no cover (compiled)
+    """:func:`_accumulate` for two gratings at once: Y += W Wᵀ + W_b W_bᵀ, each row of ``yb`` loaded and stored
+    once."""
+    L = LANES
+    for ll in range(L):
+        l0, l1, l2 = l[ll], l[L + ll], l[2 * L + ll]
+        ea = x[0 * L + ll]
+        eb = x[1 * L + ll]
+        w00 = ea * l0 + eb * l1
+        w01 = eb * l2
+        ea = x[2 * L + ll]
+        eb = x[3 * L + ll]
+        w10 = ea * l0 + eb * l1
+        w11 = eb * l2
+        ea = x[4 * L + ll]
+        eb = x[5 * L + ll]
+        w20 = ea * l0 + eb * l1
+        w21 = eb * l2
+        ea = x[6 * L + ll]
+        eb = x[7 * L + ll]
+        w30 = ea * l0 + eb * l1
+        w31 = eb * l2
+        ea = x[8 * L + ll]
+        eb = x[9 * L + ll]
+        w40 = ea * l0 + eb * l1
+        w41 = eb * l2
+        ea = x[10 * L + ll]
+        eb = x[11 * L + ll]
+        w50 = ea * l0 + eb * l1
+        w51 = eb * l2
+        bl0, bl1, bl2 = lb[ll], lb[L + ll], lb[2 * L + ll]
+        bea = xb[0 * L + ll]
+        beb = xb[1 * L + ll]
+        bw00 = bea * bl0 + beb * bl1
+        bw01 = beb * bl2
+        bea = xb[2 * L + ll]
+        beb = xb[3 * L + ll]
+        bw10 = bea * bl0 + beb * bl1
+        bw11 = beb * bl2
+        bea = xb[4 * L + ll]
+        beb = xb[5 * L + ll]
+        bw20 = bea * bl0 + beb * bl1
+        bw21 = beb * bl2
+        bea = xb[6 * L + ll]
+        beb = xb[7 * L + ll]
+        bw30 = bea * bl0 + beb * bl1
+        bw31 = beb * bl2
+        bea = xb[8 * L + ll]
+        beb = xb[9 * L + ll]
+        bw40 = bea * bl0 + beb * bl1
+        bw41 = beb * bl2
+        bea = xb[10 * L + ll]
+        beb = xb[11 * L + ll]
+        bw50 = bea * bl0 + beb * bl1
+        bw51 = beb * bl2
+        yb[0 * L + ll] += (w00 * w00 + w01 * w01) + (bw00 * bw00 + bw01 * bw01)
+        yb[1 * L + ll] += (w00 * w10 + w01 * w11) + (bw00 * bw10 + bw01 * bw11)
+        yb[2 * L + ll] += (w00 * w20 + w01 * w21) + (bw00 * bw20 + bw01 * bw21)
+        yb[3 * L + ll] += (w00 * w30 + w01 * w31) + (bw00 * bw30 + bw01 * bw31)
+        yb[4 * L + ll] += (w00 * w40 + w01 * w41) + (bw00 * bw40 + bw01 * bw41)
+        yb[5 * L + ll] += (w00 * w50 + w01 * w51) + (bw00 * bw50 + bw01 * bw51)
+        yb[6 * L + ll] += (w10 * w10 + w11 * w11) + (bw10 * bw10 + bw11 * bw11)
+        yb[7 * L + ll] += (w10 * w20 + w11 * w21) + (bw10 * bw20 + bw11 * bw21)
+        yb[8 * L + ll] += (w10 * w30 + w11 * w31) + (bw10 * bw30 + bw11 * bw31)
+        yb[9 * L + ll] += (w10 * w40 + w11 * w41) + (bw10 * bw40 + bw11 * bw41)
+        yb[10 * L + ll] += (w10 * w50 + w11 * w51) + (bw10 * bw50 + bw11 * bw51)
+        yb[11 * L + ll] += (w20 * w20 + w21 * w21) + (bw20 * bw20 + bw21 * bw21)
+        yb[12 * L + ll] += (w20 * w30 + w21 * w31) + (bw20 * bw30 + bw21 * bw31)
+        yb[13 * L + ll] += (w20 * w40 + w21 * w41) + (bw20 * bw40 + bw21 * bw41)
+        yb[14 * L + ll] += (w20 * w50 + w21 * w51) + (bw20 * bw50 + bw21 * bw51)
+        yb[15 * L + ll] += (w30 * w30 + w31 * w31) + (bw30 * bw30 + bw31 * bw31)
+        yb[16 * L + ll] += (w30 * w40 + w31 * w41) + (bw30 * bw40 + bw31 * bw41)
+        yb[17 * L + ll] += (w30 * w50 + w31 * w51) + (bw30 * bw50 + bw31 * bw51)
+        yb[18 * L + ll] += (w40 * w40 + w41 * w41) + (bw40 * bw40 + bw41 * bw41)
+        yb[19 * L + ll] += (w40 * w50 + w41 * w51) + (bw40 * bw50 + bw41 * bw51)
+        yb[20 * L + ll] += (w50 * w50 + w51 * w51) + (bw50 * bw50 + bw51 * bw51)
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST, inline="always")

@@ -5,7 +5,8 @@ One iteration takes every frame the source has ready (up to ``max_batch``), reco
 that it keeps the books a live instrument needs:
 
 - **lost samples**: forward jumps of the frames' sequence numbers (a sequence that goes backwards is counted
-  as a reset — a restarted acquisition — not as loss);
+  as a reset — a restarted acquisition — not as loss; one absurd number amid a continuing run is one corrupt
+  record: :mod:`twin.io.sequence`);
 - **partly missing peaks**: a frame whose peaks are partly missing is reconstructed from the gratings whose
   remaining cores still determine the curvature (the reconstructor interpolates over the others) and flagged
   :attr:`FrameFlag.MISSING_PEAKS`; a peak outside the reconstructor's physical window around its reference
@@ -108,7 +109,7 @@ _MISSING, _PARTIAL, _UNUSABLE, _GAP = (int(f) for f in (FrameFlag.MISSING_PEAKS,
 
 
 @njit(cache=True, nogil=True)
-def _batch_books(strain, outside, valid, sequence, last, first):
+def _batch_books(strain, outside, valid, sequence, books):
     """The books of one batch in one compiled pass (the numpy form cost ≈ 15 µs of array calls a batch, half a
     microsecond a frame at ~28 frames a batch).
 
@@ -121,8 +122,8 @@ def _batch_books(strain, outside, valid, sequence, last, first):
     valid : ndarray of bool (n, n_gratings)
         Gratings solved.
     sequence : ndarray of int64 (n,)
-    last, first
-        The sequence counter's reference and whether it has none (:func:`twin.io.sequence.lost_before`).
+    books : ndarray of int64
+        The sequence counter's state, updated in place (:func:`twin.io.sequence.lost_before`).
 
     Returns
     -------
@@ -131,12 +132,12 @@ def _batch_books(strain, outside, valid, sequence, last, first):
     n_outside, n_missing, n_partial, n_unusable, n_invalid, last_usable : int
         Peaks outside the window; frames with a peak missing, some / no grating solved; gratings not solved;
         index of the last frame with a grating solved (−1: none).
-    gaps, resets, last, lost_hi, lost_lo : int
+    gaps, resets, corrupt, lost_hi, lost_lo : int
         For :meth:`twin.io.sequence.SequenceCounter.book`.
     """
     n, g, k = strain.shape
     flags = np.zeros(n, np.uint8)
-    lost, gaps, resets, last, lost_hi, lost_lo = lost_before(sequence, last, first)
+    lost, gaps, resets, corrupt, lost_hi, lost_lo = lost_before(sequence, books)
     n_outside = n_missing = n_partial = n_unusable = n_invalid = 0
     last_usable = -1
     for i in range(n):
@@ -164,7 +165,7 @@ def _batch_books(strain, outside, valid, sequence, last, first):
             f |= _GAP
         flags[i] = f
     return (flags, n_outside, n_missing, n_partial, n_unusable, n_invalid, last_usable,
-            gaps, resets, last, lost_hi, lost_lo)
+            gaps, resets, corrupt, lost_hi, lost_lo)
 
 
 class Sink(Protocol):
@@ -190,8 +191,8 @@ class Counts:
         Peaks reported but outside the reconstructor's physical window (or infinite), treated as missing.
     frames_rejected : int
         Frames whose (n_gratings, n_cores) does not match the fibre model (not reconstructed, not recorded).
-    lost_samples, sequence_gaps, sequence_resets : int
-        From the frames' sequence numbers.
+    lost_samples, sequence_gaps, sequence_resets, sequence_corrupt : int
+        From the frames' sequence numbers (:mod:`twin.io.sequence`).
     invalid_nodes : int
         Gratings that could not be solved, summed over frames.
     source_errors, reconstruct_errors : int
@@ -210,6 +211,7 @@ class Counts:
     lost_samples: int = 0
     sequence_gaps: int = 0
     sequence_resets: int = 0
+    sequence_corrupt: int = 0
     invalid_nodes: int = 0
     source_errors: int = 0
     reconstruct_errors: int = 0
@@ -340,22 +342,23 @@ class LiveSummary:
         return self.status.frames / self.duration if self.duration > 0 else 0.0
 
     @property
-    def reconstruct_frames_per_s(self) -> float | None:
+    def processing_frames_per_s(self) -> float | None:
         """Frames reconstructed per second spent in the loop's processing (window check, reconstruction and
-        books; first-call compilation included), Hz: the throughput, not the arrival rate. None before any."""
+        books; first-call compilation included), Hz: the throughput, not the arrival rate, nor `twin bench`'s
+        ``reconstruct_frames_per_s`` (the reconstruction alone, compiled, best window). None before any."""
         c = self.counters
         if c is None or c.process_s <= 0 or not self.status.frames:
             return None
         return self.status.frames / c.process_s
 
     def as_dict(self) -> dict:
-        rfs = self.reconstruct_frames_per_s
+        rfs = self.processing_frames_per_s
         span = None if self.counters is None else self.counters.time_span
         return {
             "reason": self.reason,
             "duration": round(self.duration, 6),
             "frames_per_s": round(self.frames_per_s, 3),
-            "reconstruct_frames_per_s": None if rfs is None else round(rfs, 1),
+            "processing_frames_per_s": None if rfs is None else round(rfs, 1),
             "time_span": None if span is None else round(span, 6),
             **self.status.as_dict(),
             "sink_errors": list(self.sink_errors),
@@ -481,11 +484,12 @@ class LiveLoop:
             valid = np.zeros((n, self._shape[0]), bool)  # no grating solved: every frame unusable
         counter = self._sequence
         (flags, n_outside, n_missing, n_partial, n_unusable, n_invalid, last_usable,
-         *books) = _batch_books(e, outside, valid, frames.sequence, counter.reference, counter.last is None)
+         *books) = _batch_books(e, outside, valid, frames.sequence, counter.state)
         counter.book(*books)
         c.sequence_gaps = counter.sequence_gaps
         c.lost_samples = counter.lost_samples
         c.sequence_resets = counter.sequence_resets
+        c.sequence_corrupt = counter.sequence_corrupt
         c.peaks_outside_window += n_outside
         c.frames += n
         c.frames_missing_peaks += n_missing

@@ -363,11 +363,13 @@ class TubeFigures:
     def as_dict(self) -> dict:
         """``tube_frames``, ``mean_sigma_mm`` (mean 1σ lateral radius over their points with s > 0) and, over
         those carrying a truth, ``tube_truth_frames`` and ``coverage_95`` (fraction of the true points inside
-        the 95 % tube); ``tube_note`` why coverage was skipped, ``tube_caveat`` the uncertainty's
+        the 95 % tube); ``tube_twist_rad_per_m`` the model error's twist term (1σ of the unmeasured twist rate,
+        rad/m: ``--twist``); ``tube_note`` why coverage was skipped, ``tube_caveat`` the uncertainty's
         (:attr:`twin.uncertainty.Uncertainty.caveat`); empty when no frame was taken."""
         if not self._sigma:
             return {}
-        out = {"tube_frames": self.frames, "mean_sigma_mm": _mm(np.concatenate(self._sigma).sum() / self._points)}
+        out = {"tube_frames": self.frames, "mean_sigma_mm": _mm(np.concatenate(self._sigma).sum() / self._points),
+               "tube_twist_rad_per_m": self.uncertainty.model_error.twist}
         if self._inside:
             n = np.concatenate(self._inside)
             out.update({"tube_truth_frames": int(n.size),
@@ -379,12 +381,15 @@ class TubeFigures:
         return out
 
 
-def tube_figures(rec, per_second: float | None = 10.0) -> TubeFigures | None:
-    """:class:`TubeFigures` for the reconstructor ``rec`` with the twin's default model error, or None where the
-    linearised propagation does not apply (:class:`twin.uncertainty.Uncertainty` says which methods it covers)."""
+def tube_figures(rec, per_second: float | None = 10.0, twist: float = 0.0) -> TubeFigures | None:
+    """:class:`TubeFigures` for the reconstructor ``rec`` with the twin's default model error, its twist term set
+    to ``twist`` (1σ of the catheter's unmeasured twist rate, rad/m; :meth:`twin.uncertainty.Uncertainty.with_twist`),
+    or None where the linearised propagation does not apply (:class:`twin.uncertainty.Uncertainty` says which
+    methods it covers)."""
     from twin.uncertainty import Uncertainty
 
     try:
-        return TubeFigures(Uncertainty(rec), per_second=per_second)
+        uncertainty = Uncertainty(rec)
     except ValueError:
         return None
+    return TubeFigures(uncertainty.with_twist(twist) if twist else uncertainty, per_second=per_second)

@@ -44,9 +44,10 @@ class ReplaySummary(Counts):
         Frames the file says it holds.
     time_span : float or None
         Last minus first finite timestamp, s.
-    rate_hz : float or None
-        (frames − 1) / time_span: the recorded sampling rate, Hz.
-    reconstruct_frames_per_s : float or None
+    recorded_rate_hz : float or None
+        (frames − 1) / time_span over the whole recording, Hz (docs/figures.md; not ``rate_hz``, the live loop's
+        source rate over the last 2 s of timestamps, which ``twin live`` reports).
+    processing_frames_per_s : float or None
         Reconstruction throughput of this run: frames / wall time spent in the loop's processing (docs/figures.md;
         not a benchmark: ``twin bench``).
     skipped_lines : int
@@ -70,8 +71,8 @@ class ReplaySummary(Counts):
     fiber: str
     frames_recorded: int
     time_span: float | None
-    rate_hz: float | None
-    reconstruct_frames_per_s: float | None
+    recorded_rate_hz: float | None
+    processing_frames_per_s: float | None
     skipped_lines: int
     damage: tuple[str, ...] = ()
     truth: TruthErrors | None = None
@@ -92,7 +93,8 @@ class ReplaySummary(Counts):
 def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration: Calibration | None = None,
               method: str = "material", register: str = "kabsch", compare_rate: float | None = 10.0,
               channels_as: str = "cores", n_cores: int | None = None, batch: int = 512,
-              salvage: bool = False, handle_signals: bool = False, tube: bool = False) -> ReplaySummary:
+              salvage: bool = False, handle_signals: bool = False, tube: bool = False,
+              twist: float = 0.0) -> ReplaySummary:
     """Reconstruct a recording through the live loop and summarise it.
 
     Parameters
@@ -117,6 +119,9 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
     tube : bool
         Also the confidence tube's figures on the compared frames (:class:`twin.reference_errors.TubeFigures`,
         the twin's default model error; a propagation per compared frame), for the methods it covers.
+    twist : float
+        The tube's model error's twist term, 1σ of the catheter's unmeasured twist rate, rad/m
+        (:func:`twin.reference_errors.tube_figures`; ``--twist``).
 
     Raises
     ------
@@ -147,7 +152,7 @@ def summarize(path: str | Path, *, fiber: FiberModel | None = None, calibration:
     rec = Reconstructor(fiber, calibration, method=method)
     truth, vendor = TruthError(register, per_second=compare_rate), VendorDistance(per_second=compare_rate)
     sinks: list = [truth, vendor]
-    tubes = tube_figures(rec, per_second=compare_rate) if tube else None
+    tubes = tube_figures(rec, per_second=compare_rate, twist=twist) if tube else None
     if tubes is not None:
         sinks.append(tubes)
     loop = LiveLoop(source, rec, sinks, max_batch=batch, realtime=False, quiet=True)
@@ -183,7 +188,7 @@ def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth:
         notes.append("the recording was not closed cleanly (killed writer, or still being written)")
     span = c.time_span
     n = st.frames
-    rfs = run.reconstruct_frames_per_s
+    rfs = run.processing_frames_per_s
     return ReplaySummary(
         file=str(path),
         kind=info["kind"],
@@ -193,9 +198,9 @@ def _summary(path: Path, info: dict, fiber: FiberModel, run: LiveSummary, truth:
         fiber=fiber.name,
         frames_recorded=max(n, info["frames_recorded"]),
         time_span=None if span is None else round(span, 6),
-        rate_hz=round((n - 1) / span, 3) if span is not None and span > 0 and n >= 2 else None,
+        recorded_rate_hz=round((n - 1) / span, 3) if span is not None and span > 0 and n >= 2 else None,
         **vars(c.counts()),
-        reconstruct_frames_per_s=None if rfs is None else round(rfs, 1),
+        processing_frames_per_s=None if rfs is None else round(rfs, 1),
         skipped_lines=info["skipped_lines"],
         damage=tuple(info["damage"]),
         truth=result,

@@ -282,6 +282,16 @@ class Uncertainty:
         other.caveat = None  # a model error the caller chose is the caller's statement
         return other
 
+    def with_twist(self, twist: float) -> Uncertainty:
+        """The same propagation with the model error's twist term (:attr:`ModelError.twist`) set to ``twist``,
+        the 1σ of the catheter's unmeasured twist rate, rad/m (a finite number >= 0; 0: no term).
+
+        Only the twist is the caller's statement here; the rest of the model error stays what it was, and so
+        does :attr:`caveat` (which is about that rest)."""
+        other = self.with_model_error(self.model_error.replace(twist=twist))
+        other.caveat = self.caveat
+        return other
+
     # ------------------------------------------------------------------ the call
     def __call__(self, wavelengths) -> Shape:
         w = _wavelengths(wavelengths)

@@ -2,13 +2,15 @@
 
     twin live illumisense://127.0.0.1:2055 [--fiber FILE] [--calibration FILE] [--record FILE]
               [--duration S] [--frames N] [--json] [--quiet] [--viewer [--viewer-rate HZ] [--keep-open]]
-              [--igtl [HOST:]PORT [--igtl-rate HZ]] [--foxglove [HOST:]PORT [--foxglove-rate HZ]]
+              [--igtl [HOST:]PORT [--igtl-rate HZ]] [--foxglove [HOST:]PORT [--foxglove-rate HZ]] [--twist RATE]
 
 Prints a status line about once a second (state, frame rate, lost samples, framing errors, reconnects,
 partial/unusable frames, tip position in mm, and the latest error against the truth or the interrogator's own
 shape when the frames carry one; on stderr with ``--json``) and a summary at the end (with the errors over every
 complete frame: docs/figures.md); ``--json`` prints the summary as one JSON object on stdout, with the confidence
-tube's figures (``mean_sigma_mm``; ``coverage_95`` with a truth) on the compared frames. Ctrl-C ends the
+tube's figures (``mean_sigma_mm``; ``coverage_95`` with a truth) on the compared frames; ``--twist RATE`` states
+the 1σ of the catheter's twist rate the fibre does not measure, rad/m, which that tube (and the viewer's and
+OpenIGTLink's) carries (:mod:`twin.cli.twist_option`; ``tube_twist_rad_per_m``). Ctrl-C ends the
 run cleanly: the recording is flushed and marked complete, and the summary is printed. Exit status 0; 130 when
 Ctrl-C cut a run with ``--duration`` or ``--frames`` short (without a bound, Ctrl-C is how a run ends: 0); 1 when
 a sink failed (e.g. the recording could not be written) or the source failed for good (a damaged recording:
@@ -49,6 +51,7 @@ from pathlib import Path
 
 from twin import jsonout
 from twin.calibration import Calibration
+from twin.cli.twist_option import add_twist_argument, check_twist
 from twin.fiber import FiberModel
 from twin.io.source import open_source, parse_url
 from twin.live import LiveLoop, LiveSummary, PrinterSink
@@ -98,6 +101,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="most Foxglove updates per second (default 30)")
     parser.add_argument("--foxglove-clients", type=int, default=4, metavar="N",
                         help="most Foxglove clients at once (default 4)")
+    add_twist_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -118,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--foxglove-rate must be positive, got {args.foxglove_rate}")
     if args.foxglove is not None and args.foxglove_clients < 1:
         raise ValueError(f"--foxglove-clients must be at least 1, got {args.foxglove_clients}")
+    check_twist(args)
     fiber = FiberModel.load(args.fiber) if args.fiber else None
     scheme = parse_url(args.url)[0]
     if fiber is None and scheme in HARDWARE:
@@ -151,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
         # the references the frames may carry: the simulator's truth, the interrogator's own shape
         truth, vendor = TruthError(), VendorDistance()
         # the confidence tube for the viewer, OpenIGTLink and --json's figures (the default pipeline's)
-        tubes = tube_figures(rec)
+        tubes = tube_figures(rec, twist=args.twist)
         uncertainty = None if tubes is None else tubes.uncertainty
         if not args.quiet:
             sinks.append(PrinterSink(sys.stderr if args.json else sys.stdout, rate=args.print_rate,
@@ -279,7 +284,8 @@ def format_summary(summary: LiveSummary, out: dict) -> str:
         f"twin live: {summary.duration:.1f} s, {s.frames} frames (arrived at {summary.frames_per_s:.1f} frames/s), "
         f"ended: {summary.reason}",
         f"  lost samples {s.lost_samples} in {s.sequence_gaps} gaps, sequence resets {s.sequence_resets}, "
-        f"framing errors {s.framing_errors}, disconnects {s.disconnects}, reconnects {s.reconnects}, "
+        f"corrupt sequence numbers {s.sequence_corrupt}, framing errors {s.framing_errors}, "
+        f"disconnects {s.disconnects}, reconnects {s.reconnects}, "
         f"stale {s.stale_events} times",
         f"  frames complete {s.frames_complete}, partial {s.frames_partial}, unusable {s.frames_unusable}, "
         f"with missing peaks {s.frames_missing_peaks}, rejected {s.frames_rejected}; invalid nodes "

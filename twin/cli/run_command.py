@@ -1,11 +1,12 @@
 """`twin run NAME [options]`: run a scenario found through the registry (:mod:`twin.registry`).
 
-``--viewer [--viewer-rate HZ] [--keep-open]`` (before or among the scenario's options) opens a browser view
-(:class:`twin.viewer.Viewer`; the URL is printed on stderr) and hands it to the scenario as ``args.viewer``
-(None without the flag); the scenario's own parser never sees these options. Scenarios draw as they go with
-``viewer = getattr(args, "viewer", None)`` then ``viewer.show(shape, truth, label=…)`` (``getattr``: the same
-``run(args)`` also serves the scenario's own ``__main__``, whose parser has no viewer). A scenario that does not
-draw still runs; the viewer's server stops when the scenario returns, or with ``--keep-open`` stays until Ctrl-C.
+``--viewer [--viewer-rate HZ] [--keep-open]`` (before or among the scenario's options: declared on both parsers
+by :func:`add_viewer_arguments`) opens a browser view (:class:`twin.viewer.Viewer`; the URL is printed on stderr)
+and hands it to the scenario as ``args.viewer`` (None without the flag), the only one of them its ``args``
+keep. Scenarios draw as they go with ``viewer = getattr(args, "viewer", None)`` then ``viewer.show(shape, truth,
+label=…)`` (``getattr``: the same ``run(args)`` also serves the scenario's own ``__main__``, whose parser has no
+viewer). A scenario that does not draw still runs; the viewer's server stops when the scenario returns, or with
+``--keep-open`` stays until Ctrl-C.
 
 A scenario is a bounded run: Ctrl-C ends it with ``twin run: interrupted`` and exit status 130 (``twin.cli``);
 Ctrl-C on a page kept open after a finished run exits with the scenario's own status.
@@ -23,31 +24,28 @@ import textwrap
 #: one-line help (read by `twin --help` without importing this module)
 HELP = "run a scenario (an experiment of the paper, or our own)"
 
-VIEWER_HELP = ("--viewer [--viewer-rate HZ] [--keep-open]: show the run in a browser (the URL is printed on "
-               "stderr), at most HZ frames per second (default 30); --keep-open keeps it serving after the run, until "
-               "Ctrl-C")
-COMMON_HELP = ("Options the experiments share (after NAME; `twin run NAME --help` lists them all): --json (one "
-               "JSON object on stdout), --report DIR (plots and a markdown summary), --calibration (the calibration "
-               "to reconstruct with), and " + VIEWER_HELP + ".")
-
-
 COMMON_HELP = ("Every scenario takes --json (one JSON object on stdout) and --report DIR (DIR/report.md with "
                "figures); the experiments take --calibration lab|true|lambda0|nominal|FILE (default lab: calibrated "
                "as a lab would, two-step then identification against the fixtures' geometry; true: the twin's true "
                "parameters) and --optics realistic|ideal. `twin run NAME --help` lists a scenario's own options.")
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from twin.cli import scenarios
-
-    parser.epilog = COMMON_HELP + " " + VIEWER_HELP
-    known = scenarios()
-    parser.epilog = COMMON_HELP
+def add_viewer_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare ``--viewer``, ``--viewer-rate HZ`` and ``--keep-open``: on `twin run` (before NAME) and on each
+    scenario's parser (among its options), so argparse reads them in both places the same way."""
     parser.add_argument("--viewer", action="store_true", help="show the run in a browser (meshcat)")
     parser.add_argument("--viewer-rate", type=float, default=None, metavar="HZ",
                         help="most frames the viewer draws per second (default 30; implies --viewer)")
     parser.add_argument("--keep-open", action="store_true",
                         help="keep the viewer serving after the run, until Ctrl-C (implies --viewer)")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from twin.cli import scenarios
+
+    known = scenarios()
+    parser.epilog = COMMON_HELP
+    add_viewer_arguments(parser)
     parser.add_argument("name", metavar="NAME", help="scenario: " + ", ".join(known) if known else "scenario name")
     parser.add_argument("options", nargs=argparse.REMAINDER, help="the scenario's own options (see NAME --help)")
 
@@ -97,45 +95,6 @@ def plain_help(doc: str, width: int | None = None) -> str:
     return "\n\n".join(out)
 
 
-def take_viewer_options(options: list[str]) -> tuple[list[str], bool, float | None, bool]:
-    """Split ``--viewer``, ``--viewer-rate HZ`` (or ``=HZ``) and ``--keep-open`` out of a scenario's options.
-
-    Returns the remaining options (in order), whether a viewer was asked for, the rate (None: default) and
-    whether to keep it open. Everything after a ``--`` is left to the scenario.
-    """
-    rest: list[str] = []
-    wanted, rate, keep = False, None, False
-    i = 0
-    while i < len(options):
-        opt = options[i]
-        if opt == "--":
-            rest += options[i:]
-            break
-        if opt == "--viewer":
-            wanted = True
-        elif opt == "--keep-open":
-            wanted = keep = True
-        elif opt == "--viewer-rate" or opt.startswith("--viewer-rate="):
-            if opt == "--viewer-rate":
-                if i + 1 >= len(options):
-                    raise ValueError("--viewer-rate needs a value (frames per second)")
-                i += 1
-                value = options[i]
-            else:
-                value = opt.partition("=")[2]
-            try:
-                rate = float(value)
-            except ValueError:
-                raise ValueError(f"--viewer-rate: expected frames per second, got {value!r}") from None
-            if not rate > 0:
-                raise ValueError(f"--viewer-rate must be positive, got {value}")
-            wanted = True
-        else:
-            rest.append(opt)
-        i += 1
-    return rest, wanted, rate, keep
-
-
 def run(args: argparse.Namespace) -> int:
     from twin import registry
     from twin.cli import UserError, scenarios
@@ -145,15 +104,17 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"no scenario {args.name!r}; known scenarios: {', '.join(known) or 'none installed'}")
     module = registry.load("twin.scenarios", args.name)
     parser = argparse.ArgumentParser(prog=f"twin run {args.name}", description=plain_help(module.__doc__ or ""),
-                                     epilog=VIEWER_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     module.add_arguments(parser)
-    options, wanted, rate, keep = take_viewer_options(list(args.options))
-    keep = keep or bool(getattr(args, "keep_open", False))
-    rate = rate if rate is not None else getattr(args, "viewer_rate", None)
-    wanted = wanted or bool(getattr(args, "viewer", False)) or rate is not None or keep
-    if rate is not None and not rate > 0:
-        raise ValueError(f"--viewer-rate must be positive, got {rate}")
-    ns = parser.parse_args(options)
+    add_viewer_arguments(parser)  # the viewer's options among the scenario's, read by the same parser
+    ns = parser.parse_args(list(args.options))
+    # given before NAME or among the scenario's options alike; the scenario sees only ns.viewer (a Viewer or None)
+    rate = ns.viewer_rate if ns.viewer_rate is not None else args.viewer_rate
+    keep = ns.keep_open or args.keep_open
+    wanted = ns.viewer or args.viewer or rate is not None or keep
+    del ns.viewer_rate, ns.keep_open
+    if rate is not None and not rate > 0:  # NaN too
+        raise ValueError(f"--viewer-rate must be a positive number of frames per second, got {rate}")
     ns.viewer = None
     if wanted:
         from twin.viewer import Viewer, ViewerConfig

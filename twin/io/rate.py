@@ -58,7 +58,9 @@ class RateMeter:
                              f"{hold}")
         self.nominal = None if nominal is None else float(nominal)
         self.window, self.slow, self.hold = float(window), float(slow), float(hold)
-        self._stamped: deque[tuple[float, float, int]] = deque()  # (first, last timestamp, frames) per batch
+        # per batch: first and last timestamp, frames, and (batches of more than one frame) the timestamps, to count
+        # those of a batch that straddles the window's start
+        self._stamped: deque[tuple[float, float, int, np.ndarray | None]] = deque()
         self._stamped_n = 0
         self._arrived: deque[tuple[float, int]] = deque()  # (wall time, frames) per batch
         self._arrived_n = 0
@@ -90,7 +92,8 @@ class RateMeter:
             stamped.clear()
             self._stamped_n = 0
         if usable:
-            stamped.append((first, last, n))
+            # a copy: a view would keep its batch's whole buffer alive for the window
+            stamped.append((first, last, n, ts.copy() if n > 1 else None))
             self._stamped_n += n
             while len(stamped) > 1 and stamped[0][1] < last - self.window:
                 self._stamped_n -= stamped.popleft()[2]
@@ -105,12 +108,21 @@ class RateMeter:
 
     @property
     def stamped_rate(self) -> float | None:
-        """Frames per second of the source's clock over the window, Hz (None without usable timestamps)."""
+        """Frames per second of the source's clock over the window, Hz (None without usable timestamps): over the
+        frames within the last ``window`` s of the newest, also those of a batch that straddles the window's start
+        (a file read at full speed comes in batches longer than the window)."""
         s = self._stamped
         if self._stamped_n < 2:
             return None
-        span = s[-1][1] - s[0][0]
-        return (self._stamped_n - 1) / span if span > 0 else None
+        newest = s[-1][1]
+        oldest, _, _, times = s[0]
+        skip = 0
+        if oldest < newest - self.window:  # the oldest batch reaches back past the window (never a single frame)
+            skip = int(np.searchsorted(times, newest - self.window, side="left"))
+            oldest = float(times[skip])
+        n = self._stamped_n - skip
+        span = newest - oldest
+        return (n - 1) / span if n >= 2 and span > 0 else None
 
     @property
     def arrival_rate(self) -> float:

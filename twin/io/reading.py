@@ -19,6 +19,7 @@ class ReaderBase:
     _n: int
     _closed_cleanly: bool
     damage: list[str]
+    skipped_lines: int = 0  #: lines of a log file skipped (its first few named in ``errors``)
 
     @property
     def complete(self) -> bool:

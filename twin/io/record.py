@@ -70,7 +70,10 @@ class RecordingReader(ReaderBase):
     rate : float or None
         Nominal rate, Hz, when stored.
     errors : list of str
-        Lines of a log file that were skipped, with their line numbers.
+        The first lines of a log file that were skipped (at most
+        :data:`twin.io.illumisense.log.MAX_EXAMPLES`), with their line numbers.
+    skipped_lines : int
+        Lines of a log file that were skipped, all of them.
     damage : list of str
         What is damaged in the file, each naming the place (dataset, rows, bytes; empty for a sound file).
         Found when opening (a file cut short, chunks past its end) and when reading (chunks failing their
@@ -99,6 +102,7 @@ class RecordingReader(ReaderBase):
         except IsADirectoryError:
             raise IsADirectoryError(f"{self.path}: is a directory, not a recording") from None
         self.errors: list[str] = []
+        self.skipped_lines = 0
         self.damage: list[str] = []
         self.notes: list[str] = []  # what reading had to assume (none for these formats; an MCAP reader's)
         # first damaged row of the frames / of their truth / of their vendor blocks
@@ -129,6 +133,7 @@ class RecordingReader(ReaderBase):
 
         log = read_log(self.path, channels_as=channels_as, n_cores=n_cores)
         self.errors.extend(log.errors)
+        self.skipped_lines = log.skipped_lines
         self._vendor_mem = log.vendor
         return Frame(log.wavelengths, log.timestamps, log.sequences, powers=log.powers, status=log.status)
 

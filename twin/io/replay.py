@@ -78,7 +78,7 @@ class ReplaySource(Source):
         r = self.reader
         self.info = {"file": str(r.path), "kind": r.kind, "complete": r.complete, "damaged": r.damaged,
                      "damage": list(r.damage), "frames_recorded": r.frames_recorded, "source_url": r.source_url,
-                     "skipped_lines": len(r.errors), "skipped": list(r.errors[:1]),
+                     "skipped_lines": r.skipped_lines, "skipped": list(r.errors[:1]),
                      "damage_line": r.damage_line() if r.damaged else "", "notes": list(r.notes)}
 
     def _load(self) -> bool:

@@ -660,7 +660,8 @@ def _error_model(fiber: FiberModel, nz: NuisanceFit, alpha: float) -> dict:
     * ``jig_reference_bias_1_per_m``, ``jig_reference_std_1_per_m``: per fitted grating, the mean and the scatter
       over the rotations of the reference pose's curvature in the jig's frame (along, across the bend);
     * ``jig_reseat_roll_std_rad``, ``jig_reseat_gain_std``: scatter of the roll and of ln(gain) between seatings,
-      shared by the gratings; ``jig_local_roll_std_rad``, ``jig_local_gain_std``: what each grating adds;
+      shared by the gratings; ``jig_local_roll_std_rad``, ``jig_local_gain_std``: what each grating adds, about
+      ``jig_mean_curvature_1_per_m``, the bent grooves' mean |κ| (where the rotations' zeros hold it);
     * ``jig_positions_cov_m2``: the covariance of the design's bend columns (fibre frame; 2C × 2C, ordered core,
       component), the parameters' own uncertainty.
     """
@@ -678,5 +679,6 @@ def _error_model(fiber: FiberModel, nz: NuisanceFit, alpha: float) -> dict:
         "jig_reseat_gain_std": nz.gain_std,
         "jig_local_roll_std_rad": nz.local_roll_std,
         "jig_local_gain_std": nz.local_gain_std,
+        "jig_mean_curvature_1_per_m": nz.mean_curvature,
         "jig_positions_cov_m2": cov_p.tolist(),
     }

@@ -31,16 +31,21 @@ gratings), and re-estimates the covariances from the residuals each time, until 
 The fitted error model predicts how far a new pose's curvature is from the jig's label (the 95 % intervals of
 :func:`twin.calibration.jig.validate`): the jig's zero (the bent grooves' shortfall from their labels, docs/jig.md)
 as a bias unless it is added to the curvature; Σ_pose + Σ_seat through the calibration's map; the scatter of the
-rotations' zeros along and across the bend, and the jig zero's own error; κ² times the seatings' roll and gain
-variances (shared, and per grating); and the parameters' own covariance. The variances at the rotation level rest
+rotations' zeros along and across the bend, and the jig zero's own error (:func:`median_variance`); κ² times the
+seatings' shared roll and gain variances, and for the per-grating ones (κ − κ̄)² for the pose's own seating (each
+rotation's zero holds its slope at the grooves' mean curvature κ̄) plus κ²/n for the map's, inherited from the n
+fitted rotations on the pose's axis; and the parameters' own covariance. The variances at the rotation level rest
 on 1–3 degrees of freedom and are pooled with the error budget as a prior.
 """
 
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import special
 
 #: The jig errors the nuisance model can estimate.
 TERMS = frozenset({"roll", "gain", "offset", "seating"})
@@ -67,6 +72,40 @@ PRIOR_GAIN = 0.05
 PRIOR_DOF = 3.0
 BUDGET = {"roll": float(np.deg2rad(3.0)), "gain": 0.0, "local_roll": float(np.deg2rad(1.2)), "local_gain": 0.045,
           "reference": 0.10}
+
+
+@functools.lru_cache(maxsize=64)
+def median_variance(n: int) -> float:
+    """Variance of the median of ``n`` independent standard normal samples (exact, by quadrature to ≈ 1e-12).
+
+    The jig zero is the median of the fitted rotations' zeros, so its own error is this times one zero's variance.
+    n = 1: 1; n = 2: 1/2 (the mean of both); n = 3: 1 − √3/π ≈ 0.449; for large n → π/2n (0.524 at n = 3, the
+    asymptotic value, too large for the 2–4 rotations of a jig).
+
+    Parameters
+    ----------
+    n : int
+        Number of samples, ≥ 1.
+    """
+    if n < 1:
+        raise ValueError(f"the median of {n} samples is undefined; need at least 1")
+    m = n // 2
+    # the trapezoid rule on the whole line is spectrally accurate for these smooth, Gaussian-decaying integrands
+    x = np.linspace(-10.0, 10.0, 2001)
+    h = x[1] - x[0]
+    pdf = np.exp(-0.5 * x * x) / np.sqrt(2.0 * np.pi)
+    if n % 2:  # the (m + 1)-th order statistic: density n!/(m!)² Φ^m (1 − Φ)^m φ
+        c = math.exp(math.lgamma(n + 1) - 2.0 * math.lgamma(m + 1))
+        return float(h * np.sum(x * x * c * (special.ndtr(x) * special.ndtr(-x)) ** m * pdf))
+    # the mean of the m-th (x) and (m + 1)-th (y = x + t, t ≥ 0) order statistics, joint density
+    # n!/((m − 1)!)² Φ(x)^(m−1) φ(x) φ(y) (1 − Φ(y))^(m−1); Gauss–Legendre in t, smooth on [0, 14]
+    c = math.exp(math.lgamma(n + 1) - 2.0 * math.lgamma(m))
+    t, w = np.polynomial.legendre.leggauss(96)
+    t, w = 7.0 * (t + 1.0), 7.0 * w
+    y = x[:, None] + t[None, :]
+    f = (special.ndtr(x) ** (m - 1) * pdf)[:, None] * np.exp(-0.5 * y * y) / np.sqrt(2.0 * np.pi) \
+        * special.ndtr(-y) ** (m - 1) * (0.5 * (x[:, None] + y)) ** 2
+    return float(c * h * np.sum(f @ w))
 
 
 def _pooled(s2: float, dof: float, prior: float) -> float:
@@ -103,8 +142,12 @@ class NuisanceFit:
     local_roll_std, local_gain_std : float
         What each rotation adds at each grating (the sensor twisted when pressed in, following the groove
         differently at each grating): from the slopes with κ of the groove means' residual across and along the
-        bend. A rotation alone on its axis (no opposite rotation fitted) has its slope fitted away by the sensor's
-        anisotropy; with n rotations on an axis a slope keeps 1 − 1/n of the variance, which is corrected for.
+        bend, about the rotation's mean groove curvature (its zero took the slope's value there). A rotation alone
+        on its axis (no opposite rotation fitted) has its slope fitted away by the sensor's anisotropy; with n
+        rotations on an axis a slope keeps 1 − 1/n of the variance, which is corrected for.
+    mean_curvature : float
+        κ̄, 1/m: the mean |κ| of the bent grooves, where each rotation's zero holds its seating's local slope (so the
+        scatter of ``reference`` includes it there); 0 without ``"offset"``.
     iterations : int
     terms : frozenset of str
     """
@@ -122,6 +165,7 @@ class NuisanceFit:
     gain_std: float
     local_roll_std: float
     local_gain_std: float
+    mean_curvature: float
     iterations: int
     terms: frozenset
 
@@ -138,6 +182,44 @@ def _groove_means(y: np.ndarray, seat: np.ndarray, n_seat: int):
     pooled = np.einsum("pga,pgb->gab", dev, dev) / np.maximum(dof, 1.0)[:, None, None]
     pooled[dof == 0] = 0.0
     return mean, count, pooled
+
+
+def _local_slopes(resid: np.ndarray, kap: np.ndarray, s_group: np.ndarray, used: np.ndarray, n_groups: int,
+                  about_mean: bool = True):
+    """Each rotation × grating's slope of the groove-mean residuals with κ, about that rotation's mean groove
+    curvature κ̄_o: the rotation's zero (a free offset, the mean over its grooves) already took the slope's value at
+    κ̄_o, so the residual holds only (κ − κ̄_o) × slope, and a regression through the origin would read a fraction
+    Σ(κ − κ̄)²/Σκ² of it (0.19 on the AMIRo grooves). Without a free zero (``about_mean`` False) the residual keeps
+    the whole slope and the regression is through the origin.
+
+    Parameters
+    ----------
+    resid : ndarray, shape (G, S, D)
+        Groove-mean residuals.
+    kap : ndarray, shape (S,)
+        Each groove's |κ|, 1/m.
+    s_group : ndarray of int, shape (S,)
+        Each groove's rotation.
+    used : ndarray of bool, shape (G, S)
+        Grooves with a valid trial.
+
+    Returns
+    -------
+    slope : ndarray, shape (G, O, D)
+        Residual per unit of κ (strain · m); 0 where a rotation has fewer than two distinct grooves at a grating.
+    centred : ndarray, shape (G, S)
+        κ − κ̄_o of each groove (0 where unused).
+    has : ndarray of bool, shape (G, O)
+        Where a slope was estimated.
+    """
+    onehot = np.eye(n_groups)[s_group] * used[..., None]  # (G, S, O)
+    n = onehot.sum(axis=1)  # (G, O)
+    mean_k = np.einsum("gso,s->go", onehot, kap) / np.maximum(n, 1.0) * about_mean
+    centred = (kap[None, :] - np.einsum("gso,go->gs", onehot, mean_k)) * used
+    sxx = np.einsum("gso,gs->go", onehot, centred**2)
+    has = sxx > 1e-12 * np.maximum(np.einsum("gso,s->go", onehot, kap**2), 1e-300)
+    slope = np.einsum("gso,gs,gsd->god", onehot, centred, resid) / np.where(has, sxx, np.inf)[..., None]
+    return slope, centred, has
 
 
 def _psd(m: np.ndarray) -> np.ndarray:
@@ -193,6 +275,10 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
     u /= np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-300)[:, None]
     same_axis = (np.abs(u @ u.T) > np.cos(np.deg2rad(10.0))).astype(float)
     axis_mean = same_axis / same_axis.sum(axis=1, keepdims=True)  # (O, O): mean over each rotation's axis
+    n_axis = same_axis.sum(axis=1)  # fitted rotations on each one's axis
+    kept = 1.0 - 1.0 / n_axis  # the part of a rotation's slope the map does not hold
+    kap = np.hypot(s_j[:, 0], s_j[:, 1])
+    onehot_s = np.eye(n_groups)[s_group]  # (S, O)
     cov_seat = np.zeros((n_g, dim, dim))
     # start without a seating part: the groove means weighted by their count (ordinary least squares on poses)
     scale0 = np.einsum("gaa->g", cov_pose) / dim
@@ -225,9 +311,8 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
         f = np.stack([np.einsum("gdk,sk->gsd", a, s_j), np.einsum("gdk,kl,sl->gsd", a, rot90, s_j)], axis=-1)
         z_new = z
         if terms & {"roll", "gain"}:
-            onehot = np.eye(n_groups)[s_group]  # (S, O)
-            nz = np.einsum("so,gsak,gsab,gsbl->okl", onehot, f, weight, f)
-            rz = np.einsum("so,gsak,gsab,gsb->ok", onehot, f, weight, r)
+            nz = np.einsum("so,gsak,gsab,gsbl->okl", onehot_s, f, weight, f)
+            rz = np.einsum("so,gsak,gsab,gsb->ok", onehot_s, f, weight, r)
             prior = np.diag([1.0 / PRIOR_GAIN**2 if "gain" in terms else 0.0,
                              1.0 / PRIOR_ROLL**2 if "roll" in terms else 0.0])
             sol = np.linalg.solve(nz + prior, (rz + prior @ np.array([1.0, 0.0]))[..., None])[..., 0]
@@ -238,8 +323,18 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
         resid = ybar - np.einsum("sak,gk->gsa", design, theta)
         used = count > 0
         n_used = used.sum(axis=1)
-        dof = np.maximum(n_used - n_par / dim, 1.0)
-        outer = np.einsum("gsa,gsb->gab", resid * used[..., None], resid)
+        # with each rotation's zero free, the seatings' local slopes (about the rotation's mean groove curvature)
+        # are a rotation-level effect with a variance of their own: taken out before the per-groove covariance is
+        # estimated, so the intervals do not count them there too; each costs the degrees of freedom the map had
+        # not already taken (1 − 1/n on an axis with n rotations: the map holds their mean slope). Without the
+        # zero, the residuals also hold each rotation's zero, which a slope through the origin would partly take.
+        resid_seat, dof_slopes = resid, 0.0
+        if n_off:
+            slope, centred, has = _local_slopes(resid, kap, s_group, used, n_groups)
+            resid_seat = resid - centred[..., None] * np.einsum("so,god->gsd", onehot_s, slope)
+            dof_slopes = np.sum(np.where(has, kept[None, :], 0.0), axis=1)
+        dof = np.maximum(n_used - n_par / dim - dof_slopes, 1.0)
+        outer = np.einsum("gsa,gsb->gab", resid_seat * used[..., None], resid_seat)
         expected_pose = np.einsum("gs,gab->gab", used / np.maximum(count, 1.0), cov_pose)
         cov_seat_new = _psd((outer - expected_pose) / dof[:, None, None])
         if "seating" not in terms:  # one covariance per grating for every pose, independent
@@ -262,18 +357,13 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
     c_ref = -np.einsum("gkd,god->ogk", np.linalg.pinv(a), d)
     reference = np.stack([np.einsum("ogk,ok->og", c_ref, u),
                           np.einsum("ogk,ok->og", c_ref, np.stack([-u[:, 1], u[:, 0]], axis=-1))], axis=-1)
-    # per rotation and grating, the residual's slope with κ along and across the bend
-    c_res = np.einsum("gkd,gsd->gsk", np.linalg.pinv(a), resid)
+    # per rotation and grating, the residual's slope with κ (about the rotation's mean groove curvature) along and
+    # across the bend, in curvature through the map
+    slope, _, have = _local_slopes(resid, kap, s_group, used, n_groups, bool(n_off))
+    c_slope = np.einsum("gkd,god->gok", np.linalg.pinv(a), slope)
     w_o = np.stack([-u[:, 1], u[:, 0]], axis=-1)
-    kap = np.hypot(s_j[:, 0], s_j[:, 1])
-    onehot_o = np.eye(n_groups)[s_group] * used[..., None]  # (G, S, O)
-    k2 = np.einsum("gso,s->go", onehot_o, kap**2)
-    slopes = np.stack([np.einsum("gso,s,gsk,sk->go", onehot_o, kap, c_res, u[s_group]),
-                       np.einsum("gso,s,gsk,sk->go", onehot_o, kap, c_res, w_o[s_group])], axis=-1)
-    slopes = slopes / np.where(k2 > 0, k2, np.nan)[..., None]
-    n_axis = same_axis.sum(axis=1)  # fitted rotations on each one's axis
-    kept = np.broadcast_to(1.0 - 1.0 / n_axis, slopes.shape[:2])
-    have = np.isfinite(slopes[..., 0])
+    slopes = np.stack([np.einsum("gok,ok->go", c_slope, u), np.einsum("gok,ok->go", c_slope, w_o)], axis=-1)
+    kept = np.broadcast_to(kept, slopes.shape[:2])
     dof_local = float(np.sum(kept[have]))
     s2_local = (np.sum(np.where(have[..., None], slopes, 0.0) ** 2, axis=(0, 1)) / dof_local if dof_local > 0
                 else np.zeros(2))  # (along, across)
@@ -297,6 +387,7 @@ def fit_nuisance(e: np.ndarray, j: np.ndarray, group: np.ndarray, n_groups: int,
                          n_groups - 1 if "gain" in terms else 0, BUDGET["gain"]),
         local_roll_std=_pooled(s2_local[1], dof_local, BUDGET["local_roll"]),
         local_gain_std=_pooled(s2_local[0], dof_local, BUDGET["local_gain"]),
+        mean_curvature=float(np.mean(kap)) if n_off else 0.0,
         iterations=it,
         terms=terms,
     )

@@ -10,6 +10,7 @@ import numpy as np
 
 from twin.calibration import Calibration
 from twin.calibration.jig.fits import JigFit, fit
+from twin.calibration.jig.nuisance import median_variance
 from twin.calibration.jig.poses import JigPoses, _rot, jig_curvature, match_orientations
 from twin.calibration.jig.score import ALL_LEVELS, CLINICAL, Bands, JigScore, cells, coverage, score
 from twin.fiber import FiberModel
@@ -289,17 +290,20 @@ def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.nd
 
     The curvature error covariance of a pose at grating n, in the fibre frame, is
 
-        C = M Σ_e Mᵀ + (1 + π/2n_o)(σ_along² u uᵀ + σ_across² w wᵀ) + κ² (σ_roll² w wᵀ + σ_gain² u uᵀ)
-            + κ² (1 + 1/n) (σ_roll,n² w wᵀ + σ_gain,n² u uᵀ) + M (I ⊗ k̂ᵀ) Σ_p (I ⊗ k̂) Mᵀ,
+        C = M Σ_e Mᵀ + (1 + v_n_o)(σ_along² u uᵀ + σ_across² w wᵀ) + κ² (σ_roll² w wᵀ + σ_gain² u uᵀ)
+            + ((κ − κ̄)² + κ²/n) (σ_roll,n² w wᵀ + σ_gain,n² u uᵀ) + M (I ⊗ k̂ᵀ) Σ_p (I ⊗ k̂) Mᵀ,
 
     with M the calibration's strain → curvature map (rows 1–2 of the design's pseudo-inverse), Σ_e the per-pose
     strain error covariance (pose + groove seating), u the jig's bend direction and w ⟂ u, σ_along, σ_across the
     scatter of the rotations' reference curvature (a new rotation's zero about the jig's zero, the median of the
-    n_o fitted rotations', whose own variance is ≈ π/2n_o times theirs), σ_roll and σ_gain that of the seatings'
-    roll and gain shared by the gratings, σ_roll,n and σ_gain,n what each grating adds — twice: the pose's own
-    seating, and the map, which took it from the n fitted rotations on the pose's axis (1 when none is) — and Σ_p
-    the covariance of the design's bend columns (the parameters). The stated σ is that of the radial
-    component, ûᵀ C û with û = k̂/|k̂|. Gratings the error model does not cover get NaN.
+    n_o fitted rotations', whose own variance is v_n_o times theirs: :func:`~twin.calibration.jig.nuisance.
+    median_variance`), σ_roll and σ_gain that of the seatings' roll and gain shared by the gratings, σ_roll,n and
+    σ_gain,n what each grating adds — twice: the pose's own seating, about the calibration's mean groove curvature
+    κ̄ (``jig_mean_curvature_1_per_m``; each rotation's zero, whose scatter is σ_along, σ_across, holds the slope's
+    value there), and the map, which took it from the n fitted rotations on the pose's axis (1 when none is) — and
+    Σ_p the covariance of the design's bend columns (the parameters). The stated σ is that of the radial
+    component, ûᵀ C û with û = k̂/|k̂|. Gratings the error model does not cover get NaN. A calibration without
+    κ̄ (made before it was recorded) takes κ̄ = 0.
     """
     fit_g = list(prov.get("jig_gratings", []))
     strain_cov = np.asarray(prov["jig_error_strain_cov"], dtype=np.float64)
@@ -308,9 +312,9 @@ def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.nd
     ref_std = np.asarray(prov["jig_reference_std_1_per_m"], dtype=np.float64)
     l_roll, l_gain = float(prov["jig_local_roll_std_rad"]), float(prov["jig_local_gain_std"])
     fitted = np.asarray(prov["jig_orientations_rad"], dtype=np.float64)
-    # a new rotation's zero scatters about the jig's zero, itself the median of the fitted rotations' zeros, whose
-    # variance is ≈ π/2 × that of their mean (the asymptotic value; larger than the exact one for n ≤ 4)
-    zero_err = 1.0 + np.pi / (2.0 * fitted.size)
+    # a new rotation's zero scatters about the jig's zero, itself the median of the fitted rotations' zeros
+    zero_err = 1.0 + median_variance(fitted.size)
+    kappa_mean = float(prov.get("jig_mean_curvature_1_per_m", 0.0))
     psi = float(prov["jig_roll_rad"]) - np.arctan2(k[:, 1], k[:, 0])  # each pose's rotation, from its label
     n_axis = np.maximum(np.sum(np.abs(np.sin(psi[:, None] - fitted[None, :])) < np.sin(np.deg2rad(10.0)), axis=1),
                         1)
@@ -319,10 +323,9 @@ def _magnitude_sigma(prov: dict, design: np.ndarray, g: np.ndarray, k_hat: np.nd
     kappa = np.hypot(k[:, 0], k[:, 1])
     u = k / np.maximum(kappa, 1e-300)[:, None]
     w = np.stack([-u[:, 1], u[:, 0]], axis=-1)
-    loc = 1.0 + 1.0 / n_axis
-    jig_part = kappa[:, None, None] ** 2 * (
-        (s_roll**2 + loc * l_roll**2)[:, None, None] * np.einsum("pa,pb->pab", w, w)
-        + (s_gain**2 + loc * l_gain**2)[:, None, None] * np.einsum("pa,pb->pab", u, u))
+    loc = (kappa - kappa_mean) ** 2 + kappa**2 / n_axis  # own seating about κ̄, the map's inherited about 0
+    jig_part = ((kappa**2 * s_roll**2 + loc * l_roll**2)[:, None, None] * np.einsum("pa,pb->pab", w, w)
+                + (kappa**2 * s_gain**2 + loc * l_gain**2)[:, None, None] * np.einsum("pa,pb->pab", u, u))
     for i, n in enumerate(g):  # a few gratings
         if int(n) not in fit_g:
             continue

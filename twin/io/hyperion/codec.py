@@ -23,24 +23,28 @@ Decisions where docs/protocols.md is silent:
   wavelength, not here. Encoding drops NaN peaks for the same reason: a Frame with a gap in the middle of a
   core comes back compacted, which is what a real instrument would send.
 - **Serial number** in the peak header counts acquisitions (Luna's stream example asserts it increments by
-  one), so it carries :attr:`Frame.sequence`; timestamp = seconds + nanoseconds·1e-9.
+  one), so it carries :attr:`Frame.sequence` (a u64: one of 2**63 or more is taken as 2**63 − 1, so that frames
+  stack as int64, :func:`twin.io.sequence.clamp`); timestamp = seconds + nanoseconds·1e-9.
 - **Version** 1 in the peak header (only echoed). **Response type** 0 (only echoed).
-- **A frame is checked whole before any of it is used**: header length against the content, the peak counts
-  against the bytes that follow, and every wavelength finite and within :data:`WAVELENGTH_RANGE` (200–3000 nm,
-  the Bragg wavelengths a fibre model accepts; Luna's instruments sweep 1460–1620 nm). An instrument reports only
-  peaks it found, so a value outside that range is not a bad peak but bytes that are not a wavelength: the
-  frame is refused as a framing error. That is also how lost framing shows: half a frame followed by a good
-  one makes the decoder read the good frame's headers as wavelengths (denormals such as 3.9e-305 nm).
+- **A frame is checked whole before any of it is used** (:func:`decode_peaks`): header length against the
+  content, the peak counts against the bytes that follow, and every wavelength finite and within
+  :data:`WAVELENGTH_RANGE` (200–3000 nm, the Bragg wavelengths a fibre model accepts; Luna's instruments sweep
+  1460–1620 nm). An instrument reports only peaks it found, so a value outside that range is not a bad peak but
+  bytes that are not a wavelength: the frame is refused as a framing error. That is also how lost framing shows:
+  half a frame followed by a good one makes the decoder read the good frame's headers as wavelengths (denormals
+  such as 3.9e-305 nm).
 - The reserved byte of both headers must be 0 and a timestamp's nanoseconds must be below 1e9: on a binary
   stream without a sync marker those checks and the wavelength range are the only way to notice lost framing.
-- A connection that closes inside a frame is one framing error (:meth:`ResponseDecoder.finish`), as on the
-  ILLumiSense stream: one meaning per counter across drivers.
+- A connection that closes inside a frame is one framing error (:meth:`ResponseDecoder.finish`,
+  :meth:`twin.io.hyperion.stream.PeakStreamDecoder.finish`), as on the ILLumiSense stream: one meaning per
+  counter across drivers.
 
-**Resynchronisation**: none is attempted. A binary TCP stream without a sync marker cannot be re-entered
-reliably, so the stream decoders count the first bad header or content, set ``failed`` and raise
+**Resynchronisation**: the peak stream's decoder resynchronises after bad bytes, on the constraints of a frame's
+fixed fields (:mod:`twin.io.hyperion.stream`). The command port's decoders (one request, one response) attempt
+none: they count the first bad header or content, set ``failed`` and raise
 :class:`~twin.io.errors.FramingError` — at once when the call completed nothing, otherwise from the next call,
 after delivering the messages completed before the bad bytes — and refuse further data until
-:meth:`ResponseDecoder.reset`: the caller must reconnect.
+:meth:`ResponseDecoder.reset`: the caller closes the connection.
 
 Why one module of this size: the codec holds both directions of one protocol (the simulator's server encodes
 with it, the driver decodes), so that the two cannot drift apart.
@@ -56,6 +60,7 @@ import numpy as np
 
 from twin.frames import Frame, PeakStatus
 from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
+from twin.io.sequence import clamp
 
 __all__ = [
     "COMMAND_PORT",
@@ -278,7 +283,7 @@ def decode_response(data: bytes, *, max_content: int = DEFAULT_MAX_CONTENT) -> R
 
 
 class _Incremental:
-    """Shared machinery of the two stream decoders (length-prefixed by an 8-byte header, no resync)."""
+    """Shared machinery of the command port's two decoders (length-prefixed by an 8-byte header, no resync)."""
 
     def __init__(self) -> None:
         self._buf = bytearray()
@@ -396,23 +401,20 @@ class RequestDecoder(_Incremental):
 
 
 class ResponseDecoder(_Incremental):
-    """Client side of ports 51971 and 51972: split the incoming bytes into :class:`Response` objects.
+    """Client side of port 51971: split the incoming bytes into :class:`Response` objects (the peak stream on
+    51972 has its own, resynchronising decoder: :class:`twin.io.hyperion.stream.PeakStreamDecoder`).
 
-    Use :meth:`feed_frames` on the peak stream. Raises :class:`FramingError` (and stays failed until
-    :meth:`reset`) on a bad header or bad peak content: reconnect.
+    Raises :class:`FramingError` (and stays failed until :meth:`reset`) on a bad header: reconnect.
 
     Parameters
     ----------
     max_content : int
         Largest accepted content, bytes (refused from the header, before anything is allocated).
-    n_gratings : int, optional
-        Passed to :func:`decode_peaks` by :meth:`feed_frames`.
     """
 
-    def __init__(self, *, max_content: int = DEFAULT_MAX_CONTENT, n_gratings: int | None = None) -> None:
+    def __init__(self, *, max_content: int = DEFAULT_MAX_CONTENT) -> None:
         super().__init__()
         self.max_content = max_content
-        self.n_gratings = n_gratings
 
     def feed(self, data: bytes) -> list[Response]:
         """Consume bytes; return the complete responses among them."""
@@ -421,29 +423,6 @@ class ResponseDecoder(_Incremental):
             lambda head, offset: sum(_response_header(head, offset, self.max_content)[2:]),
             lambda message: decode_response(message, max_content=self.max_content),
         )
-
-    def feed_frames(self, data: bytes) -> list[Frame]:
-        """Consume peak-stream bytes (port 51972); return the decoded frames. Their sequence numbers are the
-        driver's to count (:class:`twin.io.hyperion.driver.HyperionSource`, across reconnects)."""
-        frames: list[Frame] = []
-        for r in self.feed(data):
-            if not r.ok:
-                self._fail(
-                    FramingError(
-                        f"stream frame with status {r.status}: {r.message[:60]!r}",
-                        offset=self._base,
-                        expected="status 0",
-                        protocol=PROTOCOL,
-                    )
-                )
-                return self._finish(frames)
-            try:
-                f = decode_peaks(r.content, n_gratings=self.n_gratings)
-            except FramingError as exc:
-                self._fail(exc)
-                return self._finish(frames)
-            frames.append(f)
-        return frames
 
 
 # ---------------------------------------------------------------------------------------------- peak content
@@ -591,7 +570,7 @@ def decode_peaks(content: bytes, *, n_gratings: int | None = None, max_channels:
     return Frame(
         wavelengths=np.ascontiguousarray(lam.T),
         timestamp=h.timestamp,
-        sequence=h.serial_number,
+        sequence=clamp(h.serial_number),  # a u64 beyond int64 → 2**63 − 1 (twin.io.sequence)
         status=np.ascontiguousarray(st.T),
     )
 

@@ -2,8 +2,10 @@
 
 ``hyperion://HOST[:PORT]`` (command port 51971, peak stream on PORT + 1 = 51972 unless ``stream_port=``):
 start-up queries on the command port (``#isready``, channel count, peaks per channel, serial number,
-instrument name, laser scan speed → :attr:`HyperionSource.info`, ``rate``), then the pushed peak stream. A
-binary stream without sync marker cannot be re-entered, so a framing error means reconnect. Channel k + 1 is
+instrument name, laser scan speed → :attr:`HyperionSource.info`, ``rate``), then the pushed peak stream. Bad
+bytes on the stream (garbage, a frame cut short) are counted and skipped: the decoder resynchronises by itself
+and delivers the intact frames after them (:mod:`twin.io.hyperion.stream`); the driver reconnects when the peer
+closes. Channel k + 1 is
 core k (``channels=2,3,4,5`` picks others). The instrument sends only the peaks it found: with a fibre model,
 a channel that reports fewer (or more) peaks than gratings has its peaks assigned to the gratings nearest in
 nominal wavelength (a duplicate keeps the closer peak); without one, peaks fill the gratings in order.
@@ -22,6 +24,7 @@ from twin.fiber import FiberModel
 from twin.frames import Frame
 from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, split_common
 from twin.io.hyperion import codec as hyperion
+from twin.io.hyperion.stream import PeakStreamDecoder
 from twin.io.options import Option, parse_options
 from twin.io.sequence import SequenceCounter
 from twin.io.source import parse_url
@@ -103,8 +106,8 @@ class HyperionSource(Driver):
         self.connect_timeout = connect_timeout
         self.info: dict = {}
         self._stream: TcpClient | None = None
-        self._decoder: hyperion.ResponseDecoder | None = None
-        self._framing_errors = 0
+        # one decoder for every connection: it starts each in sync, and its counts run across reconnects
+        self._decoder = PeakStreamDecoder()
         self._sequence = SequenceCounter()
         super().__init__(url or f"hyperion://{host}:{port}", **kw)
 
@@ -141,28 +144,22 @@ class HyperionSource(Driver):
         self.rate = float(info["laser_scan_speed"]) or None
         self._stream = TcpClient(self.host, self.stream_port, connect_timeout=self.connect_timeout,
                                  label=self.url)
-        # a fresh decoder per connection (the stream cannot be re-entered); counters are carried over
-        self._decoder = hyperion.ResponseDecoder()
 
     def _drop(self) -> None:
         if self._stream is not None:
             self._stream.close()
             self._stream = None
-        if self._decoder is not None:
             # a connection that dropped inside a frame is a framing error, as on ILLumiSense; closing the
             # source ourselves mid-frame is not
             if not self._closed:
                 self._decoder.finish()
-            self._framing_errors += self._decoder.framing_errors
-            self._decoder = None
 
     def _pump(self, timeout: float) -> None:
         data = self._stream.recv(timeout)
         if not data:
             return
-        frames = [self._map(f) for f in self._decoder.feed_frames(data)]
-        # gaps are counted here rather than by the per-connection decoder, so that samples lost across a
-        # reconnect count too
+        frames = [self._map(f) for f in self._decoder.feed(data)]
+        # gaps are counted here, by the rule every source shares (twin.io.sequence), across reconnects
         if frames:
             self._sequence.count_many([f.sequence for f in frames])
             self.counters.update(self._sequence.as_dict())
@@ -196,7 +193,10 @@ class HyperionSource(Driver):
 
     def stats(self) -> dict:
         out = super().stats()
-        out["framing_errors"] = self._framing_errors + (self._decoder.framing_errors if self._decoder else 0)
+        d = self._decoder
+        out.update(framing_errors=d.framing_errors, bytes_discarded=d.bytes_discarded)
+        if d.last_error is not None:
+            out["last_framing_error"] = str(d.last_error)
         return out
 
 

@@ -71,6 +71,7 @@ import numpy as np
 from twin.frames import VENDOR_SHAPE_SPACING, Frame, PeakStatus, VendorArrays, VendorSensor
 from twin.io.errors import FramingError, TruncatedFrameError
 from twin.io.illumisense import scan as _scan
+from twin.io.sequence import clamp
 
 __all__ = [
     "ANGLE_LABEL",
@@ -415,6 +416,8 @@ class _Tokens:
             if not (body.isdigit() and body.isascii()) or j != 2:  # only the sample number may exceed 15 digits
                 self.fail(j, f"{name} {tok[:20]!r} is not an integer", "a decimal integer")
             v = int(tok)
+            if j == 2:  # a sample number beyond int64 is as absurd as it was, not a bad record (twin.io.sequence)
+                v = clamp(v) if v >= 0 else v if v >= lo else -1  # below int64: unknown, as any negative
         if not lo <= v <= hi:
             self.fail(j, f"{name} {v} is out of range", f"{lo} to {hi}")
         return v
@@ -720,25 +723,31 @@ def _decode_general(data: bytes, buf: np.ndarray, starts: np.ndarray, ends: np.n
             add(index[rows], _extract(lay, V, stamp[rows], data, dt_bounds(rows)))
             done[sel[ok]] = True
         rest = todo[~done]
-        if not rest.size:
-            break
-        r = int(rest[0])
-        a, b = counts[r], counts[r + 1]
-        tok = _Tokens(data, int(starts[r]), kind[a:b], value[a:b], ts[a:b], te[a:b])
-        try:
-            lay = _walk(tok, channels_as, n_cores, max_cells)
-        except FramingError as exc:
-            errors[int(index[r])] = exc
-            todo = rest[1:]
-            continue
-        if not lay.extra and not any(x.n == lay.n and x.key == lay.key and np.array_equal(x.labels, lay.labels)
-                                     for x in layouts):
-            layouts.insert(0, lay)
-            del layouts[8:]
-        rows = np.array([r])
-        seq = np.array([tok.int(2, "sample number")], dtype=np.int64)
-        add(index[rows], _extract(lay, value[a:b][None], stamp[rows], data, dt_bounds(rows), seq=seq))
-        todo = rest[1:]
+        # the rest matched no known layout: walked one by one, until one teaches a new layout, which the records
+        # after it are matched against first (matching the rest again after a bad line, with no new layout to
+        # match, was numpy work over the whole block per bad line)
+        todo = rest[:0]
+        for k, r in enumerate(rest.tolist()):
+            a, b = counts[r], counts[r + 1]
+            tok = _Tokens(data, int(starts[r]), kind[a:b], value[a:b], ts[a:b], te[a:b])
+            try:
+                lay = _walk(tok, channels_as, n_cores, max_cells)
+            except FramingError as exc:
+                # without its traceback: the traceback's frames hold this list, so each kept error was a
+                # reference cycle that only the cyclic collector frees (memory grew with the bad lines)
+                errors[int(index[r])] = exc.with_traceback(None)
+                continue
+            new = not lay.extra and not any(
+                x.n == lay.n and x.key == lay.key and np.array_equal(x.labels, lay.labels) for x in layouts)
+            if new:
+                layouts.insert(0, lay)
+                del layouts[8:]
+            rows = np.array([r])
+            seq = np.array([tok.int(2, "sample number")], dtype=np.int64)
+            add(index[rows], _extract(lay, value[a:b][None], stamp[rows], data, dt_bounds(rows), seq=seq))
+            if new:
+                todo = rest[k + 1 :]
+                break
 
 
 def decode_many(

@@ -105,6 +105,7 @@ class IllumisenseSource(Driver):
             lost_samples=d.sequence.lost_samples,
             sequence_gaps=d.sequence.sequence_gaps,
             sequence_resets=d.sequence.sequence_resets,
+            sequence_corrupt=d.sequence.sequence_corrupt,
             bytes_discarded=d.bytes_discarded,
             odd_records=d.odd_records,
             layout_changes=d.layout_changes,

@@ -11,8 +11,10 @@ block, and a file of junk is refused after its header lines without the rest bei
   A last line without a line end was cut (the writer was stopped mid-line): it is left out, since its last
   number may be cut short (the reader reports the file as damaged).
 - Lines before the first record that decodes (column names, comments, settings) are a header and skipped
-  silently (at most ``max_header_lines``); a later line that does not decode is skipped and reported with its
-  line number. A line that fails and holds a decimal comma is retried with commas read as points.
+  silently (at most ``max_header_lines``); a later line that does not decode is skipped, counted
+  (``skipped_lines``) and, for the first :data:`MAX_EXAMPLES`, reported with its line number: a file of a
+  million bad lines keeps ten messages, not a million. A line that fails and holds a decimal comma is retried
+  with commas read as points.
 - The channel layout is decided by a consensus of the first records (:class:`LayoutConsensus`), so one odd
   first line does not throw away the rest: records of another layout are skipped and reported (a log is one
   file of one shape, so the layout is not re-learned).
@@ -34,13 +36,17 @@ from twin.io.illumisense import scan as _scan
 from twin.io.illumisense.codec import _decode_groups
 from twin.io.illumisense.stream import LayoutConsensus
 
-__all__ = ["LogContents", "VendorArrays", "read_log"]
+__all__ = ["MAX_EXAMPLES", "LogContents", "VendorArrays", "read_log"]
+
+#: skipped lines reported by message (the first, in line order); the others are only counted
+MAX_EXAMPLES = 10
 
 
 @dataclass(frozen=True, eq=False)
 class LogContents:
     """The frames of a log as arrays (n, …), the vendor's sensor blocks (one :class:`VendorArrays` per sensor,
-    empty when the log has none), and what was skipped."""
+    empty when the log has none), and what was skipped: ``skipped_lines`` lines, the first :data:`MAX_EXAMPLES`
+    of them named in ``errors`` (line number and reason, in line order)."""
 
     timestamps: np.ndarray
     sequences: np.ndarray
@@ -50,6 +56,7 @@ class LogContents:
     vendor: tuple[VendorArrays, ...]
     errors: list[str]
     odd_records: int
+    skipped_lines: int
 
 
 def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | None = None,
@@ -68,7 +75,8 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
     kw = {"channels_as": channels_as, "n_cores": n_cores}
     layouts: list = []  # the layouts learned, shared by the blocks (later blocks read on the one-pass path)
     groups: list = []
-    errors: list[str] = []
+    errors: list[str] = []  # the first MAX_EXAMPLES lines that do not decode
+    failed = 0  # all of them
     decoded: list[_Row] = []
     header = 0
     # decoded a block of lines at a time into arrays, one group per layout (no Frame per record): what a block
@@ -96,7 +104,9 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
                     if header > max_header_lines:
                         break
                     continue
-                errors.append(f"line {line}: {res[k]}")
+                failed += 1
+                if len(errors) < MAX_EXAMPLES:
+                    errors.append(f"line {line}: {res[k]}")
                 continue
             g = int(gid[k])
             decoded.append(_Row(groups[g].lay.key, line, g, int(gidx[k])))
@@ -112,13 +122,13 @@ def read_log(path: str | Path, *, channels_as: str = "cores", n_cores: int | Non
                          "TAB-separated record: date, time, sample, C, channel blocks…)")
     lines_kept = {r.line for r in kept}
     layout = kept[0].layout
-    for r in decoded:
-        if r.line not in lines_kept:
-            errors.append(f"line {r.line}: channel layout {_describe(r.layout)} differs from the log's "
-                          f"{_describe(layout)}")
+    odd = [r for r in decoded if r.line not in lines_kept]
+    # the first examples of either kind, in line order (each list is in line order already)
+    errors += [f"line {r.line}: channel layout {_describe(r.layout)} differs from the log's {_describe(layout)}"
+               for r in odd[:MAX_EXAMPLES]]
     errors.sort(key=lambda e: int(e.split(":", 1)[0].split()[1]))
     kept.sort(key=lambda r: r.line)
-    return _arrays(kept, groups, errors, consensus.odd)
+    return _arrays(kept, groups, errors[:MAX_EXAMPLES], consensus.odd, failed + len(odd))
 
 
 #: lines decoded at once: bounds the tokenizer's arrays and the block's refusals, whatever the file's size
@@ -134,7 +144,7 @@ class _Row(NamedTuple):
     row: int
 
 
-def _arrays(kept: list[_Row], groups: list, errors: list[str], odd: int) -> LogContents:
+def _arrays(kept: list[_Row], groups: list, errors: list[str], odd: int, skipped: int) -> LogContents:
     """The kept rows, in line order, gathered from their groups' arrays."""
     g_of = np.array([r.group for r in kept])
     i_of = np.array([r.row for r in kept])
@@ -167,7 +177,7 @@ def _arrays(kept: list[_Row], groups: list, errors: list[str], odd: int) -> LogC
         vendor.append(arrays)
     return LogContents(timestamps=out["timestamp"], sequences=out["sequence"], wavelengths=out["wavelengths"],
                        powers=out["powers"], status=out["status"], vendor=tuple(vendor), errors=errors,
-                       odd_records=odd)
+                       odd_records=odd, skipped_lines=skipped)
 
 
 def _usable(group) -> tuple:
