@@ -22,9 +22,17 @@ $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
 demo: $(VENV)/.installed
 	$(BIN)/twin demo
 
+# The fast tests on 2 workers (pytest-xdist; a test file's tests stay on one worker, so its module fixtures are
+# built once): every test is isolation-safe (127.0.0.1 on ephemeral ports, tmp_path, numba's and the lab
+# calibration's caches written atomically). TEST_WORKERS=0 runs them in this one process. `twin warm-up` first
+# compiles the kernels of live and replay once (a cold cache: about a minute), so that no test streaming in
+# real time compiles on its first frames and the workers do not compile the same kernels twice.
+TEST_WORKERS ?= 2
+
 test: $(VENV)/.installed-test
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+	$(BIN)/twin warm-up
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
 test-slow: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q -m slow $(PYTEST_ARGS)

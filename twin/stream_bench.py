@@ -72,9 +72,9 @@ def _stream_bytes(frames, fiber=None) -> bytes:
                     for f, v in zip(frames, vendor_sensors(shapes), strict=True))
 
 
-class _Pieces:
+class RecordPieces:
     """Byte pieces as ``recv`` would return them, through the ILLumiSense driver's decoder and its join: a source
-    (:class:`twin.io.source.Source`) for timing the loop without a socket."""
+    (:class:`twin.io.source.Source`) for timing the loop without a socket (and for `twin warm-up`)."""
 
     url = "bench://pieces"
     rate = None
@@ -152,7 +152,7 @@ def _throughput(blob: bytes, fiber, seconds: float, vendor_blob: bytes | None = 
 
     def full_pass() -> int:
         # the live loop over the driver's decoding and join (feed_batch, Frame.stack): read, reconstruct, count
-        return LiveLoop(_Pieces(pieces, fiber), rec, []).run(handle_signals=False).status.frames
+        return LiveLoop(RecordPieces(pieces, fiber), rec, []).run(handle_signals=False).status.frames
 
     full_pass()  # warm-up: compiled kernels, caches
     cpu_rates: dict = {}

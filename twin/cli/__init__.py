@@ -125,7 +125,11 @@ def main(argv: list[str] | None = None) -> int:
         if not getattr(args, "_command", None):
             parser.print_help()
             return 0
-        return int(_command_module(args._command).run(args) or 0)
+        module = _command_module(args._command)
+        from twin import compile_notice
+
+        compile_notice.install(args._command)  # a cold kernel cache: one line on a terminal, not a silent wait
+        return int(module.run(args) or 0)
     except KeyboardInterrupt:
         print(f"twin{' ' + command if command else ''}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
