@@ -104,3 +104,29 @@ def test_a_nan_position_stays_in_its_own_lane():
     assert np.isnan(out[2]).any()
     others = [i for i in range(LANES) if i != 2]
     check(out[others], unc.propagate(shape, w).covariance[others])
+
+
+def test_recycled_covariances_are_never_shared_by_live_results():
+    """A batch's covariances come from the uncertainty's recycler (:mod:`twin._recycle`), as the reconstructor's
+    positions do: a result still alive keeps its memory, one let go gives it back, and values are never shared."""
+    from twin import _recycle
+
+    unc = uncertainty()
+    shape0 = unc.reconstructor(wavelengths(1, seed=0))
+    n = _recycle.MIN_BYTES // (8 * 9 * shape0.positions.shape[-2]) + 1  # frames beyond the recycling threshold
+    w = wavelengths(n, seed=5)
+    shape = unc.reconstructor(w)
+    a = unc.propagate(shape, w)
+    b = unc.propagate(shape, w)  # a still alive: fresh memory
+    assert not np.shares_memory(a.covariance, b.covariance)
+    reference = a.covariance.copy()
+    address = a.covariance.__array_interface__["data"][0]
+    del a
+    c = unc.propagate(shape, w)  # a's memory again, b's untouched
+    assert c.covariance.__array_interface__["data"][0] == address
+    assert np.array_equal(c.covariance, reference) and np.array_equal(b.covariance, reference)
+    assert not c.covariance.flags.writeable
+    # a copy with another model error shares the pool and still never hands out live memory
+    d = unc.with_twist(0.5).propagate(shape, w)
+    assert not np.shares_memory(d.covariance, c.covariance) and not np.shares_memory(d.covariance, b.covariance)
+    assert np.array_equal(c.covariance, reference)

@@ -38,6 +38,7 @@ import numpy as np
 
 from twin import _propagate, curve
 from twin._propagate import interpolation_kernel as _interpolation_kernel
+from twin._recycle import Recycler
 from twin.calibration import Calibration, nominal_delta_theta, nominal_gain
 from twin.frames import Shape
 from twin.reconstruct import Reconstructor
@@ -260,6 +261,9 @@ class Uncertainty:
         self._design = cal.design_for(fiber)  # (n_g, n_c, 3)
         self._var_e = (sigma / cal.reference_for(fiber)) ** 2  # (n_g, n_c): variance of the optical strain
         self._dd, self._par_sd = self._parameter_terms(cal) if parameters else (None, np.zeros(0))
+        # a large batch's covariances on the memory of results let go, as the reconstructor's positions (their
+        # fresh pages cost about a seventh of the propagation of 5000 frames)
+        self._outputs = Recycler()
         #: why this tube is narrower than its errors are likely to be, or None: the twin's default model error is
         #: a multiple of the calibration's stated 1σ of Δθ and g, so without them it carries noise and
         #: interpolation only
@@ -323,8 +327,8 @@ class Uncertainty:
         args = (np.ascontiguousarray(shape.positions.reshape(n_f, n_p, 3)),
                 np.ascontiguousarray(shape.frames.reshape(n_f, n_p, 3, 3)),
                 np.ascontiguousarray(k.reshape(n_f, n_g, 2)), vf, np.ascontiguousarray(w, dtype=np.float64))
-        cov = np.empty((n_f, n_p, 3, 3))
-        ck = np.empty((n_f, n_g, 2, 2))
+        cov = self._outputs.empty((n_f, n_p, 3, 3))
+        ck = self._outputs.empty((n_f, n_g, 2, 2))
         const = self._const()
         # intact frames with the intact pattern; those that lost a grating, if any, again with their patterns
         if _propagate.propagate(const, *args, self._full_weights, _NO_FRAMES, cov, ck):
