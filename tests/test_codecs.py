@@ -30,7 +30,7 @@ from hypothesis.extra import numpy as hnp
 
 from twin.frames import Frame, PeakStatus
 from twin.io import fispec, hyperion
-from twin.io.errors import FramingError, OversizeFrameError
+from twin.io.errors import FramingError, OversizeFrameError, TruncatedFrameError
 from twin.io.sequence import SequenceCounter
 
 FUZZ = settings(max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -686,6 +686,66 @@ def test_hyperion_implausible_wavelength_refuses_the_frame():
         with pytest.raises(FramingError, match="wavelength in 200–3000 nm"):
             hyperion.decode_peaks(bytes(content))
     assert hyperion.decode_peaks(HYPERION_PEAKS).sequence == f.sequence
+
+
+def _corrupted_peak_contents():
+    """Peak content with one byte of its header or counts set to each of a few values, and cut at every length."""
+    for i in range(28):  # the 24-byte header and the two counts
+        for value in {0x00, 0x01, 0x7F, 0x80, 0xFF, HYPERION_PEAKS[i] ^ 0x01}:
+            yield HYPERION_PEAKS[:i] + bytes([value]) + HYPERION_PEAKS[i + 1:]
+    for cut in range(len(HYPERION_PEAKS)):
+        yield HYPERION_PEAKS[:cut]
+
+
+#: the rules of codec.peak_content_fault, by what their errors say
+RULES = {"peak content of": "short content", "peak header length": "header length", "reserved field": "reserved",
+         "timestamp nanoseconds": "nanoseconds", "peak count -": "negative count",
+         "more than n_gratings": "too many peaks", "bytes of wavelengths": "wavelength bytes"}
+
+
+def _fields(err: FramingError | None, shift: int = 0):
+    return None if err is None else (type(err), err.what, err.offset - shift, err.expected)
+
+
+def test_hyperion_stream_and_codec_refuse_the_same_peak_headers_naming_the_same_field():
+    """One definition of the peak header's rules (codec.peak_content_fault): for each corrupted header or counts,
+    the stream decoder, fed the frame in pieces, refuses exactly what decode_peaks_header refuses, with the same
+    error (class, field and value, offset within the content, expectation), and what decode_peaks refuses whole."""
+    hit = set()
+    cases = [(content, n_gratings) for n_gratings in (None, 1, 2) for content in _corrupted_peak_contents()]
+    for k, (content, n_gratings) in enumerate(cases):
+        try:
+            hyperion.decode_peaks_header(content, n_gratings=n_gratings)
+            header_err = None
+        except FramingError as exc:
+            header_err = exc
+        try:
+            whole = hyperion.decode_peaks(content, n_gratings=n_gratings)
+            frame_err = None
+        except FramingError as exc:
+            whole, frame_err = None, exc
+        dec = hyperion.PeakStreamDecoder(n_gratings=n_gratings)
+        wire, step, got = hyperion.encode_response(content), 1 + k % 7, []
+        for pos in range(0, len(wire), step):
+            got += dec.feed(wire[pos: pos + step])
+        stream_err = dec.last_error if dec.framing_errors else None
+        where = f"content {content.hex()}, n_gratings {n_gratings}"
+        # the stream's offsets count from the frame's start: its content follows the 8-byte response header
+        assert _fields(stream_err, shift=8) == _fields(frame_err), where
+        if header_err is not None:
+            assert _fields(stream_err, shift=8) == _fields(header_err), where
+            hit.add((next(rule for key, rule in RULES.items() if key in header_err.what), type(header_err)))
+        else:  # only a peak that is not a wavelength can refuse a frame whose header and counts are valid
+            assert stream_err is None or stream_err.offset - 8 >= struct.unpack_from("<H", content)[0], where
+        if whole is not None:
+            assert len(got) == 1 and got[0].sequence == whole.sequence, where
+            np.testing.assert_array_equal(got[0].wavelengths, whole.wavelengths)
+    # every rule was broken by some corruption: the comparison above is not vacuous
+    want = {("short content", TruncatedFrameError), ("header length", FramingError),
+            ("header length", TruncatedFrameError), ("reserved", FramingError), ("nanoseconds", FramingError),
+            ("negative count", FramingError), ("wavelength bytes", TruncatedFrameError),
+            ("wavelength bytes", OversizeFrameError)}
+    assert hit == want | {("too many peaks", FramingError)}, hit
 
 
 def test_hyperion_stream_that_ends_inside_a_frame_is_one_framing_error():

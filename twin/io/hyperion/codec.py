@@ -53,8 +53,9 @@ with it, the driver decodes), so that the two cannot drift apart.
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -83,7 +84,10 @@ __all__ = [
     "encode_request",
     "encode_response",
     "encode_stream_frame",
+    "peak_content_fault",
+    "peak_header_valid",
     "respond",
+    "wavelength_fault",
 ]
 
 PROTOCOL = "hyperion"
@@ -461,55 +465,172 @@ class PeakHeader:
         return self.timestamp_s + self.timestamp_ns * 1e-9
 
 
-def decode_peaks_header(content: bytes, *, max_channels: int = 128) -> tuple[PeakHeader, np.ndarray]:
-    """The header and the per-channel peak counts of peak content; FramingError if they are inconsistent."""
-    if len(content) < PEAK_HEADER_SIZE:
-        raise TruncatedFrameError(
-            f"peak content of {len(content)} bytes",
-            offset=len(content),
-            expected="a 24-byte peak header",
-            protocol=PROTOCOL,
-        )
-    h = PeakHeader(*_PEAK_HEADER.unpack_from(content, 0))
-    n_ch2 = h.header_length - PEAK_HEADER_SIZE
-    if n_ch2 < 0 or n_ch2 % 2 or n_ch2 // 2 > max_channels:
-        raise FramingError(
-            f"peak header length {h.header_length}",
-            offset=0,
-            expected=f"24 + 2·channels with at most {max_channels} channels",
-            protocol=PROTOCOL,
-        )
-    if h.header_length > len(content):
-        raise TruncatedFrameError(
-            f"peak header length {h.header_length} exceeds the {len(content)}-byte content",
-            offset=len(content),
-            expected="the peak counts",
-            protocol=PROTOCOL,
-        )
-    if h.timestamp_ns >= 1_000_000_000:
-        raise FramingError(
-            f"timestamp nanoseconds {h.timestamp_ns}", offset=20, expected="below 1e9", protocol=PROTOCOL
-        )
-    if h.reserved != 0:  # docs/protocols.md §3.4: with no sync marker, the zero fields are what shows lost framing
-        raise FramingError(f"peak header reserved field {h.reserved}", offset=4, expected="0", protocol=PROTOCOL)
-    counts = np.frombuffer(content, dtype="<i2", count=n_ch2 // 2, offset=PEAK_HEADER_SIZE).astype(np.int64)
-    if np.any(counts < 0):
-        k = int(np.argmax(counts < 0))
-        raise FramingError(
-            f"channel {k + 1} peak count {counts[k]}",
-            offset=PEAK_HEADER_SIZE + 2 * k,
-            expected="a count >= 0",
-            protocol=PROTOCOL,
-        )
-    n_bytes = 8 * int(counts.sum())
-    if len(content) - h.header_length != n_bytes:
-        cls = TruncatedFrameError if len(content) - h.header_length < n_bytes else OversizeFrameError
-        raise cls(
-            f"{len(content) - h.header_length} bytes of wavelengths for {counts.sum()} peaks",
-            offset=min(len(content), h.header_length + n_bytes),
+class _HeaderFields(NamedTuple):
+    """What the peak header's rules judge: ints for one header, int64 arrays for every candidate start of a
+    buffer (the stream decoder's hunt)."""
+
+    header_length: Any
+    reserved: Any
+    timestamp_ns: Any
+    content_length: Any  # bytes of the peak content, header included (the response's content length)
+    max_channels: int
+
+
+@dataclass(frozen=True)
+class _HeaderRule:
+    """One validity rule of the peak header: the field it judges (an attribute of :class:`_HeaderFields`), as
+    errors name it, its byte offset in the peak content, the test (elementwise), and what a valid header holds
+    there (a format string over the fields)."""
+
+    field: str
+    label: str
+    offset: int
+    holds: Callable[[_HeaderFields], Any]
+    expected: str
+    error: type[FramingError] = FramingError
+
+
+#: The peak header's validity rules, in the order they are checked: the one definition that
+#: :func:`decode_peaks_header`, the stream decoder's field-by-field check and its vectorised hunt
+#: (:mod:`twin.io.hyperion.stream`) all apply. With no sync marker on the stream, these fields are how lost
+#: framing shows (docs/protocols.md §3.4).
+_PEAK_HEADER_RULES = (
+    _HeaderRule("header_length", "peak header length", 0,
+                lambda f: (f.header_length >= PEAK_HEADER_SIZE) & (f.header_length % 2 == 0)
+                & (f.header_length <= PEAK_HEADER_SIZE + 2 * f.max_channels),
+                "24 + 2·channels with at most {max_channels} channels"),
+    _HeaderRule("header_length", "peak header length", 0, lambda f: f.header_length <= f.content_length,
+                "at most the {content_length}-byte content", TruncatedFrameError),
+    _HeaderRule("reserved", "peak header reserved field", 4, lambda f: f.reserved == 0, "0"),
+    _HeaderRule("timestamp_ns", "timestamp nanoseconds", 20, lambda f: f.timestamp_ns < 1_000_000_000,
+                "below 1e9"),
+)
+
+
+def peak_header_valid(header_length, reserved, timestamp_ns, content_length, *, max_channels: int = 128):
+    """Whether peak headers pass every rule of :data:`_PEAK_HEADER_RULES`, elementwise.
+
+    Parameters
+    ----------
+    header_length, reserved, timestamp_ns : int or ndarray of int64
+        The header's fields (arrays: one element per candidate header).
+    content_length : int or ndarray of int64
+        Bytes of the peak content the header starts, header included.
+    max_channels : int
+        Most channels a header may announce.
+
+    Returns
+    -------
+    bool or ndarray of bool
+    """
+    f = _HeaderFields(header_length, reserved, timestamp_ns, content_length, max_channels)
+    ok = True
+    for rule in _PEAK_HEADER_RULES:
+        ok = ok & rule.holds(f)
+    return ok
+
+
+def peak_content_fault(data, start: int = 0, content_length: int | None = None, *, max_channels: int = 128,
+                       n_gratings: int | None = None, origin: int = 0) -> FramingError | None:
+    """The first rule that the header and peak counts of peak content break, judged on the bytes received.
+
+    One definition of the rules for :func:`decode_peaks_header` (content whole) and the stream decoder (content
+    still arriving, :mod:`twin.io.hyperion.stream`). Checked in order: the content holds a 24-byte header,
+    :data:`_PEAK_HEADER_RULES`, every peak count in 0 … ``n_gratings`` (0 … 32767 without it), and the content
+    length equal to the header plus 8 bytes a peak. A rule whose field has not arrived yet is not judged.
+
+    Parameters
+    ----------
+    data : bytes-like
+        Holds the peak content from ``data[start]`` on: all of it, or its first bytes.
+    start : int
+        Where the content starts in ``data``.
+    content_length : int, optional
+        Bytes of the whole content (default: all of ``data`` from ``start``).
+    max_channels : int
+        Most channels a header may announce.
+    n_gratings : int, optional
+        Most peaks a channel may report.
+    origin : int
+        Offset of ``data[0]`` in the caller's stream (added to the error's offset).
+
+    Returns
+    -------
+    FramingError or None
+        The error (its offset counted from ``data[0]`` plus ``origin``), or None when every field received is
+        valid (complete once ``data`` holds the header length's bytes from ``start``).
+    """
+    have = len(data) - start
+    n = have if content_length is None else int(content_length)
+    at = origin + start
+    if n < PEAK_HEADER_SIZE:
+        return TruncatedFrameError(f"peak content of {n} bytes", offset=at + n, expected="a 24-byte peak header",
+                                   protocol=PROTOCOL)
+    if have < PEAK_HEADER_SIZE:
+        return None
+    hl, _, reserved, _, _, ns = _PEAK_HEADER.unpack_from(data, start)
+    f = _HeaderFields(hl, reserved, ns, n, max_channels)
+    for rule in _PEAK_HEADER_RULES:
+        if not rule.holds(f):
+            return rule.error(f"{rule.label} {getattr(f, rule.field)}", offset=at + rule.offset,
+                              expected=rule.expected.format(**f._asdict()), protocol=PROTOCOL)
+    if have < hl:
+        return None
+    counts = np.frombuffer(data, "<i2", (hl - PEAK_HEADER_SIZE) // 2, start + PEAK_HEADER_SIZE)
+    g = n_gratings
+    if counts.size and (counts.min() < 0 or (g is not None and counts.max() > g)):
+        k = int(np.argmax((counts < 0) | (g is not None and counts > g)))
+        what = (f"channel {k + 1} reports {counts[k]} peaks, more than n_gratings = {g}" if counts[k] >= 0
+                else f"channel {k + 1} peak count {counts[k]}")
+        return FramingError(what, offset=at + PEAK_HEADER_SIZE + 2 * k,
+                            expected=f"a count in 0 … {32767 if g is None else g}", protocol=PROTOCOL)
+    n_bytes = 8 * int(counts.sum(dtype=np.int64))
+    if n - hl != n_bytes:
+        return (TruncatedFrameError if n - hl < n_bytes else OversizeFrameError)(
+            f"{n - hl} bytes of wavelengths for {n_bytes // 8} peaks",
+            offset=at + min(n, hl + n_bytes),
             expected=f"exactly {n_bytes} bytes (8 per peak)",
             protocol=PROTOCOL,
         )
+    return None
+
+
+def wavelength_fault(data, start: int, count: int, *, first: int = 0, origin: int = 0) -> FramingError | None:
+    """The first of ``count`` float64 peaks at ``data[start]`` that is not a wavelength: not finite, or outside
+    :data:`WAVELENGTH_RANGE` (the frame is refused whole: lost framing or corrupt data); None when all are.
+
+    ``first`` is the index of the first of them in the frame; the error's offset is counted from ``data[0]``
+    plus ``origin``.
+    """
+    values = np.frombuffer(data, "<f8", count, start)
+    lo, hi = WAVELENGTH_RANGE
+    bad = ~((values >= lo) & (values <= hi))  # NaN too
+    if not bad.any():
+        return None
+    i = int(np.argmax(bad))
+    return FramingError(
+        f"peak {first + i} of the frame is {values[i]!r} nm",
+        offset=origin + start + 8 * i,
+        expected=f"a wavelength in {lo:g}–{hi:g} nm (the whole frame is refused: lost framing or corrupt data)",
+        protocol=PROTOCOL,
+    )
+
+
+def decode_peaks_header(content: bytes, *, max_channels: int = 128,
+                        n_gratings: int | None = None) -> tuple[PeakHeader, np.ndarray]:
+    """The header and the per-channel peak counts of peak content.
+
+    Raises
+    ------
+    FramingError
+        The first rule of :func:`peak_content_fault` that the content breaks (a channel reporting more than
+        ``n_gratings`` peaks included, when given).
+    """
+    err = peak_content_fault(content, max_channels=max_channels, n_gratings=n_gratings)
+    if err is not None:
+        raise err
+    h = PeakHeader(*_PEAK_HEADER.unpack_from(content, 0))
+    counts = np.frombuffer(content, dtype="<i2", count=h.n_channels, offset=PEAK_HEADER_SIZE).astype(np.int64)
     return h, counts
 
 
@@ -539,28 +660,13 @@ def decode_peaks(content: bytes, *, n_gratings: int | None = None, max_channels:
     if n_gratings is not None and n_gratings < 0:
         raise ValueError(f"n_gratings: expected >= 0, got {n_gratings}")
     content = bytes(content)
-    h, counts = decode_peaks_header(content, max_channels=max_channels)
+    h, counts = decode_peaks_header(content, max_channels=max_channels, n_gratings=n_gratings)
     n_ch = counts.size
     g = int(counts.max(initial=0)) if n_gratings is None else int(n_gratings)
-    if counts.size and counts.max() > g:
-        k = int(np.argmax(counts > g))
-        raise FramingError(
-            f"channel {k + 1} reports {counts[k]} peaks, more than n_gratings = {g}",
-            offset=PEAK_HEADER_SIZE + 2 * k,
-            expected=f"at most {g} peaks",
-            protocol=PROTOCOL,
-        )
+    err = wavelength_fault(content, h.header_length, int(counts.sum()))
+    if err is not None:
+        raise err
     values = np.frombuffer(content, dtype="<f8", offset=h.header_length)
-    lo, hi = WAVELENGTH_RANGE
-    bad = ~((values >= lo) & (values <= hi))  # NaN too
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise FramingError(
-            f"peak {i} of the frame is {values[i]!r} nm",
-            offset=h.header_length + 8 * i,
-            expected=f"a wavelength in {lo:g}–{hi:g} nm (the whole frame is refused: lost framing or corrupt data)",
-            protocol=PROTOCOL,
-        )
     lam = np.full((n_ch, g), np.nan)
     # row of each value = its channel, column = its index within the channel; one scatter, no loop
     ch = np.repeat(np.arange(n_ch), counts)

@@ -38,15 +38,17 @@ from twin.io.hyperion.codec import (
     HEADER_SIZE,
     PEAK_HEADER_SIZE,
     PROTOCOL,
-    WAVELENGTH_RANGE,
     decode_peaks,
+    peak_content_fault,
+    peak_header_valid,
+    wavelength_fault,
 )
 
 __all__ = ["PeakStreamDecoder"]
 
 _FIXED = HEADER_SIZE + PEAK_HEADER_SIZE  # 32: the response header and the peak header, a frame's fixed fields
 _RESPONSE = struct.Struct("<BBHI")
-_PEAK = struct.Struct("<HHIQII")
+_LENGTH = struct.Struct("<H")  # the peak header's first field: its length
 
 
 def _u(a: np.ndarray, k: int, n: int, width: int) -> np.ndarray:
@@ -171,48 +173,26 @@ class PeakStreamDecoder:
         if n_content > self.max_content:
             return self._error(OversizeFrameError, f"content length {n_content}", p + 4,
                                f"at most {self.max_content} bytes")
-        if n_content < PEAK_HEADER_SIZE:
-            return self._error(FramingError, f"content length {n_content}", p + 4, "a 24-byte peak header at least")
         c0 = p + HEADER_SIZE + n_msg  # where the content starts
         end = c0 + n_content
         if not buf[p + HEADER_SIZE : min(c0, len(buf))].isascii():
             return self._error(FramingError, "message is not ASCII", p + HEADER_SIZE, "ASCII text")
-        if len(buf) < c0 + PEAK_HEADER_SIZE:
+        # the peak header and counts: the codec's rules, judged on the bytes received so far
+        err = peak_content_fault(buf, c0, n_content, max_channels=self.max_channels, n_gratings=self.n_gratings,
+                                 origin=self._base)
+        if err is not None:
+            return None, err
+        if len(buf) < c0 + PEAK_HEADER_SIZE or len(buf) < c0 + (hl := _LENGTH.unpack_from(buf, c0)[0]):
             return None, None
-        hl, _, reserved, _, _, ns = _PEAK.unpack_from(buf, c0)
-        n_ch2 = hl - PEAK_HEADER_SIZE
-        if n_ch2 < 0 or n_ch2 % 2 or n_ch2 // 2 > self.max_channels or hl > n_content:
-            return self._error(FramingError, f"peak header length {hl}", c0 - p,
-                               f"24 + 2·channels, at most {self.max_channels} channels, within the content")
-        if reserved != 0:
-            return self._error(FramingError, f"peak header reserved field {reserved}", c0 + 4 - p, "0")
-        if ns >= 1_000_000_000:
-            return self._error(FramingError, f"timestamp nanoseconds {ns}", c0 + 20 - p, "below 1e9")
-        if len(buf) < c0 + hl:
-            return None, None
-        counts = np.frombuffer(buf, "<i2", n_ch2 // 2, c0 + PEAK_HEADER_SIZE)
-        g = self.n_gratings
-        if counts.size and (counts.min() < 0 or (g is not None and counts.max() > g)):
-            k = int(np.argmax((counts < 0) | (g is not None and counts > g)))
-            return self._error(FramingError, f"channel {k + 1} peak count {counts[k]}",
-                               c0 + PEAK_HEADER_SIZE + 2 * k - p, f"0 … {g if g is not None else 32767}")
-        n_bytes = 8 * int(counts.sum(dtype=np.int64))
-        if n_content != hl + n_bytes:
-            return self._error(FramingError, f"content length {n_content} for {n_bytes // 8} peaks", p + 4,
-                               f"{hl + n_bytes} (the peak header, then 8 bytes a peak)")
         # the wavelengths received so far, each checked once however the frame's bytes are split into feeds
         w0 = c0 + hl
         done = self._checked[1] if self._checked[0] == self._base + p else 0
         upto = min(len(buf), end) - w0
         upto -= upto % 8
         if upto > done:
-            values = np.frombuffer(buf, "<f8", (upto - done) // 8, w0 + done)
-            lo, hi = WAVELENGTH_RANGE
-            bad = ~((values >= lo) & (values <= hi))
-            if bad.any():
-                i = int(np.argmax(bad))
-                return self._error(FramingError, f"peak {done // 8 + i} of the frame is {values[i]!r} nm",
-                                   w0 + done + 8 * i - p, f"a wavelength in {lo:g}–{hi:g} nm")
+            err = wavelength_fault(buf, w0 + done, (upto - done) // 8, first=done // 8, origin=self._base)
+            if err is not None:
+                return None, err
             self._checked = (self._base + p, upto)
         return (end if len(buf) >= end else None), None
 
@@ -230,10 +210,10 @@ class PeakStreamDecoder:
         if n <= 0:
             return []
         n_content, hl = _u(a, 4, n, 4), _u(a, 8, n, 2)
-        n_ch2 = hl - PEAK_HEADER_SIZE
         rest = n_content - hl
-        good = ((a[:n] == 0) & (a[2 : 2 + n] == 0) & (a[3 : 3 + n] == 0)  # status 0, no message
-                & (n_content <= self.max_content) & (n_ch2 >= 0) & (n_ch2 % 2 == 0)
-                & (n_ch2 // 2 <= self.max_channels) & (rest >= 0) & (rest % 8 == 0)
-                & (_u(a, 12, n, 4) == 0) & (_u(a, 28, n, 4) < 1_000_000_000))  # reserved 0, nanoseconds
+        # the response header's fields (status 0, no message, content within bounds), the codec's peak header
+        # rules, and room for a whole number of peaks after the header
+        good = ((a[:n] == 0) & (a[2 : 2 + n] == 0) & (a[3 : 3 + n] == 0) & (n_content <= self.max_content)
+                & peak_header_valid(hl, _u(a, 12, n, 4), _u(a, 28, n, 4), n_content, max_channels=self.max_channels)
+                & (rest % 8 == 0))
         return (np.flatnonzero(good) + pos).tolist()
