@@ -387,6 +387,75 @@ def test_hyperion_driver_keeps_every_intact_frame_around_garbage_from_the_simula
     assert max(pending) < 65536  # nothing of the 16 MiB announced nor of the flood is held
 
 
+def test_hyperion_stream_out_of_sync_past_resync_timeout_reconnects():
+    """As on ILLumiSense (twin.io.drivers): a peak stream that stays garbage while the reader keeps up with it is
+    dropped after ``resync_timeout``, with the reason in ``last_error``, and the next connection's frames arrive."""
+    fiber = multicore_fiber(4, 18)
+    good = [hyperion.encode_stream_frame(f) for f in synthetic_frames(10, fiber=fiber)]
+    done = threading.Event()
+
+    def garbage(conn: socket.socket) -> None:
+        conn.sendall(b"".join(good[:5]))
+        while not done.wait(0.01):  # a trickle of NUL bytes (no candidate frame start): every read takes all there is
+            conn.sendall(b"\x00" * 100)
+
+    def rest(conn: socket.socket) -> None:
+        conn.sendall(b"".join(good[5:]))
+        done.wait(20)  # held open: only the resync timeout ends the first connection, nothing ends this one
+
+    stream = ScriptedServer([garbage, rest])
+    got: list = []
+    with HyperionServer(SyntheticSource(rate=100, fiber=fiber), port=0) as server:  # the start-up queries
+        src = HyperionSource("127.0.0.1", server.address[1], stream_port=stream.port, fiber=fiber,
+                             resync_timeout=0.2)
+        try:
+            assert read_into(got, src, lambda: len(got) >= 10)
+            stats = src.stats()
+        finally:
+            done.set()
+            src.close()
+            stream.close()
+    assert [f.sequence for f in got] == list(range(10)), stats
+    assert stats["disconnects"] == 1 and stats["reconnects"] == 1 and stats["framing_errors"] == 1, stats
+    assert stats["last_error"].endswith(": stream out of sync for 0.2 s"), stats
+
+
+def test_hyperion_reader_away_past_resync_timeout_keeps_the_frames_waiting_behind_garbage():
+    """As on ILLumiSense: out of sync, the reader is away longer than ``resync_timeout`` while garbage and then
+    intact frames wait unread in the socket; the driver reads the backlog instead of dropping the frames in it."""
+    fiber = multicore_fiber(4, 18)
+    good = [hyperion.encode_stream_frame(f) for f in synthetic_frames(10, fiber=fiber)]
+    away, sent, done = threading.Event(), threading.Event(), threading.Event()
+
+    def first(conn: socket.socket) -> None:
+        conn.sendall(b"".join(good[:5]) + bytes(2000))  # out of sync: the clock starts
+        away.wait(20)
+        # more than one read of garbage (the first read after the pause is a full one), then the frames; small
+        # enough for the loopback buffers, so sendall returns with everything waiting in the reader's socket
+        conn.sendall(bytes(70_000) + b"".join(good[5:]))
+        sent.set()
+        done.wait(20)  # held open: no end of stream to help the reader
+
+    stream = ScriptedServer([first])
+    got: list = []
+    with HyperionServer(SyntheticSource(rate=100, fiber=fiber), port=0) as server:  # the start-up queries
+        src = HyperionSource("127.0.0.1", server.address[1], stream_port=stream.port, fiber=fiber,
+                             resync_timeout=0.3)
+        try:
+            assert read_into(got, src, lambda: len(got) == 5 and src.stats()["framing_errors"] == 1)
+            away.set()
+            assert sent.wait(20)
+            time.sleep(3 * src.resync_timeout)  # the scenario, not a synchronisation: the reader is busy elsewhere
+            read_into(got, src, lambda: len(got) >= 10, timeout=10)
+            stats = src.stats()
+        finally:
+            done.set()
+            src.close()
+            stream.close()
+    assert [f.sequence for f in got] == list(range(10)), stats
+    assert stats["disconnects"] == 0 and stats["framing_errors"] == 1, stats
+
+
 def recv_all(sock: socket.socket, timeout: float = 5.0) -> bytes:
     """Everything the peer sends until it closes the connection."""
     sock.settimeout(timeout)

@@ -17,6 +17,13 @@ Common behaviour
   ``retry_for=SECONDS`` is given, after which :meth:`read` raises :class:`~twin.io.errors.SourceFailed` (the
   live loop ends with that line and a non-zero status: giving up is not an end of the data).
   :meth:`read` never blocks longer than its timeout while disconnected; it returns None.
+- **Resync timeout** (the drivers whose stream decoder resynchronises by itself: ILLumiSense, Hyperion): the
+  driver reconnects when the stream stays out of sync for ``resync_timeout`` s (URL option; default
+  :data:`RESYNC_TIMEOUT`, 2 s) of reading that keeps up with what arrives, with ``ConnectionLost`` ("stream out of
+  sync for S s") as the reason, counted in ``disconnects`` and ``last_error`` like any drop. The clock runs only
+  while reads come back shorter than asked: a reader that fell behind (away while a first reconstruction
+  compiles, a starved CPU) reads the backlog first, which may hold the next intact frames, and a garbage stream
+  that fills every read is skipped, not reconnected (:meth:`Driver._watch_sync`).
 - **Counters** in :meth:`stats`: ``state`` (connected / disconnected / closed), ``frames``, ``framing_errors``,
   ``lost_samples`` and ``sequence_gaps`` (from the source's sample numbers), ``disconnects``, ``reconnects``
   (successful connections after the first), ``connect_failures``, ``last_error`` (text).
@@ -42,9 +49,11 @@ from twin.io.options import Option
 from twin.io.source import MAX_BATCH, Source, SourceClosed
 from twin.io.transport import Backoff, ConnectionLost
 
-__all__ = ["COMMON_OPTIONS", "MISSING", "Driver", "split_common"]
+__all__ = ["COMMON_OPTIONS", "MISSING", "RESYNC_OPTIONS", "RESYNC_TIMEOUT", "Driver", "split_common"]
 
 MISSING = np.uint8(PeakStatus.MISSING)
+#: default ``resync_timeout``, s (module docstring)
+RESYNC_TIMEOUT = 2.0
 
 
 class Driver(Source):
@@ -72,6 +81,9 @@ class Driver(Source):
     START_WAIT = 30.0
     #: errors that mean "not there yet" (waiting may cure them): refused, reset, timed out, no such device yet
     NOT_YET = (ConnectionError, TimeoutError, FileNotFoundError)
+    #: s a stream may stay out of sync before the connection is dropped (:meth:`_watch_sync`); a resynchronising
+    #: driver sets it from its ``resync_timeout`` parameter
+    resync_timeout: float = RESYNC_TIMEOUT
 
     def __init__(self, url: str, *, wait: bool = False, retry_for: float | None = None,
                  backoff: Backoff | None = None, start_wait: float | None = None):
@@ -85,6 +97,7 @@ class Driver(Source):
         self._next_attempt = 0.0
         self._down_since: float | None = None
         self._frames_since_connect = 0
+        self._out_of_sync_since: float | None = None
         self.counters = {
             "frames": 0,
             "framing_errors": 0,
@@ -163,6 +176,7 @@ class Driver(Source):
         self._connected = True
         self._down_since = None
         self._frames_since_connect = 0
+        self._out_of_sync_since = None
         return True
 
     def _disconnect(self, exc: BaseException) -> None:
@@ -180,6 +194,30 @@ class Driver(Source):
         else:
             delay = self.backoff.failed()
         self._next_attempt = time.monotonic() + delay
+
+    def _watch_sync(self, n_read: int, recv_size: int, in_sync: bool) -> None:
+        """The resync timeout (module docstring), after a read of ``n_read`` bytes (of ``recv_size`` asked) was
+        decoded, leaving the decoder ``in_sync`` or not.
+
+        Raises
+        ------
+        ConnectionLost
+            The stream stayed out of sync for :attr:`resync_timeout` s of reads that kept up with it.
+        """
+        if not n_read:
+            return
+        if in_sync:
+            self._out_of_sync_since = None
+            return
+        now = time.monotonic()
+        # the clock runs only while the reader keeps up (a read shorter than asked: nothing more waited). Behind —
+        # the reader was away (a first reconstruction compiling, a starved CPU) — the bytes sat unread and may hold
+        # the next intact frame, and a sender held back by a full socket sent nothing new meanwhile: dropping the
+        # connection would lose frames, so the clock starts again
+        if n_read >= recv_size or self._out_of_sync_since is None:
+            self._out_of_sync_since = now
+        elif now - self._out_of_sync_since > self.resync_timeout:
+            raise ConnectionLost(f"{self.url}: stream out of sync for {self.resync_timeout:g} s")
 
     def _push(self, frames: Sequence[Frame]) -> None:
         """Queue decoded frames: single frames, or 1-D batch Frames (a batch decoder's output, kept whole)."""
@@ -275,6 +313,10 @@ COMMON_OPTIONS = {
     "connect_timeout": Option("float", low=0.0, low_open=True, high=3600.0),
     "start_wait": Option("float", low=0.0),
 }
+
+
+#: the option of the drivers whose stream resynchronises (:meth:`Driver._watch_sync`)
+RESYNC_OPTIONS = {"resync_timeout": Option("float", low=0.0, low_open=True)}
 
 
 def split_common(opts: dict) -> dict:

@@ -5,8 +5,10 @@ start-up queries on the command port (``#isready``, channel count, peaks per cha
 instrument name, laser scan speed → :attr:`HyperionSource.info`, ``rate``), then the pushed peak stream. Bad
 bytes on the stream (garbage, a frame cut short) are counted and skipped: the decoder resynchronises by itself
 and delivers the intact frames after them (:mod:`twin.io.hyperion.stream`); the driver reconnects when the peer
-closes. Channel k + 1 is
-core k (``channels=2,3,4,5`` picks others). The instrument sends only the peaks it found: with a fibre model,
+closes, or when the stream stays out of sync for ``resync_timeout`` s (default 2) of reading that keeps up with
+what arrives (a reader that fell behind reads what waits first; a garbage stream that fills every read is
+skipped, not reconnected: the rule ILLumiSense keeps, :mod:`twin.io.drivers`). Channel k + 1 is core k
+(``channels=2,3,4,5`` picks others). The instrument sends only the peaks it found: with a fibre model,
 a channel that reports fewer (or more) peaks than gratings has its peaks assigned to the gratings nearest in
 nominal wavelength (a duplicate keeps the closer peak); without one, peaks fill the gratings in order.
 
@@ -22,7 +24,7 @@ import numpy as np
 
 from twin.fiber import FiberModel
 from twin.frames import Frame
-from twin.io.drivers import COMMON_OPTIONS, MISSING, Driver, split_common
+from twin.io.drivers import COMMON_OPTIONS, MISSING, RESYNC_OPTIONS, RESYNC_TIMEOUT, Driver, split_common
 from twin.io.hyperion import codec as hyperion
 from twin.io.hyperion.stream import PeakStreamDecoder
 from twin.io.options import Option, parse_options
@@ -76,6 +78,9 @@ class HyperionSource(Driver):
         For assigning peaks to gratings by wavelength and for the frame's (n_gratings, n_cores).
     connect_timeout : float
         s (also the timeout of each start-up query).
+    resync_timeout : float
+        Reconnect when the peak stream stays out of sync this long while the reader keeps up with it, s
+        (:mod:`twin.io.drivers`).
     url, wait, retry_for, backoff
         See :class:`Driver`.
 
@@ -96,7 +101,7 @@ class HyperionSource(Driver):
 
     def __init__(self, host: str, port: int = hyperion.COMMAND_PORT, *, stream_port: int | None = None,
                  channels: Sequence[int] | None = None, fiber: FiberModel | None = None,
-                 connect_timeout: float = 3.0, url: str = "", **kw):
+                 connect_timeout: float = 3.0, resync_timeout: float = RESYNC_TIMEOUT, url: str = "", **kw):
         self.host, self.port = host, int(port)
         self.stream_port = int(stream_port) if stream_port is not None else self.port + 1
         self.fiber = fiber
@@ -104,6 +109,7 @@ class HyperionSource(Driver):
         if self.channels is not None and any(c < 1 for c in self.channels):
             raise ValueError(f"{url or host}: channels are numbered from 1, got {self.channels}")
         self.connect_timeout = connect_timeout
+        self.resync_timeout = resync_timeout
         self.info: dict = {}
         self._stream: TcpClient | None = None
         # one decoder for every connection: it starts each in sync, and its counts run across reconnects
@@ -164,6 +170,7 @@ class HyperionSource(Driver):
             self._sequence.count_many([f.sequence for f in frames])
             self.counters.update(self._sequence.as_dict())
         self._push(frames)
+        self._watch_sync(len(data), self._stream.recv_size, self._decoder.in_sync)
 
     def _map(self, frame: Frame) -> Frame:
         """Select the channels and put each peak on its grating."""
@@ -204,11 +211,11 @@ class HyperionSource(Driver):
 
 
 def open_hyperion(url: str, **options) -> HyperionSource:
-    """``hyperion://HOST[:PORT]?stream_port=P&channels=1,2,3,4&wait=0|1&retry_for=S&start_wait=S``."""
+    """``hyperion://HOST[:PORT]?stream_port=P&channels=1,2,3,4&resync_timeout=S&wait=0|1&retry_for=S&start_wait=S``."""
     _, rest, query = parse_url(url)
     host, port = parse_host_port(rest, hyperion.COMMAND_PORT, what=url)
     opts = parse_options(url, query, {**COMMON_OPTIONS, "stream_port": Option("int", low=1, high=65535),
-                                      "channels": Option("ints", low=1, high=256)})
+                                      "channels": Option("ints", low=1, high=256), **RESYNC_OPTIONS})
     kw = split_common(opts)
     kw.update(opts)
     kw.update(options)

@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import time
 
-from twin.io.drivers import COMMON_OPTIONS, Driver, split_common
+from twin.io.drivers import COMMON_OPTIONS, RESYNC_OPTIONS, RESYNC_TIMEOUT, Driver, split_common
 from twin.io.illumisense import codec
 from twin.io.illumisense.stream import StreamDecoder
 from twin.io.options import Option, parse_options
 from twin.io.source import parse_url
-from twin.io.transport import ConnectionLost, TcpClient, parse_host_port
+from twin.io.transport import TcpClient, parse_host_port
 
 __all__ = ["IllumisenseSource", "open_illumisense"]
 
@@ -38,14 +38,15 @@ class IllumisenseSource(Driver):
     connect_timeout : float
         s.
     resync_timeout : float
-        Reconnect when the stream stays out of sync this long while the reader keeps up with it, s.
+        Reconnect when the stream stays out of sync this long while the reader keeps up with it, s
+        (:mod:`twin.io.drivers`).
     url, wait, retry_for, backoff
         See :class:`Driver`.
     """
 
     def __init__(self, host: str, port: int = codec.DEFAULT_PORT, *, channels_as: str = "cores",
                  n_cores: int | None = None, max_payload: int = codec.DEFAULT_MAX_PAYLOAD,
-                 connect_timeout: float = 3.0, resync_timeout: float = 2.0, layout_wait: float = 0.25,
+                 connect_timeout: float = 3.0, resync_timeout: float = RESYNC_TIMEOUT, layout_wait: float = 0.25,
                  url: str = "", **kw):
         self.host, self.port = host, int(port)
         self.connect_timeout = connect_timeout
@@ -54,12 +55,10 @@ class IllumisenseSource(Driver):
         self._held_since: float | None = None
         self.decoder = StreamDecoder(max_payload=max_payload, channels_as=channels_as, n_cores=n_cores)
         self._client: TcpClient | None = None
-        self._out_of_sync_since: float | None = None
         super().__init__(url or f"illumisense://{host}:{port}", **kw)
 
     def _connect(self) -> None:
         self._client = TcpClient(self.host, self.port, connect_timeout=self.connect_timeout, label=self.url)
-        self._out_of_sync_since = None
 
     def _drop(self) -> None:
         if self._client is not None:
@@ -81,21 +80,7 @@ class IllumisenseSource(Driver):
                 self._push(self.decoder.settle())
         else:
             self._held_since = None
-        if not data:
-            return
-        if self.decoder.in_sync:
-            self._out_of_sync_since = None
-        else:
-            now = time.monotonic()
-            # the clock runs only while the reader keeps up (a read shorter than asked: nothing more waited).
-            # Behind — the reader was away (a first reconstruction compiling, a starved CPU) — the bytes sat
-            # unread and may hold the next intact record, and a sender held back by a full socket sent nothing
-            # new meanwhile: dropping the connection would lose records, so the clock starts again
-            behind = len(data) >= self._client.recv_size
-            if behind or self._out_of_sync_since is None:
-                self._out_of_sync_since = now
-            elif now - self._out_of_sync_since > self.resync_timeout:
-                raise ConnectionLost(f"{self.url}: stream out of sync for {self.resync_timeout:g} s")
+        self._watch_sync(len(data), self._client.recv_size, self.decoder.in_sync)
 
     def stats(self) -> dict:
         d = self.decoder
@@ -126,7 +111,7 @@ def open_illumisense(url: str, **options) -> IllumisenseSource:
     opts = parse_options(url, query, {**COMMON_OPTIONS, "channels": Option("str", choices=("cores", "single")),
                                       "cores": Option("int", low=1, high=64),
                                       "max_payload": Option("int", low=codec.MIN_PAYLOAD, high=1 << 24),
-                                      "resync_timeout": Option("float", low=0.0, low_open=True),
+                                      **RESYNC_OPTIONS,
                                       "layout_wait": Option("float", low=0.0)})
     kw = split_common(opts)
     fiber = options.pop("fiber", None)
