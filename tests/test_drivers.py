@@ -12,6 +12,7 @@ import re
 import socket
 import threading
 import time
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -161,64 +162,98 @@ def read_into(got: list, src, until, timeout: float = 20.0) -> bool:
     return wait_until(lambda: bool(got.extend(singles(src.read_batch(timeout=0.05)))) or until(), timeout)
 
 
-def test_illumisense_reader_away_past_resync_timeout_keeps_the_records_waiting_behind_garbage():
+def _resync_wire(protocol: str) -> list[bytes]:
+    """Ten frames (sequence 0 … 9) as the protocol's stream sends them."""
+    if protocol == "illumisense":
+        return records(synthetic_frames(10))
+    return [hyperion.encode_stream_frame(f) for f in synthetic_frames(10, fiber=multicore_fiber(4, 18))]
+
+
+@contextmanager
+def _resyncing_source(protocol: str, stream_port: int, resync_timeout: float):
+    """The protocol's driver reading the stream on ``stream_port`` (Hyperion: the simulated instrument answers the
+    start-up queries on its command port), closed on exit."""
+    if protocol == "illumisense":
+        src = IllumisenseSource("127.0.0.1", stream_port, resync_timeout=resync_timeout)
+        try:
+            yield src
+        finally:
+            src.close()
+        return
+    fiber = multicore_fiber(4, 18)
+    with HyperionServer(SyntheticSource(rate=100, fiber=fiber), port=0) as server:
+        src = HyperionSource("127.0.0.1", server.address[1], stream_port=stream_port, fiber=fiber,
+                             resync_timeout=resync_timeout)
+        try:
+            yield src
+        finally:
+            src.close()
+
+
+@pytest.mark.parametrize("protocol", ["illumisense", "hyperion"])
+def test_reader_away_past_resync_timeout_keeps_the_frames_waiting_behind_garbage(protocol):
     """The flaky hostile-stream hang: out of sync, the reader is away longer than ``resync_timeout`` (a first
-    reconstruction compiling for a minute, a starved CPU) while garbage and then intact records wait unread in the
+    reconstruction compiling for a minute, a starved CPU) while garbage and then intact frames wait unread in the
     socket. The clock ran while nobody read: the driver must read the backlog, not drop the connection with the
-    records in it (it did, and the records were lost)."""
-    rec = records(synthetic_frames(10))
+    frames in it (ILLumiSense did, and the records were lost). One rule for both drivers (twin.io.drivers)."""
+    wire = _resync_wire(protocol)
     away, sent, done = threading.Event(), threading.Event(), threading.Event()
 
     def first(conn: socket.socket) -> None:
-        conn.sendall(b"".join(rec[:5]) + bytes(2000))  # out of sync: the clock starts
+        conn.sendall(b"".join(wire[:5]) + bytes(2000))  # out of sync: the clock starts
         away.wait(20)
-        # more than one read of garbage (so the first read after the pause is a full one), then the records; small
+        # more than one read of garbage (so the first read after the pause is a full one), then the frames; small
         # enough for the loopback buffers, so sendall returns with everything waiting in the reader's socket
-        conn.sendall(bytes(70_000) + b"".join(rec[5:]))
+        conn.sendall(bytes(70_000) + b"".join(wire[5:]))
         sent.set()
         done.wait(20)  # held open: no end of stream to help the reader
 
     server = ScriptedServer([first])
-    src = IllumisenseSource("127.0.0.1", server.port, resync_timeout=0.3)
     got: list = []
     try:
-        assert read_into(got, src, lambda: len(got) == 5 and not src.decoder.in_sync)
-        away.set()
-        assert sent.wait(20)
-        time.sleep(3 * src.resync_timeout)  # the scenario, not a synchronisation: the reader is busy elsewhere
-        read_into(got, src, lambda: len(got) >= 10, timeout=10)
-        stats = src.stats()
+        with _resyncing_source(protocol, server.port, resync_timeout=0.3) as src:
+            assert read_into(got, src, lambda: len(got) == 5 and src.stats()["framing_errors"] == 1)
+            away.set()
+            assert sent.wait(20)
+            time.sleep(3 * src.resync_timeout)  # the scenario, not a synchronisation: the reader is busy elsewhere
+            read_into(got, src, lambda: len(got) >= 10, timeout=10)
+            stats = src.stats()
     finally:
         done.set()
-        src.close()
         server.close()
     assert [f.sequence for f in got] == list(range(10)), stats
     assert stats["disconnects"] == 0 and stats["framing_errors"] == 1, stats
 
 
-def test_illumisense_stream_out_of_sync_past_resync_timeout_reconnects():
-    """A stream that stays garbage while the reader keeps up with it is reconnected after ``resync_timeout``."""
-    rec = records(synthetic_frames(10))
+@pytest.mark.parametrize("protocol", ["illumisense", "hyperion"])
+def test_stream_out_of_sync_past_resync_timeout_reconnects(protocol):
+    """A stream that stays garbage while the reader keeps up with it is dropped after ``resync_timeout``, with the
+    reason in ``last_error``; the next connection's frames arrive. One rule for both drivers (twin.io.drivers)."""
+    wire = _resync_wire(protocol)
     done = threading.Event()
 
     def garbage(conn: socket.socket) -> None:
-        conn.sendall(b"".join(rec[:5]))
-        while not done.wait(0.01):  # a trickle: every read takes all there is
+        conn.sendall(b"".join(wire[:5]))
+        while not done.wait(0.01):  # a trickle of NUL bytes (no frame starts there): every read takes all there is
             conn.sendall(b"\x00" * 100)
 
-    server = ScriptedServer([garbage, b"".join(rec[5:])])
-    src = IllumisenseSource("127.0.0.1", server.port, resync_timeout=0.2)
+    def rest(conn: socket.socket) -> None:
+        conn.sendall(b"".join(wire[5:]))
+        done.wait(20)  # held open: nothing but the resync timeout ends a connection here
+
+    server = ScriptedServer([garbage, rest])
     got: list = []
     try:
-        assert read_into(got, src, lambda: len(got) >= 10)
-        stats = src.stats()
+        with _resyncing_source(protocol, server.port, resync_timeout=0.2) as src:
+            assert read_into(got, src, lambda: len(got) >= 10)
+            stats = src.stats()
     finally:
         done.set()
-        src.close()
         server.close()
     assert [f.sequence for f in got] == list(range(10)), stats
-    # the first connection never ends by itself: only the resync timeout brings the second one's records
-    assert stats["reconnects"] >= 1, stats
+    # the first connection never ends by itself: only the resync timeout brings the second one's frames
+    assert stats["disconnects"] == 1 and stats["reconnects"] == 1 and stats["framing_errors"] == 1, stats
+    assert stats["last_error"].endswith(": stream out of sync for 0.2 s"), stats
 
 
 def test_illumisense_open_errors_name_the_url():
@@ -385,75 +420,6 @@ def test_hyperion_driver_keeps_every_intact_frame_around_garbage_from_the_simula
     assert s["framing_errors"] == len(injections) and s["reconnects"] == 0 and s["lost_samples"] == 0
     assert s["bytes_discarded"] == sum(map(len, injections))
     assert max(pending) < 65536  # nothing of the 16 MiB announced nor of the flood is held
-
-
-def test_hyperion_stream_out_of_sync_past_resync_timeout_reconnects():
-    """As on ILLumiSense (twin.io.drivers): a peak stream that stays garbage while the reader keeps up with it is
-    dropped after ``resync_timeout``, with the reason in ``last_error``, and the next connection's frames arrive."""
-    fiber = multicore_fiber(4, 18)
-    good = [hyperion.encode_stream_frame(f) for f in synthetic_frames(10, fiber=fiber)]
-    done = threading.Event()
-
-    def garbage(conn: socket.socket) -> None:
-        conn.sendall(b"".join(good[:5]))
-        while not done.wait(0.01):  # a trickle of NUL bytes (no candidate frame start): every read takes all there is
-            conn.sendall(b"\x00" * 100)
-
-    def rest(conn: socket.socket) -> None:
-        conn.sendall(b"".join(good[5:]))
-        done.wait(20)  # held open: only the resync timeout ends the first connection, nothing ends this one
-
-    stream = ScriptedServer([garbage, rest])
-    got: list = []
-    with HyperionServer(SyntheticSource(rate=100, fiber=fiber), port=0) as server:  # the start-up queries
-        src = HyperionSource("127.0.0.1", server.address[1], stream_port=stream.port, fiber=fiber,
-                             resync_timeout=0.2)
-        try:
-            assert read_into(got, src, lambda: len(got) >= 10)
-            stats = src.stats()
-        finally:
-            done.set()
-            src.close()
-            stream.close()
-    assert [f.sequence for f in got] == list(range(10)), stats
-    assert stats["disconnects"] == 1 and stats["reconnects"] == 1 and stats["framing_errors"] == 1, stats
-    assert stats["last_error"].endswith(": stream out of sync for 0.2 s"), stats
-
-
-def test_hyperion_reader_away_past_resync_timeout_keeps_the_frames_waiting_behind_garbage():
-    """As on ILLumiSense: out of sync, the reader is away longer than ``resync_timeout`` while garbage and then
-    intact frames wait unread in the socket; the driver reads the backlog instead of dropping the frames in it."""
-    fiber = multicore_fiber(4, 18)
-    good = [hyperion.encode_stream_frame(f) for f in synthetic_frames(10, fiber=fiber)]
-    away, sent, done = threading.Event(), threading.Event(), threading.Event()
-
-    def first(conn: socket.socket) -> None:
-        conn.sendall(b"".join(good[:5]) + bytes(2000))  # out of sync: the clock starts
-        away.wait(20)
-        # more than one read of garbage (the first read after the pause is a full one), then the frames; small
-        # enough for the loopback buffers, so sendall returns with everything waiting in the reader's socket
-        conn.sendall(bytes(70_000) + b"".join(good[5:]))
-        sent.set()
-        done.wait(20)  # held open: no end of stream to help the reader
-
-    stream = ScriptedServer([first])
-    got: list = []
-    with HyperionServer(SyntheticSource(rate=100, fiber=fiber), port=0) as server:  # the start-up queries
-        src = HyperionSource("127.0.0.1", server.address[1], stream_port=stream.port, fiber=fiber,
-                             resync_timeout=0.3)
-        try:
-            assert read_into(got, src, lambda: len(got) == 5 and src.stats()["framing_errors"] == 1)
-            away.set()
-            assert sent.wait(20)
-            time.sleep(3 * src.resync_timeout)  # the scenario, not a synchronisation: the reader is busy elsewhere
-            read_into(got, src, lambda: len(got) >= 10, timeout=10)
-            stats = src.stats()
-        finally:
-            done.set()
-            src.close()
-            stream.close()
-    assert [f.sequence for f in got] == list(range(10)), stats
-    assert stats["disconnects"] == 0 and stats["framing_errors"] == 1, stats
 
 
 def recv_all(sock: socket.socket, timeout: float = 5.0) -> bytes:

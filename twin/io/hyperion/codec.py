@@ -35,6 +35,9 @@ Decisions where docs/protocols.md is silent:
   such as 3.9e-305 nm).
 - The reserved byte of both headers must be 0 and a timestamp's nanoseconds must be below 1e9: on a binary
   stream without a sync marker those checks and the wavelength range are the only way to notice lost framing.
+  The peak content's rules are written once here (:func:`peak_content_fault` over a table of the peak header's
+  rules, :func:`peak_header_valid` for many candidate headers at once, :func:`wavelength_fault`), and
+  :func:`decode_peaks` and the stream decoder both apply them: one meaning, one error, on either path.
 - A connection that closes inside a frame is one framing error (:meth:`ResponseDecoder.finish`,
   :meth:`twin.io.hyperion.stream.PeakStreamDecoder.finish`), as on the ILLumiSense stream: one meaning per
   counter across drivers.

@@ -6,15 +6,20 @@ content is peak data (``<HHIQII`` peak header, the channels' int16 peak counts, 
 tightly constrained, so bad bytes (garbage, a frame cut short by the sender) need not cost the connection:
 
 - **Checked as it arrives.** A frame is checked field by field as its bytes come in: status 0, content length
-  within ``max_content``, the message ASCII, the peak header (length 24 + 2·channels, reserved 0, nanoseconds
-  below 1e9), every peak count ≥ 0 (and ≤ ``n_gratings`` when given), the content length equal to the peak header
-  plus 8 bytes a peak, and each wavelength received within the codec's ``WAVELENGTH_RANGE``. A corrupt header
-  announcing 16 MiB is refuted by the bytes that follow it, not waited for; a frame cut short is refuted when the
-  next frame's header lands where its wavelengths should be (its bytes read as float64 are denormals).
+  within ``max_content``, the message ASCII, then the peak content by the codec's own rules, judged on the bytes
+  received so far (:func:`~twin.io.hyperion.codec.peak_content_fault`: the peak header — length 24 + 2·channels
+  within the content, reserved 0, nanoseconds below 1e9 —, every peak count ≥ 0 and ≤ ``n_gratings`` when given,
+  the content length equal to the peak header plus 8 bytes a peak; :func:`~twin.io.hyperion.codec.wavelength_fault`:
+  each wavelength received within ``WAVELENGTH_RANGE``). A stream frame is thus refused exactly when
+  :func:`~twin.io.hyperion.codec.decode_peaks` refuses its content, with the same error; error offsets count from
+  the start of the stream. A corrupt header announcing 16 MiB is refuted by the bytes that follow it, not waited
+  for; a frame cut short is refuted when the next frame's header lands where its wavelengths should be (its bytes
+  read as float64 are denormals).
 - **Hunt.** On a bad byte the decoder counts one framing error (one per loss of sync, however long the garbage)
   and hunts from the byte after the refuted frame's start: a candidate start has status 0, an empty message (the
-  stream's frames carry none), a content length of 24 + 2·channels + 8·peaks within bounds, reserved 0 and
-  nanoseconds below 1e9 — one vectorised pass over the buffer, then each candidate checked as above. The first
+  stream's frames carry none), a content length within bounds that leaves room for whole peaks, and a peak header
+  that passes the codec's rules (:func:`~twin.io.hyperion.codec.peak_header_valid`) — one vectorised pass over the
+  buffer, then each candidate checked as above. The first
   candidate that decodes whole puts the decoder back in sync; the frame is delivered. Skipped bytes are counted
   in ``bytes_discarded``.
 - **Bounded.** In sync the buffer holds at most one frame (8 + 65535 + ``max_content`` bytes) and one feed's bytes;
