@@ -481,11 +481,11 @@ class _HeaderFields(NamedTuple):
 
 @dataclass(frozen=True)
 class _HeaderRule:
-    """One validity rule of the peak header: the field it judges (an attribute of :class:`_HeaderFields`), as
-    errors name it, its byte offset in the peak content, the test (elementwise), and what a valid header holds
-    there (a format string over the fields)."""
+    """One validity rule of the peak header: the field it judges (an attribute of :class:`_HeaderFields`), the
+    field as errors name it, its byte offset in the peak content, the test (elementwise), and what a valid header
+    holds there (a format string over the fields)."""
 
-    field: str
+    name: str
     label: str
     offset: int
     holds: Callable[[_HeaderFields], Any]
@@ -510,7 +510,8 @@ _PEAK_HEADER_RULES = (
 )
 
 
-def peak_header_valid(header_length, reserved, timestamp_ns, content_length, *, max_channels: int = 128):
+def peak_header_valid(header_length: int | np.ndarray, reserved: int | np.ndarray, timestamp_ns: int | np.ndarray,
+                      content_length: int | np.ndarray, *, max_channels: int = 128) -> bool | np.ndarray:
     """Whether peak headers pass every rule of :data:`_PEAK_HEADER_RULES`, elementwise.
 
     Parameters
@@ -533,8 +534,9 @@ def peak_header_valid(header_length, reserved, timestamp_ns, content_length, *, 
     return ok
 
 
-def peak_content_fault(data, start: int = 0, content_length: int | None = None, *, max_channels: int = 128,
-                       n_gratings: int | None = None, origin: int = 0) -> FramingError | None:
+def peak_content_fault(data: bytes | bytearray, start: int = 0, content_length: int | None = None, *,
+                       max_channels: int = 128, n_gratings: int | None = None,
+                       origin: int = 0) -> FramingError | None:
     """The first rule that the header and peak counts of peak content break, judged on the bytes received.
 
     One definition of the rules for :func:`decode_peaks_header` (content whole) and the stream decoder (content
@@ -575,7 +577,7 @@ def peak_content_fault(data, start: int = 0, content_length: int | None = None, 
     f = _HeaderFields(hl, reserved, ns, n, max_channels)
     for rule in _PEAK_HEADER_RULES:
         if not rule.holds(f):
-            return rule.error(f"{rule.label} {getattr(f, rule.field)}", offset=at + rule.offset,
+            return rule.error(f"{rule.label} {getattr(f, rule.name)}", offset=at + rule.offset,
                               expected=rule.expected.format(**f._asdict()), protocol=PROTOCOL)
     if have < hl:
         return None
@@ -598,7 +600,8 @@ def peak_content_fault(data, start: int = 0, content_length: int | None = None, 
     return None
 
 
-def wavelength_fault(data, start: int, count: int, *, first: int = 0, origin: int = 0) -> FramingError | None:
+def wavelength_fault(data: bytes | bytearray, start: int, count: int, *, first: int = 0,
+                     origin: int = 0) -> FramingError | None:
     """The first of ``count`` float64 peaks at ``data[start]`` that is not a wavelength: not finite, or outside
     :data:`WAVELENGTH_RANGE` (the frame is refused whole: lost framing or corrupt data); None when all are.
 

@@ -7,10 +7,10 @@ tightly constrained, so bad bytes (garbage, a frame cut short by the sender) nee
 
 - **Checked as it arrives.** A frame is checked field by field as its bytes come in: status 0, content length
   within ``max_content``, the message ASCII, then the peak content by the codec's own rules, judged on the bytes
-  received so far (:func:`~twin.io.hyperion.codec.peak_content_fault`: the peak header — length 24 + 2·channels
-  within the content, reserved 0, nanoseconds below 1e9 —, every peak count ≥ 0 and ≤ ``n_gratings`` when given,
+  received so far (:func:`~twin.io.hyperion.codec.peak_content_fault`: the peak header's length 24 + 2·channels
+  within the content, reserved 0 and nanoseconds below 1e9, every peak count ≥ 0 and ≤ ``n_gratings`` when given,
   the content length equal to the peak header plus 8 bytes a peak; :func:`~twin.io.hyperion.codec.wavelength_fault`:
-  each wavelength received within ``WAVELENGTH_RANGE``). A stream frame is thus refused exactly when
+  each wavelength received within ``WAVELENGTH_RANGE``). A frame with a good response header is refused exactly when
   :func:`~twin.io.hyperion.codec.decode_peaks` refuses its content, with the same error; error offsets count from
   the start of the stream. A corrupt header announcing 16 MiB is refuted by the bytes that follow it, not waited
   for; a frame cut short is refuted when the next frame's header lands where its wavelengths should be (its bytes
@@ -187,7 +187,10 @@ class PeakStreamDecoder:
                                  origin=self._base)
         if err is not None:
             return None, err
-        if len(buf) < c0 + PEAK_HEADER_SIZE or len(buf) < c0 + (hl := _LENGTH.unpack_from(buf, c0)[0]):
+        if len(buf) < c0 + PEAK_HEADER_SIZE:
+            return None, None
+        hl = _LENGTH.unpack_from(buf, c0)[0]
+        if len(buf) < c0 + hl:  # the counts not all here yet
             return None, None
         # the wavelengths received so far, each checked once however the frame's bytes are split into feeds
         w0 = c0 + hl
