@@ -635,9 +635,13 @@ def decode_peaks_header(content: bytes, *, max_channels: int = 128,
     err = peak_content_fault(content, max_channels=max_channels, n_gratings=n_gratings)
     if err is not None:
         raise err
+    return _header_and_counts(content)
+
+
+def _header_and_counts(content: bytes) -> tuple[PeakHeader, np.ndarray]:
+    """The header and the peak counts (int64) of peak content, unchecked."""
     h = PeakHeader(*_PEAK_HEADER.unpack_from(content, 0))
-    counts = np.frombuffer(content, dtype="<i2", count=h.n_channels, offset=PEAK_HEADER_SIZE).astype(np.int64)
-    return h, counts
+    return h, np.frombuffer(content, dtype="<i2", count=h.n_channels, offset=PEAK_HEADER_SIZE).astype(np.int64)
 
 
 def decode_peaks(content: bytes, *, n_gratings: int | None = None, max_channels: int = 128) -> Frame:
@@ -667,11 +671,16 @@ def decode_peaks(content: bytes, *, n_gratings: int | None = None, max_channels:
         raise ValueError(f"n_gratings: expected >= 0, got {n_gratings}")
     content = bytes(content)
     h, counts = decode_peaks_header(content, max_channels=max_channels, n_gratings=n_gratings)
-    n_ch = counts.size
-    g = int(counts.max(initial=0)) if n_gratings is None else int(n_gratings)
     err = wavelength_fault(content, h.header_length, int(counts.sum()))
     if err is not None:
         raise err
+    return _peaks_frame(content, h, counts, n_gratings)
+
+
+def _peaks_frame(content: bytes, h: PeakHeader, counts: np.ndarray, n_gratings: int | None) -> Frame:
+    """Peak content that passed every check (:func:`peak_content_fault`, :func:`wavelength_fault`) → Frame."""
+    n_ch = counts.size
+    g = int(counts.max(initial=0)) if n_gratings is None else int(n_gratings)
     values = np.frombuffer(content, dtype="<f8", offset=h.header_length)
     lam = np.full((n_ch, g), np.nan)
     # row of each value = its channel, column = its index within the channel; one scatter, no loop

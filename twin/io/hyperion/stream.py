@@ -43,7 +43,8 @@ from twin.io.hyperion.codec import (
     HEADER_SIZE,
     PEAK_HEADER_SIZE,
     PROTOCOL,
-    decode_peaks,
+    _header_and_counts,
+    _peaks_frame,
     peak_content_fault,
     peak_header_valid,
     wavelength_fault,
@@ -205,10 +206,12 @@ class PeakStreamDecoder:
         return (end if len(buf) >= end else None), None
 
     def _decode(self, p: int, end: int) -> Frame:
+        # _check has judged the whole frame by the codec's rules (header, counts, every wavelength): the content is
+        # built into a Frame without judging it a second time
         n_msg = _RESPONSE.unpack_from(self._buf, p)[2]
         self._checked = (-1, 0)
-        return decode_peaks(bytes(self._buf[p + HEADER_SIZE + n_msg : end]), n_gratings=self.n_gratings,
-                            max_channels=self.max_channels)
+        content = bytes(self._buf[p + HEADER_SIZE + n_msg : end])
+        return _peaks_frame(content, *_header_and_counts(content), self.n_gratings)
 
     def _candidates(self, pos: int) -> list[int]:
         """Offsets ≥ ``pos`` whose fixed fields could start a stream frame (module docstring), in order; one
