@@ -730,7 +730,7 @@ def test_hyperion_stream_and_codec_refuse_the_same_peak_headers_naming_the_same_
             got += dec.feed(wire[pos: pos + step])
         stream_err = dec.last_error if dec.framing_errors else None
         where = f"content {content.hex()}, n_gratings {n_gratings}"
-        # the stream's offsets count from the frame's start: its content follows the 8-byte response header
+        # the stream's offsets count from the stream's start: the frame is first, its content after 8 header bytes
         assert _fields(stream_err, shift=8) == _fields(frame_err), where
         if header_err is not None:
             assert _fields(stream_err, shift=8) == _fields(header_err), where
