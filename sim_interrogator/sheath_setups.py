@@ -516,7 +516,7 @@ class SheathSetup(Setup):
         self.rails = add_rails(
             scene, "sheath", curve, self.world, width=geo.inner_diameter,
             rail_offsets=tube_rail_offsets(geo.inner_diameter, n_rails=self.n_rails), s_range=s_range,
-            friction=self.friction,
+            max_segment=None, friction=self.friction,
             solref=spec.solref, solimp=spec.contact_solimp, rgba="0.55 0.75 0.6 0.3", label=f"sheath {geo.name!r}",
         )
         targets = self.world.apply(curve.positions(self.hub_start + spec.base_length + spec.vertex_s))
