@@ -6,7 +6,9 @@ sheaths: rotation inside a pre-bent 8 Fr sheath, in-and-out cycles to a referenc
 
 * the **sheath** is a rigid tube of 8 capsule rails along a curve (:func:`models.fixtures.add_rails`, the
   construction of the tube fixture), described by a :class:`SheathGeometry`: a straight proximal *guide*
-  followed by bends of given radius, angle and bend direction, with curvature changes smoothed over ``ramp``;
+  followed by bends of given radius, angle and bend direction, with curvature changes smoothed over ``ramp``.
+  Each rail chord is the longest that stays within 10 µm of its rail, so a straight stretch is one capsule per
+  rail (the same solid as 4 mm pieces, without a second contact at every knot: docs/simulation.md §5);
 * the catheter's proximal end (the rod's clamp) hangs from a **hub** body with a slide joint along the guide's
   axis (insertion and withdrawal) and a hinge about it (rotation), each driven by a MuJoCo position actuator
   (docs/simulation.md §5: this works, and MuJoCo 4.0 may print "Flex stiffness is too ill-conditioned …" and carry
