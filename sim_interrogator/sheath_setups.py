@@ -6,7 +6,9 @@ sheaths: rotation inside a pre-bent 8 Fr sheath, in-and-out cycles to a referenc
 
 * the **sheath** is a rigid tube of 8 capsule rails along a curve (:func:`models.fixtures.add_rails`, the
   construction of the tube fixture), described by a :class:`SheathGeometry`: a straight proximal *guide*
-  followed by bends of given radius, angle and bend direction, with curvature changes smoothed over ``ramp``;
+  followed by bends of given radius, angle and bend direction, with curvature changes smoothed over ``ramp``.
+  Each rail chord is the longest that stays within 10 µm of its rail, so a straight stretch is one capsule per
+  rail (the same solid as 4 mm pieces, without a second contact at every knot: docs/simulation.md §5);
 * the catheter's proximal end (the rod's clamp) hangs from a **hub** body with a slide joint along the guide's
   axis (insertion and withdrawal) and a hinge about it (rotation), each driven by a MuJoCo position actuator
   (docs/simulation.md §5: this works, and MuJoCo 4.0 may print "Flex stiffness is too ill-conditioned …" and carry
@@ -516,7 +518,7 @@ class SheathSetup(Setup):
         self.rails = add_rails(
             scene, "sheath", curve, self.world, width=geo.inner_diameter,
             rail_offsets=tube_rail_offsets(geo.inner_diameter, n_rails=self.n_rails), s_range=s_range,
-            friction=self.friction,
+            max_segment=None, friction=self.friction,
             solref=spec.solref, solimp=spec.contact_solimp, rgba="0.55 0.75 0.6 0.3", label=f"sheath {geo.name!r}",
         )
         targets = self.world.apply(curve.positions(self.hub_start + spec.base_length + spec.vertex_s))

@@ -177,10 +177,10 @@ class ModelError:
 #: true curvature at the gratings on every piece, against the model's variance at c = 1), where bends of 8 mm
 #: radius sampled every 10 mm make the interpolation a large error (docs/math.md §8.4; 0.042 on sheath-motion's
 #: scored run, 0.013 on the static library shapes).
-TWIN_INTERPOLATION = 0.0435
+TWIN_INTERPOLATION = 0.0460
 
 #: The model error of the default pipeline in the twin: the interpolation term (:data:`TWIN_INTERPOLATION`), with
-#: the calibration's stated 1σ of Δθ and g × 0.295, fitted on top of it for the lab calibration on the library's
+#: the calibration's stated 1σ of Δθ and g × 0.291, fitted on top of it for the lab calibration on the library's
 #: six shapes it was not identified on, held by connect constraints (scenarios/_common/coverage.py
 #: ``lab_model_error``; realistic optics; no white part needed; docs/math.md §8.4). No base angle: the twin's base
 #: pose is exact (the truth's pose at s = 0 is the rod's smooth centreline's, models/rod_state.py); a real clamp or
@@ -190,7 +190,7 @@ TWIN_INTERPOLATION = 0.0435
 #: a sheath needs ``TWIN_MODEL_ERROR.replace(twist=TWIN_SHEATH_TWIST)``. A real sensor's errors are larger — the
 #: AMIRo needle's held-out curvature error in its jig is 0.13 1/m (docs/jig.md) — so fit your own
 #: (:func:`fit_model_error`).
-TWIN_MODEL_ERROR = ModelError(interpolation=TWIN_INTERPOLATION, parameter_scale=0.295,
+TWIN_MODEL_ERROR = ModelError(interpolation=TWIN_INTERPOLATION, parameter_scale=0.291,
                               source="twin: interpolation derived on a sheath run, parameter scale for the lab "
                                      "calibration on shapes it was not identified on (docs/math.md §8.4)")
 
@@ -200,7 +200,7 @@ TWIN_MODEL_ERROR = ModelError(interpolation=TWIN_INTERPOLATION, parameter_scale=
 #: friction 0.2, seed 1, no return; 344 frames; sheath-motion's scored run has 1.45 rad/m, pushed further with
 #: more friction). Not in :data:`TWIN_MODEL_ERROR`: on the static library shapes it would widen the tube from
 #: 0.045 to 0.95 mm mean 1σ, 21 times as wide as needed (99.97 % inside; docs/math.md §8.4).
-TWIN_SHEATH_TWIST = 0.820
+TWIN_SHEATH_TWIST = 0.818
 
 
 def interpolation_order(interpolation: str) -> int:
