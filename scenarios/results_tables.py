@@ -188,7 +188,8 @@ def dynamic(r: dict[str, dict]) -> str:
          "`twin run rotation`"],
         [f"repeatability, {rep['cycles']} cycles in and out of a sheath: spread of the sensed tip, RMS distance "
          "from the mean tip / largest distance (hardware: sensing and mechanics; twin: sensing and the simulated "
-         f"catheter's mechanics, its true tip returns within {f(rep['true_max_mm'])} mm)", pair(rep["paper_std_mm"], rep["paper_max_mm"], hw),
+         f"catheter's mechanics, its true tip returns within {f(rep['true_max_mm'])} mm)",
+         pair(rep["paper_std_mm"], rep["paper_max_mm"], hw),
          pair(rep["paper_pipeline_std_mm"], rep["paper_pipeline_max_mm"]),
          pair(rep["paper_literal_std_mm"], rep["paper_literal_max_mm"]), pair(rep["std_mm"], rep["max_mm"]),
          "`twin run repeatability`"],

@@ -10,8 +10,15 @@ import pytest
 
 from models.fixtures import SettleError
 from scenarios import repeatability, rotation, sheath_motion
-from sim_interrogator.sheath_setups import (Motion, Section, SheathCycle, SheathGeometry, SheathPath, pre_bent_sheath,
-                                          vascular_sheath)
+from sim_interrogator.sheath_setups import (
+    Motion,
+    Section,
+    SheathCycle,
+    SheathGeometry,
+    SheathPath,
+    pre_bent_sheath,
+    vascular_sheath,
+)
 from twin import FiberModel
 from twin.io import open_source
 
