@@ -2,6 +2,7 @@
 experiments: geometry and motion scripts exactly, the physics on reduced runs (fast), the full experiments against
 the paper's figures (slow)."""
 
+import itertools
 import json
 import math
 
@@ -326,7 +327,7 @@ def test_sheath_rails_are_the_longest_chords_within_their_sagitta(make):
         return curve.positions(s)[None] + np.einsum("kij,rj->rki", curve.frames(s)[:, :, :2], offsets)
 
     worst = 0.0
-    for a, b in zip(knots[:-1], knots[1:]):
+    for a, b in itertools.pairwise(knots):
         s = np.linspace(a, b, 201)
         p, ends = rail_points(s), rail_points(np.array([a, b]))
         d = ends[:, 1:] - ends[:, :1]
@@ -338,7 +339,7 @@ def test_sheath_rails_are_the_longest_chords_within_their_sagitta(make):
     grid = np.linspace(knots[0], knots[-1], 20001)
     kappa = np.linalg.norm(curve.curvature(grid), axis=-1)
     kr = kappa * (1.0 + kappa * reach)
-    for a, b in zip(knots[:-3], knots[1:-2]):  # the last two pieces may have been evened out
+    for a, b in itertools.pairwise(knots[:-2]):  # the last two pieces may have been evened out
         h = b - a + 4e-4
         assert h * h * kr[(grid >= a) & (grid <= a + h)].max() > 8 * 10e-6
 
