@@ -2,6 +2,7 @@
 experiments: geometry and motion scripts exactly, the physics on reduced runs (fast), the full experiments against
 the paper's figures (slow)."""
 
+import dataclasses
 import itertools
 import json
 import math
@@ -9,7 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from models.fixtures import SettleError
+from models.catheter import Scene
+from models.fixtures import ExtendedCurve, SettleError, add_rails, tube_rail_offsets
+from models.fixtures.walls import _knots
 from scenarios import repeatability, rotation, sheath_motion
 from sim_interrogator.sheath_setups import (
     Motion,
@@ -310,6 +313,21 @@ def test_sheath_motion_full():
     assert min(r.uncertainty["coverage_95_by_quarter"]) >= 0.90
 
 
+def _largest_departure(curve, knots, offsets) -> float:
+    """The largest distance of the rails (``offsets`` in the curve's Bishop frame) from their chords between
+    ``knots``, sampled at 201 points a chord, m."""
+    def rail_points(s):  # (n_rails, len(s), 3), curve coordinates
+        return curve.positions(s)[None] + np.einsum("kij,rj->rki", curve.frames(s)[:, :, :2], offsets)
+
+    worst = 0.0
+    for a, b in itertools.pairwise(knots):
+        p, ends = rail_points(np.linspace(a, b, 201)), rail_points(np.array([a, b]))
+        d = ends[:, 1:] - ends[:, :1]
+        u = np.clip(np.einsum("rki,rki->rk", p - ends[:, :1], d) / np.einsum("rki,rki->rk", d, d), 0.0, 1.0)
+        worst = max(worst, float(np.linalg.norm(p - ends[:, :1] - u[..., None] * d, axis=-1).max()))
+    return worst
+
+
 @pytest.mark.parametrize("make", [lambda: SheathCycle(segments=50), lambda: SheathPath(segments=50)],
                          ids=["pre-bent", "vascular"])
 def test_sheath_rails_are_the_longest_chords_within_their_sagitta(make):
@@ -322,18 +340,7 @@ def test_sheath_rails_are_the_longest_chords_within_their_sagitta(make):
     rails = setup.rails
     curve, knots, offsets = rails.curve, rails.knots, rails.rail_offsets
     reach = float(np.linalg.norm(offsets, axis=1).max())
-
-    def rail_points(s):  # (n_rails, len(s), 3), curve coordinates
-        return curve.positions(s)[None] + np.einsum("kij,rj->rki", curve.frames(s)[:, :, :2], offsets)
-
-    worst = 0.0
-    for a, b in itertools.pairwise(knots):
-        s = np.linspace(a, b, 201)
-        p, ends = rail_points(s), rail_points(np.array([a, b]))
-        d = ends[:, 1:] - ends[:, :1]
-        u = np.clip(np.einsum("rki,rki->rk", p - ends[:, :1], d) / np.einsum("rki,rki->rk", d, d), 0.0, 1.0)
-        worst = max(worst, float(np.linalg.norm(p - ends[:, :1] - u[..., None] * d, axis=-1).max()))
-    assert worst <= 10e-6 + 1e-9
+    assert _largest_departure(curve, knots, offsets) <= 10e-6 + 1e-9
     assert rails.sagitta <= 10e-6 + 1e-9
 
     grid = np.linspace(knots[0], knots[-1], 20001)
@@ -343,7 +350,24 @@ def test_sheath_rails_are_the_longest_chords_within_their_sagitta(make):
         h = b - a + 4e-4
         assert h * h * kr[(grid >= a) & (grid <= a + h)].max() > 8 * 10e-6
 
-    # the guide is exactly straight: one capsule covers it to within the knots' 0.2 mm grid of the first bend
+    # the guide is exactly straight: one capsule covers it to within the knots' 0.2 mm grid (and this grid's step)
+    # of the first bend
     first_bent = grid[np.argmax(kappa > 0.0)]
-    assert np.count_nonzero(knots < first_bent - 2e-4) == 1 and knots[1] > first_bent - 2e-4
-    assert rails.n_geoms == len(offsets) * (len(knots) - 1)
+    near = 2e-4 + (grid[1] - grid[0])
+    assert np.count_nonzero(knots < first_bent - near) == 1 and knots[1] > first_bent - near
+    capped = _knots(curve, knots[0], knots[-1], reach, 4e-3, 10e-6)
+    assert len(knots) < 0.75 * len(capped)  # 4 mm pieces: 2.6 (pre-bent) and 1.46 (vascular) times as many
+
+
+def test_rails_without_a_cap_even_the_end_only_within_the_bound():
+    """A rail range ending just past a straight run: the last piece is a sliver after a long straight chord, and
+    halving the two would run the second half into the bend; the knots keep every chord within the sagitta."""
+    geo = dataclasses.replace(pre_bent_sheath(), ramp=2e-4)  # the bend starts (almost) at once at 200 mm
+    curve = ExtendedCurve(geo.shape, 0.0, 0.01)
+    offsets = tube_rail_offsets(geo.inner_diameter)
+    reach = float(np.linalg.norm(offsets, axis=1).max())
+    for end in (0.2012, 0.202, 0.205, 0.21):
+        knots = _knots(curve, 0.0, end, reach, None, 10e-6)
+        assert _largest_departure(curve, knots, offsets) <= 10e-6 + 1e-9, end
+    with pytest.raises(ValueError, match="sheath: max_sagitta and max_segment must be > 0 m"):
+        add_rails(Scene("t"), "sheath", curve, width=geo.inner_diameter, rail_offsets=offsets, max_sagitta=0.0)
