@@ -197,9 +197,10 @@ TWIN_MODEL_ERROR = ModelError(interpolation=TWIN_INTERPOLATION, parameter_scale=
 #: 1σ of the constant twist rate the twin's catheter takes in its sheath, rad/m (the fibre does not measure it):
 #: the RMS over frames of the least-squares τ in ψ(s) = τ s fitted to the rod's true twist angle on a sheath run
 #: other than the one scored (scenarios/_common/coverage.py ``sheath_terms``: hub from 40 mm, 150 mm in,
-#: friction 0.2, seed 1, no return; 344 frames; sheath-motion's scored run has 1.45 rad/m, pushed further with
-#: more friction). Not in :data:`TWIN_MODEL_ERROR`: on the static library shapes it would widen the tube from
-#: 0.045 to 0.95 mm mean 1σ, 21 times as wide as needed (99.97 % inside; docs/math.md §8.4).
+#: friction 0.2, seed 1, no return; 344 frames; sheath-motion's scored run, pushed further with more friction,
+#: had 1.45 rad/m before the sheath's straight runs became one capsule). Not in :data:`TWIN_MODEL_ERROR`: on
+#: the static library shapes it would widen the tube from 0.045 to 0.95 mm mean 1σ, 21 times as wide as needed
+#: (99.97 % inside, with c = 0.0435; docs/math.md §8.4).
 TWIN_SHEATH_TWIST = 0.818
 
 
