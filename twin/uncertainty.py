@@ -176,7 +176,7 @@ class ModelError:
 #: :func:`scenarios._common.coverage.interpolation_constant`: the actual angle error of the spline through the
 #: true curvature at the gratings on every piece, against the model's variance at c = 1), where bends of 8 mm
 #: radius sampled every 10 mm make the interpolation a large error (docs/math.md §8.4; 0.042 on sheath-motion's
-#: scored run, 0.013 on the static library shapes).
+#: scored run with the sheath's former 4 mm rails, 0.013 on the static library shapes).
 TWIN_INTERPOLATION = 0.0460
 
 #: The model error of the default pipeline in the twin: the interpolation term (:data:`TWIN_INTERPOLATION`), with
